@@ -1,0 +1,42 @@
+"""Entry point of the ``cadnerf`` console command."""
+
+from __future__ import annotations
+
+import logging
+
+import typer
+
+app = typer.Typer(
+    name="cadnerf",
+    help="CAD-NeRF: camera poses, novel views, an orbit video and a mesh from 3-10 photos.",
+    no_args_is_help=True,
+    add_completion=False,
+    pretty_exceptions_enable=False,
+)
+
+
+@app.callback()
+def _configure(
+    verbose: bool = typer.Option(False, "--verbose", "-v", help="Debug logging."),
+) -> None:
+    logging.basicConfig(level=logging.DEBUG if verbose else logging.INFO,
+                        format="%(asctime)s %(levelname)s %(name)s: %(message)s")
+
+
+def _register() -> None:
+    # Each module adds its own commands (a `register(app)` function); one line per module.
+    # --- commands ---
+    from cadnerf_cli import dataset_cmd
+    dataset_cmd.register(app)
+
+
+_register()
+
+
+def main() -> None:
+    """Run the command line."""
+    app()
+
+
+if __name__ == "__main__":
+    main()
