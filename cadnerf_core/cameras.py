@@ -13,10 +13,12 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
-import torch
+
+if TYPE_CHECKING:  # torch is imported lazily: most users of this module never need it.
+    import torch
 
 # OpenCV <-> OpenGL camera axes (its own inverse).
 CV_TO_GL = np.diag([1.0, -1.0, -1.0, 1.0])
@@ -158,6 +160,8 @@ def from_transforms_json(data: dict[str, Any], width: int,
 
 def _skew(v: torch.Tensor) -> torch.Tensor:
     """Cross-product matrices. v [..., 3] -> [..., 3, 3]."""
+    import torch
+
     zero = torch.zeros_like(v[..., 0])
     return torch.stack([
         torch.stack([zero, -v[..., 2], v[..., 1]], -1),
@@ -168,6 +172,8 @@ def _skew(v: torch.Tensor) -> torch.Tensor:
 
 def axis_angle_to_matrix(rotvec: torch.Tensor) -> torch.Tensor:
     """Rodrigues' formula, differentiable at zero. rotvec [..., 3] -> R [..., 3, 3]."""
+    import torch
+
     theta2 = (rotvec * rotvec).sum(-1, keepdim=True)[..., None]  # [..., 1, 1]
     theta = torch.sqrt(theta2 + 1e-12)
     small = theta2 < 1e-8
@@ -187,6 +193,8 @@ def se3_exp(xi: torch.Tensor) -> torch.Tensor:
     Returns:
         T: [..., 4, 4] with T[:3, :3] = exp(rotvec), T[:3, 3] = translation.
     """
+    import torch
+
     R = axis_angle_to_matrix(xi[..., :3])
     top = torch.cat([R, xi[..., 3:, None]], -1)
     bottom = torch.zeros_like(top[..., :1, :])
