@@ -1,0 +1,39 @@
+"""Shared fixtures: a tiny CAD library built once per test session."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+import pytest
+
+TINY_MODELS = ["chair_wood", "mug", "cuboid_slab"]
+"""Models of the tiny library: a chair, a mug and a cuboid."""
+
+
+def build_tiny_library(root: Path) -> Path:
+    """Build the tiny library into ``root``: 8 azimuths x 2 elevations, 32 px crops, 32^3 grid.
+
+    Returns:
+        The library folder.
+    """
+    from cadnerf_core.library import LibrarySpec
+    from library_data.build import build_library
+
+    spec = LibrarySpec(n_azimuths=8, elevations=(0.0, 30.0), silhouette_size=32, grid_size=32)
+    build_library(root, spec, jobs=1, model_ids=TINY_MODELS)
+    return root
+
+
+@pytest.fixture(scope="session")
+def tiny_library_dir(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """Folder of the tiny library (built once per session; do not modify it)."""
+    return build_tiny_library(tmp_path_factory.mktemp("tiny_library") / "library")
+
+
+@pytest.fixture(scope="session")
+def tiny_library(tiny_library_dir: Path) -> Any:
+    """The tiny library, loaded (a ``cadnerf_core.library.Library``; its folder is ``.root``)."""
+    from cadnerf_core.library import load_library
+
+    return load_library(tiny_library_dir)
