@@ -1,0 +1,164 @@
+"""``cadnerf retrieve``: the CAD model and a camera pose for every photo, without training."""
+
+from __future__ import annotations
+
+import json
+from enum import StrEnum
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+import typer
+
+if TYPE_CHECKING:
+    import numpy as np
+
+    from cadnerf_core.library import Library
+    from cadnerf_core.photos import Photo
+    from cadnerf_core.retrieval import RetrievalResult
+
+class Solver(StrEnum):
+    """Pose solver."""
+
+    dp = "dp"
+    paper = "paper"
+
+
+TILE = 128  # pixels per tile in the match pictures
+MASK_EXTENSIONS = (".png", ".jpg", ".jpeg", ".webp", ".bmp")
+
+
+def resolve_mask_paths(photos: list[Path], masks: list[Path]) -> list[Path] | None:
+    """The mask of each photo: the given files in order, or one folder matched by file stem.
+
+    Raises:
+        FileNotFoundError: a photo has no mask of the same stem in the folder.
+    """
+    if not masks:
+        return None
+    if len(masks) == 1 and masks[0].is_dir():
+        found = []
+        for photo in photos:
+            candidates = [masks[0] / f"{photo.stem}{ext}" for ext in MASK_EXTENSIONS]
+            match = next((c for c in candidates if c.is_file()), None)
+            if match is None:
+                raise FileNotFoundError(f"{photo.name}: no mask named {photo.stem}.png (or "
+                                        f".jpg, .webp) in {masks[0]}")
+            found.append(match)
+        return found
+    return masks
+
+
+def _label(tile: np.ndarray, text: str) -> np.ndarray:
+    """Write ``text`` on the top-left of an RGB uint8 tile (in place) and return it."""
+    import cv2
+
+    cv2.putText(tile, text, (3, 12), cv2.FONT_HERSHEY_SIMPLEX, 0.35, (0, 0, 0), 2, cv2.LINE_AA)
+    cv2.putText(tile, text, (3, 12), cv2.FONT_HERSHEY_SIMPLEX, 0.35, (255, 255, 0), 1,
+                cv2.LINE_AA)
+    return tile
+
+
+def match_rows(photos: list[Photo], masks: list[np.ndarray], library: Library,
+               result: RetrievalResult) -> list[np.ndarray]:
+    """One picture per photo: canonical crop, its mask, the matched silhouette, the overlay.
+
+    In the overlay, white is both, red the photo's mask only, cyan the silhouette only.
+
+    Args:
+        photos, masks: the photos and their full masks [H_i, W_i] bool.
+        library: the library retrieved from.
+        result: the retrieval result.
+    Returns:
+        One [TILE, 4 * TILE, 3] uint8 RGB row per photo.
+    """
+    import cv2
+    import numpy as np
+
+    from cadnerf_core.photos import canonical_views
+
+    spec = library.spec
+    rgb, crops, _ = canonical_views(photos, masks, spec.silhouette_size, spec.margin)
+    m = library.index(result.model_id)
+    rows = []
+    for match, image, crop in zip(result.matches, rgb, crops, strict=True):
+        sil = library.silhouettes[m, match.view]
+        overlay = np.stack([crop, sil, sil], axis=-1).astype(np.float32)
+        tiles = [image, np.repeat(crop[..., None], 3, -1), np.repeat(sil[..., None], 3, -1),
+                 overlay]
+        tiles = [cv2.resize((t * 255).astype(np.uint8), (TILE, TILE),
+                            interpolation=cv2.INTER_NEAREST) for t in tiles]
+        state = "discarded" if match.discarded else f"IoU {match.iou:.2f}"
+        _label(tiles[0], match.name[:20])
+        _label(tiles[2], f"az {match.azimuth:.0f} el {match.elevation:.0f}")
+        _label(tiles[3], state)
+        rows.append(np.concatenate(tiles, axis=1))
+    return rows
+
+
+def write_pictures(out: Path, rows: list[np.ndarray], names: list[str]) -> Path:
+    """Write one PNG per photo and the combined ``sheet.png``. Returns the sheet's path."""
+    import numpy as np
+    from PIL import Image
+
+    out.mkdir(parents=True, exist_ok=True)
+    for i, (row, name) in enumerate(zip(rows, names, strict=True)):
+        Image.fromarray(row).save(out / f"{i:03d}_{Path(name).stem}.png")
+    sheet = out / "sheet.png"
+    Image.fromarray(np.concatenate(rows, axis=0)).save(sheet)
+    return sheet
+
+
+def summary_lines(result: RetrievalResult) -> list[str]:
+    """Human-readable lines: the model, the top models, and a line per photo."""
+    lines = [f"model: {result.model_id} ({result.category})  solver: {result.solver}  "
+             f"direction: {result.direction:+d}", "top models:"]
+    lines += [f"  {t['model_id']:<24} {t['category']:<12} votes {t['votes']}  "
+              f"summed IoU {t['score']:.2f}" for t in result.top_models]
+    lines.append("photos:")
+    for m in result.matches:
+        flag = "  DISCARDED" if m.discarded else ""
+        lines.append(f"  {m.index:>2} {m.name:<28} view {m.view:>3}  az {m.azimuth:5.1f}  "
+                     f"el {m.elevation:4.1f}  IoU {m.iou:.3f}{flag}")
+    return lines
+
+
+def retrieve_command(
+    photos: list[Path] = typer.Argument(..., help="Photos in walking order (JPEG, PNG, WebP)."),
+    masks: list[Path] = typer.Option([], "--masks", "-m", help="A mask per photo, in order "
+                                     "(repeat the option), or one folder of masks named "
+                                     "like the photos."),
+    library: Path = typer.Option(Path("library_data/build"), "--library",
+                                 help="Library folder."),
+    solver: Solver = typer.Option(Solver.dp, "--solver", help="Pose solver: dp (ours, exact "
+                                  "cyclic order) or paper (Algorithm 1)."),
+    as_json: bool = typer.Option(False, "--json", help="Print the result as JSON."),
+    out: Path | None = typer.Option(None, "--out", help="Folder for match pictures."),
+) -> None:
+    """Find the CAD model and a library pose for every photo."""
+    from cadnerf_core.errors import CadNerfError
+    from cadnerf_core.library import load_library
+    from cadnerf_core.masks import photo_masks
+    from cadnerf_core.photos import load_photos
+    from cadnerf_core.retrieval import RetrievalConfig, retrieve
+
+    try:
+        loaded = load_photos(photos, resolve_mask_paths(photos, masks))
+        found = photo_masks(loaded)
+        lib = load_library(library)
+        config = RetrievalConfig(solver="paper" if solver == Solver.paper else "dp")
+        result = retrieve(found, [p.name for p in loaded], lib, config)
+    except (CadNerfError, FileNotFoundError) as exc:
+        typer.echo(f"error: {exc}", err=True)
+        raise typer.Exit(code=2) from None
+    if out is not None:
+        sheet = write_pictures(out, match_rows(loaded, found, lib, result),
+                               [p.name for p in loaded])
+        if not as_json:
+            typer.echo(f"pictures: {sheet}")
+    data: dict[str, Any] = result.to_json()
+    typer.echo(json.dumps(data, indent=1) if as_json else "\n".join(summary_lines(result)))
+
+
+def register(app: typer.Typer) -> None:
+    """Add the ``retrieve`` command to ``app``."""
+    app.command("retrieve")(retrieve_command)

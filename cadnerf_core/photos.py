@@ -1,0 +1,211 @@
+"""Photo intake: read photos and optional masks, with clear errors naming the photo.
+
+Photos are JPEG, PNG or WebP (read with Pillow). The EXIF orientation is applied, so a photo
+comes out the way a viewer shows it. A photo with real transparency (an alpha channel not fully
+opaque) gives its mask (alpha > one half) and is composited on white. The size is checked from
+the header before any pixel is decoded, so a huge photo costs nothing to refuse.
+"""
+
+from __future__ import annotations
+
+import io
+from collections.abc import Sequence
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+from PIL import Image, ImageOps, UnidentifiedImageError
+
+from cadnerf_core.crop import DEFAULT_MARGIN, CropBox, apply_crop, canonical_box
+from cadnerf_core.errors import InputError
+
+MIN_SIDE = 64  # pixels: smaller photos hold too little of the object
+MAX_PIXELS = 40_000_000  # 40 megapixels: larger photos are refused before decoding
+PHOTO_FORMATS = frozenset({"JPEG", "MPO", "PNG", "WEBP"})  # MPO: phone JPEGs with a depth map
+
+# A photo given as a path, raw bytes, or (name, bytes).
+PhotoSource = str | Path | bytes | tuple[str, bytes]
+
+
+@dataclass
+class Photo:
+    """One input photo.
+
+    ``rgb``: [H, W, 3] float32 in [0, 1]; ``mask``: [H, W] bool from the photo's alpha or the
+    user's mask, ``None`` when the photo brings none (background removal then makes one).
+    """
+
+    name: str
+    rgb: np.ndarray
+    mask: np.ndarray | None = None
+
+
+def _read_source(source: PhotoSource, index: int) -> tuple[str, bytes]:
+    """Name and raw bytes of a source; InputError if a path cannot be read."""
+    if isinstance(source, tuple):
+        return source[0], source[1]
+    if isinstance(source, bytes):
+        return f"photo {index + 1}", source
+    path = Path(source)
+    try:
+        return path.name, path.read_bytes()
+    except OSError as exc:
+        raise InputError(f"cannot read the file ({exc.strerror or exc})", item=path.name,
+                         hint="check the path") from exc
+
+
+def _open_image(name: str, data: bytes, what: str, formats: frozenset[str] | None) -> Image.Image:
+    """Open (lazily: header only) and check size limits. InputError names ``name``."""
+    if not data:
+        raise InputError(f"the {what} file is empty (0 bytes)", item=name,
+                         hint="upload the file again")
+    try:
+        image = Image.open(io.BytesIO(data))
+    except Image.DecompressionBombError as exc:
+        raise InputError(f"the {what} is far over {MAX_PIXELS // 1_000_000} megapixels",
+                         item=name, hint="downscale it before uploading") from exc
+    except (UnidentifiedImageError, OSError, ValueError, SyntaxError) as exc:
+        raise InputError(f"the {what} is not an image that can be read", item=name,
+                         hint="use JPEG, PNG or WebP") from exc
+    if formats is not None and image.format not in formats:
+        raise InputError(f"the {what} is in {image.format} format", item=name,
+                         hint="use JPEG, PNG or WebP")
+    width, height = image.size
+    if width * height > MAX_PIXELS:
+        raise InputError(f"the {what} is {width}x{height} pixels, over "
+                         f"{MAX_PIXELS // 1_000_000} megapixels", item=name,
+                         hint="downscale it before uploading")
+    if min(width, height) < MIN_SIDE:
+        raise InputError(f"the {what} is only {width}x{height} pixels", item=name,
+                         hint=f"use photos at least {MIN_SIDE} pixels on each side")
+    return image
+
+
+# EXIF orientation tag value -> the transpose that shows the image upright.
+_ORIENTATION = {2: Image.Transpose.FLIP_LEFT_RIGHT, 3: Image.Transpose.ROTATE_180,
+                4: Image.Transpose.FLIP_TOP_BOTTOM, 5: Image.Transpose.TRANSPOSE,
+                6: Image.Transpose.ROTATE_270, 7: Image.Transpose.TRANSVERSE,
+                8: Image.Transpose.ROTATE_90}
+_EXIF_ORIENTATION_TAG = 0x0112
+
+
+def _decode(image: Image.Image, name: str, what: str) -> Image.Image:
+    """Decode all pixels and apply the EXIF orientation. InputError if the data is damaged."""
+    try:
+        image.load()
+        return ImageOps.exif_transpose(image)
+    except (OSError, ValueError, SyntaxError, Image.DecompressionBombError) as exc:
+        raise InputError(f"the {what} is damaged or truncated", item=name,
+                         hint="export or upload it again") from exc
+
+
+def _has_transparency(image: Image.Image) -> bool:
+    return image.mode in ("RGBA", "LA", "PA") or (
+        image.mode == "P" and "transparency" in image.info)
+
+
+def _to_array(image: Image.Image) -> tuple[np.ndarray, np.ndarray | None]:
+    """RGB [H, W, 3] float32 in [0, 1] and the alpha mask (None without real transparency)."""
+    if image.mode in ("I", "I;16", "I;16B", "I;16L", "F"):
+        gray = np.asarray(image, dtype=np.float32)
+        gray = gray / (65535.0 if gray.max() > 255 else 255.0)
+        return np.repeat(np.clip(gray, 0, 1)[..., None], 3, axis=2), None
+    if not _has_transparency(image):
+        return np.asarray(image.convert("RGB"), dtype=np.float32) / 255.0, None
+    rgba = np.asarray(image.convert("RGBA"), dtype=np.float32) / 255.0
+    alpha = rgba[..., 3:]
+    mask = alpha[..., 0] > 0.5
+    if mask.all():
+        return rgba[..., :3].copy(), None
+    return rgba[..., :3] * alpha + (1.0 - alpha), mask
+
+
+def _mask_array(image: Image.Image) -> np.ndarray:
+    """A mask image as bool [H, W]: its alpha if it has real transparency, else nonzero pixels."""
+    if _has_transparency(image):
+        alpha = np.asarray(image.convert("RGBA"))[..., 3]
+        if (alpha < 128).any():
+            return alpha >= 128
+    return np.asarray(image.convert("L")) > 0
+
+
+def load_photo(source: PhotoSource, index: int = 0, mask: PhotoSource | None = None) -> Photo:
+    """Read one photo (and its mask). See ``load_photos``."""
+    name, data = _read_source(source, index)
+    raw = _open_image(name, data, "photo", PHOTO_FORMATS)
+    orientation = raw.getexif().get(_EXIF_ORIENTATION_TAG, 1)
+    raw_size = raw.size
+    rgb, alpha_mask = _to_array(_decode(raw, name, "photo"))
+    if mask is None:
+        return Photo(name, rgb, alpha_mask)
+    mask_name, mask_data = _read_source(mask, index)
+    mask_image = _decode(_open_image(name, mask_data, f"mask ({mask_name})", None), name, "mask")
+    if mask_image.size == raw_size != (rgb.shape[1], rgb.shape[0]) and orientation in _ORIENTATION:
+        # A mask drawn on the photo's stored pixels (before its EXIF rotation): rotate it alike.
+        mask_image = mask_image.transpose(_ORIENTATION[orientation])
+    user_mask = _mask_array(mask_image)
+    if user_mask.shape != rgb.shape[:2]:
+        (h, w), (mh, mw) = rgb.shape[:2], user_mask.shape
+        raise InputError(f"the mask is {mw}x{mh} pixels but the photo is {w}x{h}", item=name,
+                         hint="give a mask of the same size as its photo, in the same order")
+    return Photo(name, rgb, user_mask)
+
+
+def load_photos(paths: Sequence[PhotoSource],
+                mask_paths: Sequence[PhotoSource] | None = None) -> list[Photo]:
+    """Read ordered photos and, optionally, one mask per photo in the same order.
+
+    Args:
+        paths: photo files (path, raw bytes, or (name, bytes)); JPEG, PNG or WebP.
+        mask_paths: masks in the same order, any image format; nonzero (or opaque) = object.
+            A mask the size of the photo's stored pixels, where the photo's EXIF orientation
+            rotates it to another size, gets the same rotation.
+    Returns:
+        One ``Photo`` per input, in order.
+    Raises:
+        InputError: naming the photo, for an unreadable, empty, damaged, tiny (< 64 px a side)
+            or huge (> 40 MP) file, or a mask whose size differs from its photo's.
+    """
+    if mask_paths is not None and len(mask_paths) != len(paths):
+        raise InputError(f"{len(mask_paths)} masks for {len(paths)} photos", item="masks",
+                         hint="give one mask per photo, in the same order, or none")
+    masks: Sequence[PhotoSource | None] = mask_paths or [None] * len(paths)
+    return [load_photo(src, i, m) for i, (src, m) in enumerate(zip(paths, masks, strict=True))]
+
+
+def canonical_masks(masks: Sequence[np.ndarray], size: int,
+                    margin: float = DEFAULT_MARGIN) -> tuple[np.ndarray, list[CropBox]]:
+    """Canonical crops of full-photo masks.
+
+    Args:
+        masks: N masks [H_i, W_i] bool (sizes may differ).
+        size: output side S in pixels.
+        margin: free fraction of the crop on each side.
+    Returns:
+        crops [N, S, S] bool and each photo's CropBox (photo pixels -> crop pixels).
+    """
+    boxes = [canonical_box(mask, size, margin) for mask in masks]
+    crops = np.stack([apply_crop(mask, box) for mask, box in zip(masks, boxes, strict=True)])
+    return crops, boxes
+
+
+def canonical_views(photos: Sequence[Photo], masks: Sequence[np.ndarray], size: int,
+                    margin: float = DEFAULT_MARGIN,
+                    ) -> tuple[np.ndarray, np.ndarray, list[CropBox]]:
+    """Canonical crops of photos (composited on white) and their masks, for training.
+
+    Args:
+        photos: N photos.
+        masks: N masks [H_i, W_i] bool, one per photo.
+        size: output side S in pixels.
+        margin: free fraction of the crop on each side.
+    Returns:
+        rgb [N, S, S, 3] float32 on white, mask [N, S, S] bool, and the N CropBoxes.
+    """
+    crops, boxes = canonical_masks(masks, size, margin)
+    rgbs = []
+    for photo, mask, box in zip(photos, masks, boxes, strict=True):
+        alpha = apply_crop(mask.astype(np.float32), box)[..., None]
+        rgb = apply_crop(photo.rgb.astype(np.float32), box, fill=1.0)
+        rgbs.append(np.clip(rgb * alpha + (1.0 - alpha), 0.0, 1.0))
+    return np.stack(rgbs).astype(np.float32), crops, boxes

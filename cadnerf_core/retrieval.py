@@ -1,0 +1,258 @@
+"""CAD model and pose retrieval from photo masks.
+
+Each photo's mask is cropped canonically (as the library's silhouettes were), compared by IoU
+with every silhouette of every model at once, the model is chosen by votes, and one library
+view per photo is found by a pose solver (``posesearch``). A photo matched to view v of model m
+gets the camera ``c2w = library.poses[v]``, intrinsics ``K_canon`` in the canonical crop, and
+``K_photo`` in its own pixels: exact, since both crops are affine maps of pixel coordinates.
+"""
+
+from __future__ import annotations
+
+import logging
+from collections.abc import Sequence
+from dataclasses import dataclass
+from typing import TYPE_CHECKING, Any, Literal
+
+import numpy as np
+from pydantic import BaseModel, ConfigDict, Field
+
+from cadnerf_core.crop import CropBox, uncrop_intrinsics
+from cadnerf_core.photos import canonical_masks
+from cadnerf_core.posesearch import PoseSearchResult, cyclic_dp, paper_algorithm1
+from cadnerf_core.progress import Progress
+
+if TYPE_CHECKING:
+    from cadnerf_core.library import Library
+
+log = logging.getLogger(__name__)
+
+TOP_MODELS = 5  # models listed in a result, best first
+
+
+class RetrievalConfig(BaseModel):
+    """How models and poses are retrieved."""
+
+    model_config = ConfigDict(frozen=True, extra="forbid", use_attribute_docstrings=True)
+
+    solver: Literal["dp", "paper"] = "dp"
+    """Pose solver: "dp" (exact cyclic dynamic programme, ours) or "paper" (Algorithm 1)."""
+    top_k: int = Field(default=10, ge=1)
+    """Candidate views per photo in the paper's solver (the DP considers every view)."""
+    max_discard: int = Field(default=2, ge=0)
+    """Most photos either solver may discard."""
+    discard_penalty: float = Field(default=0.3, ge=0.0)
+    """DP only: IoU a discard costs; a photo is dropped only if keeping it costs more."""
+    cyclic: bool = True
+    """DP only: the walk may start at any azimuth and wrap once (the paper's may not)."""
+    both_directions: bool = True
+    """DP only: also try the walk with decreasing azimuth."""
+    direction_margin: float = Field(default=0.005, ge=0.0)
+    """DP only: IoU per photo by which a decreasing walk must beat an increasing one. A
+    mirror-symmetric object's walk and its front/back flip (which runs the other way) nearly
+    tie; the margin falls back on the paper's increasing order when the evidence is weak."""
+    model_choice: Literal["votes", "walk"] = "votes"
+    """"votes": the model most photos' best views belong to (the paper). "walk": of the five
+    models with most votes, the one whose best ordered walk (the pose solver's score) is best."""
+    size: int | None = Field(default=None, ge=8)
+    """Side in pixels of the canonical crop that ``K_canon`` and ``box`` refer to; None =
+    the library's silhouette size. (IoU is always computed at the library's size.)"""
+
+
+@dataclass
+class PhotoMatch:
+    """One photo's retrieved camera.
+
+    ``view``: library view index (a discarded photo keeps its own best view, flagged);
+    ``c2w [4, 4]``: library pose; ``K_canon [3, 3]``: intrinsics in the canonical crop of
+    ``box.size`` px; ``box``: photo -> canonical crop; ``K_photo [3, 3]``: in photo pixels.
+    """
+
+    index: int
+    name: str
+    view: int
+    azimuth: float
+    elevation: float
+    iou: float
+    discarded: bool
+    c2w: np.ndarray
+    K_canon: np.ndarray
+    box: CropBox
+    K_photo: np.ndarray
+
+    def to_json(self) -> dict[str, Any]:
+        """JSON-ready form (matrices as nested lists)."""
+        return {"index": self.index, "name": self.name, "view": self.view,
+                "azimuth": self.azimuth, "elevation": self.elevation, "iou": self.iou,
+                "discarded": self.discarded, "c2w": self.c2w.tolist(),
+                "K_canon": self.K_canon.tolist(), "box": self.box.to_dict(),
+                "K_photo": self.K_photo.tolist()}
+
+
+@dataclass
+class RetrievalResult:
+    """The chosen model, the best models by votes, and every photo's match."""
+
+    model_id: str
+    category: str
+    top_models: list[dict[str, Any]]
+    matches: list[PhotoMatch]
+    solver: str
+    direction: int
+    score: float
+
+    @property
+    def kept(self) -> list[PhotoMatch]:
+        """Matches of the photos that were not discarded."""
+        return [m for m in self.matches if not m.discarded]
+
+    def to_json(self) -> dict[str, Any]:
+        """JSON-ready form (the ``retrieval.json`` of a job)."""
+        return {"model_id": self.model_id, "category": self.category,
+                "top_models": self.top_models, "solver": self.solver,
+                "direction": self.direction, "score": self.score,
+                "discarded": [m.index for m in self.matches if m.discarded],
+                "matches": [m.to_json() for m in self.matches]}
+
+
+def _pack_bits(flat: np.ndarray) -> np.ndarray:
+    """Bit-pack rows of a bool matrix [K, N] into uint64 words [K, ceil(N / 64)]."""
+    packed = np.packbits(flat, axis=1)
+    pad = (-packed.shape[1]) % 8
+    if pad:
+        packed = np.pad(packed, ((0, 0), (0, pad)))
+    return np.ascontiguousarray(packed).view(np.uint64)
+
+
+def _popcount(words: np.ndarray) -> np.ndarray:
+    """Set bits per row of uint64 words [..., W]. Returns [...] int64."""
+    if hasattr(np, "bitwise_count"):  # numpy >= 2
+        return np.bitwise_count(words).sum(-1, dtype=np.int64)
+    as_bytes = words.view(np.uint8)
+    return _BYTE_BITS[as_bytes].sum(-1, dtype=np.int64)
+
+
+_BYTE_BITS = np.array([bin(i).count("1") for i in range(256)], dtype=np.uint8)
+
+
+def iou_table(masks: np.ndarray, silhouettes: np.ndarray) -> np.ndarray:
+    """IoU of every mask with every silhouette, by popcount over bit-packed masks.
+
+    Args:
+        masks: [P, S, S] bool canonical photo masks.
+        silhouettes: [M, V, S, S] bool canonical library silhouettes.
+    Returns:
+        iou: [P, M, V] float32 (0 where both are empty).
+    """
+    n_models, n_views = silhouettes.shape[:2]
+    lib = _pack_bits(silhouettes.reshape(n_models * n_views, -1))  # [M*V, W]
+    photos = _pack_bits(masks.reshape(len(masks), -1))  # [P, W]
+    area_lib = _popcount(lib)
+    area_photo = _popcount(photos)
+    # One pass over the whole library per photo (P <= 10): [M*V, W] words at a time.
+    inter = np.stack([_popcount(lib & words) for words in photos])  # [P, M*V]
+    union = area_photo[:, None] + area_lib[None, :] - inter
+    iou = np.divide(inter, union, out=np.zeros(inter.shape), where=union > 0)
+    return iou.astype(np.float32).reshape(len(masks), n_models, n_views)
+
+
+def vote_models(iou: np.ndarray) -> tuple[int, list[tuple[int, int, float]]]:
+    """Choose a model: each photo votes for the model of its best view.
+
+    Most votes wins; ties go to the larger summed best IoU over all photos.
+
+    Args:
+        iou: [P, M, V].
+    Returns:
+        the chosen model index, and (model, votes, summed best IoU) of every model, best first.
+    """
+    best = iou.max(axis=2)  # [P, M]
+    votes = np.bincount(best.argmax(axis=1), minlength=iou.shape[1])
+    scores = best.sum(axis=0)
+    order = sorted(range(iou.shape[1]), key=lambda m: (-int(votes[m]), -float(scores[m]), m))
+    ranking = [(m, int(votes[m]), float(scores[m])) for m in order]
+    return order[0], ranking
+
+
+def azimuth_bins(az_el: np.ndarray, n_azimuths: int) -> np.ndarray:
+    """Azimuth bin of every library view. az_el [V, 2] degrees -> [V] int."""
+    step = 360.0 / n_azimuths
+    return np.round(az_el[:, 0] / step).astype(np.int64) % n_azimuths
+
+
+def solve_poses(iou: np.ndarray, az_index: np.ndarray, n_azimuths: int,
+                config: RetrievalConfig) -> PoseSearchResult:
+    """Run the configured pose solver on one model's IoU table.
+
+    Args:
+        iou: [P, V] IoU of each photo with each view.
+        az_index: [V] azimuth bin of each view.
+        n_azimuths: number of azimuth bins.
+    Returns:
+        chosen views (-1 = discarded), score and direction.
+    """
+    if config.solver == "paper":
+        found = paper_algorithm1(iou, az_index, config.top_k, config.max_discard)
+        if np.isfinite(found.score):
+            return found
+        # No ordered choice among the top-k: fall back on each photo's own best view.
+        log.warning("the paper's solver found no ordered poses; using each photo's best view")
+        return PoseSearchResult(np.argmax(iou, axis=1), float(iou.max(axis=1).sum()), 1)
+    return cyclic_dp(iou, az_index, n_azimuths, config.discard_penalty, config.max_discard,
+                     config.both_directions, config.cyclic,
+                     backward_cost=config.direction_margin * len(iou))
+
+
+def _match(library: Library, m: int, p: int, name: str, view: int, discarded: bool,
+           iou: float, box: CropBox) -> PhotoMatch:
+    """Build one photo's match from its library view and crop box."""
+    K_canon = library.canonical_K(m, view, box.size)
+    azimuth, elevation = (float(x) for x in library.az_el[view])
+    return PhotoMatch(p, name, view, azimuth, elevation, iou, discarded,
+                      library.poses[view].copy(), K_canon, box, uncrop_intrinsics(K_canon, box))
+
+
+def retrieve(masks: Sequence[np.ndarray], names: Sequence[str], library: Library,
+             config: RetrievalConfig | None = None,
+             progress: Progress | None = None) -> RetrievalResult:
+    """Retrieve the CAD model and a library pose for every photo.
+
+    Args:
+        masks: P full-photo masks [H_i, W_i] bool, in walking order.
+        names: P photo names.
+        library: the loaded library.
+        config: solver settings (defaults when None).
+        progress: reports stage "retrieval" (2 steps) and checks for cancellation.
+    Returns:
+        The RetrievalResult.
+    """
+    config = config or RetrievalConfig()
+    spec = library.spec
+    crops, boxes = canonical_masks(masks, spec.silhouette_size, spec.margin)
+    iou = iou_table(crops, library.silhouettes)
+    m, ranking = vote_models(iou)
+    if progress is not None:
+        progress.step("retrieval", 1, 2)
+    az_index = azimuth_bins(library.az_el, spec.n_azimuths)
+    found = solve_poses(iou[:, m, :], az_index, spec.n_azimuths, config)
+    if config.model_choice == "walk":
+        for other, _, _ in ranking[1:TOP_MODELS]:
+            walk = solve_poses(iou[:, other, :], az_index, spec.n_azimuths, config)
+            if walk.score > found.score:
+                m, found = other, walk
+    size = config.size or spec.silhouette_size
+    matches = []
+    for p, view in enumerate(found.views):
+        discarded = bool(view < 0)
+        v = int(np.argmax(iou[p, m])) if discarded else int(view)
+        box = CropBox(boxes[p].x0, boxes[p].y0, boxes[p].side, size)
+        matches.append(_match(library, m, p, names[p], v, discarded, float(iou[p, m, v]), box))
+    top = [{"model_id": library.models[i].id, "category": library.models[i].category,
+            "votes": votes, "score": score} for i, votes, score in ranking[:TOP_MODELS]]
+    entry = library.models[m]
+    log.info("retrieved %s (%s) with %s: %d of %d photos kept", entry.id, entry.category,
+             config.solver, sum(not x.discarded for x in matches), len(matches))
+    if progress is not None:
+        progress.step("retrieval", 2, 2)
+    return RetrievalResult(entry.id, entry.category, top, matches, config.solver,
+                           found.direction, found.score)

@@ -1,0 +1,152 @@
+"""Photo intake: formats, EXIF, alpha, masks, and errors that name the photo."""
+
+from __future__ import annotations
+
+import io
+from pathlib import Path
+
+import numpy as np
+import pytest
+from PIL import Image
+
+from cadnerf_core.errors import InputError
+from cadnerf_core.photos import canonical_masks, canonical_views, load_photos
+
+
+def _gradient(width: int, height: int) -> np.ndarray:
+    """RGB uint8 [H, W, 3] whose red grows to the right and green downward."""
+    x = np.linspace(0, 255, width)[None, :].repeat(height, 0)
+    y = np.linspace(0, 255, height)[:, None].repeat(width, 1)
+    return np.stack([x, y, np.full_like(x, 60)], -1).astype(np.uint8)
+
+
+def _save(path: Path, array: np.ndarray, fmt: str = "PNG", **kwargs: object) -> Path:
+    Image.fromarray(array).save(path, format=fmt, **kwargs)
+    return path
+
+
+def test_reads_jpeg_png_webp_of_different_sizes(tmp_path: Path) -> None:
+    paths = [_save(tmp_path / "a.jpg", _gradient(80, 64), "JPEG"),
+             _save(tmp_path / "b.png", _gradient(200, 120)),
+             _save(tmp_path / "c.webp", _gradient(64, 96), "WEBP", lossless=True)]
+    photos = load_photos(paths)
+    assert [p.name for p in photos] == ["a.jpg", "b.png", "c.webp"]
+    assert [p.rgb.shape for p in photos] == [(64, 80, 3), (120, 200, 3), (96, 64, 3)]
+    for photo in photos:
+        assert photo.rgb.dtype == np.float32 and photo.mask is None
+        assert photo.rgb.min() >= 0.0 and photo.rgb.max() <= 1.0
+    assert np.allclose(photos[2].rgb * 255, _gradient(64, 96), atol=0.5)
+
+
+def test_bytes_and_named_bytes_are_accepted(tmp_path: Path) -> None:
+    data = _save(tmp_path / "a.png", _gradient(70, 70)).read_bytes()
+    photos = load_photos([data, ("mine.png", data)])
+    assert [p.name for p in photos] == ["photo 1", "mine.png"]
+
+
+def test_exif_rotated_jpeg_comes_out_upright(tmp_path: Path) -> None:
+    stored = _gradient(120, 80)  # stored landscape; orientation 6 = shown rotated 90 cw
+    exif = Image.Exif()
+    exif[0x0112] = 6
+    path = tmp_path / "rot.jpg"
+    Image.fromarray(stored).save(path, format="JPEG", exif=exif.tobytes(), quality=95)
+    photo = load_photos([path])[0]
+    assert photo.rgb.shape == (120, 80, 3)
+    # Rotated clockwise: the stored left column (red 0) becomes the top row.
+    assert photo.rgb[0, :, 0].mean() < 0.1 and photo.rgb[-1, :, 0].mean() > 0.9
+
+
+def test_mask_drawn_on_stored_pixels_of_a_rotated_photo_is_rotated_too(tmp_path: Path) -> None:
+    exif = Image.Exif()
+    exif[0x0112] = 6
+    photo_path = tmp_path / "rot.jpg"
+    Image.fromarray(_gradient(120, 80)).save(photo_path, format="JPEG", exif=exif.tobytes())
+    stored_mask = np.zeros((80, 120), np.uint8)
+    stored_mask[:, :30] = 255  # left of the stored pixels = top once upright
+    photo = load_photos([photo_path], [_save(tmp_path / "m.png", stored_mask)])[0]
+    assert photo.mask is not None and photo.mask.shape == (120, 80)
+    assert photo.mask[:30].all() and not photo.mask[30:].any()
+
+
+def test_rgba_alpha_becomes_the_mask_and_rgb_is_on_white(tmp_path: Path) -> None:
+    rgba = np.zeros((64, 64, 4), np.uint8)
+    rgba[..., 0] = 255
+    rgba[16:48, 16:48, 3] = 255
+    rgba[0, 0, 3] = 100  # below one half: background
+    photo = load_photos([_save(tmp_path / "a.png", rgba)])[0]
+    assert photo.mask is not None
+    assert photo.mask.sum() == 32 * 32 and photo.mask[16:48, 16:48].all()
+    assert np.allclose(photo.rgb[20, 20], [1.0, 0.0, 0.0])
+    assert np.allclose(photo.rgb[2, 2], [1.0, 1.0, 1.0])  # transparent -> white
+    opaque = rgba.copy()
+    opaque[..., 3] = 255
+    assert load_photos([_save(tmp_path / "b.png", opaque)])[0].mask is None
+
+
+def test_user_masks_follow_photo_order(tmp_path: Path) -> None:
+    photos = [_save(tmp_path / f"{i}.png", _gradient(64, 64)) for i in range(2)]
+    masks = []
+    for i in range(2):
+        mask = np.zeros((64, 64), np.uint8)
+        mask[: 10 * (i + 1)] = 1  # nonzero = object, any value
+        masks.append(_save(tmp_path / f"m{i}.png", mask))
+    loaded = load_photos(photos, masks)
+    assert [int(p.mask.sum()) for p in loaded if p.mask is not None] == [640, 1280]
+
+
+@pytest.mark.parametrize("case", ["empty", "truncated", "text", "tiny", "mask_size",
+                                  "mask_count", "missing"])
+def test_bad_inputs_raise_input_error_naming_the_photo(tmp_path: Path, case: str) -> None:
+    good = _save(tmp_path / "good.png", _gradient(64, 64))
+    bad = tmp_path / "bad.jpg"
+    masks = None
+    if case == "empty":
+        bad.write_bytes(b"")
+    elif case == "truncated":
+        buffer = io.BytesIO()
+        Image.fromarray(_gradient(256, 256)).save(buffer, format="JPEG")
+        bad.write_bytes(buffer.getvalue()[: len(buffer.getvalue()) // 2])
+    elif case == "text":
+        bad.write_text("this is not a photo\n")
+    elif case == "tiny":
+        _save(bad, _gradient(63, 200), "JPEG")
+    elif case == "missing":
+        bad = tmp_path / "nowhere" / "bad.jpg"
+    else:
+        _save(bad, _gradient(64, 64), "JPEG")
+        masks = [good, _save(tmp_path / "m.png", np.ones((65, 64), np.uint8))]
+        if case == "mask_count":
+            masks = masks[:1]
+    with pytest.raises(InputError) as info:
+        load_photos([good, bad], masks)
+    expected = "masks" if case == "mask_count" else "bad.jpg"
+    assert info.value.item == expected and info.value.hint
+    assert str(info.value).startswith(expected)
+
+
+def test_huge_photo_is_refused_from_its_header(tmp_path: Path,
+                                               monkeypatch: pytest.MonkeyPatch) -> None:
+    path = _save(tmp_path / "big.png", _gradient(300, 200))
+    monkeypatch.setattr("cadnerf_core.photos.MAX_PIXELS", 50_000)
+    loaded = []
+    monkeypatch.setattr(Image.Image, "load", lambda self: loaded.append(1))
+    with pytest.raises(InputError, match="megapixels") as info:
+        load_photos([path])
+    assert info.value.item == "big.png" and not loaded  # refused before decoding
+
+
+def test_canonical_views_frame_the_object_like_the_library(tmp_path: Path) -> None:
+    rgb = np.zeros((100, 160, 3), np.float32)
+    rgb[..., 2] = 1.0
+    mask = np.zeros((100, 160), bool)
+    mask[20:60, 90:110] = True  # 40 tall, 20 wide, off-centre
+    from cadnerf_core.photos import Photo
+
+    images, crops, boxes = canonical_views([Photo("a", rgb, mask)], [mask], 50, margin=0.1)
+    assert images.shape == (1, 50, 50, 3) and crops.shape == (1, 50, 50)
+    rows, cols = np.nonzero(crops[0])
+    assert rows.min() == 5 and rows.max() == 44  # object spans 1 - 2 * margin of the crop
+    assert np.allclose(images[0, 25, 25], [0, 0, 1]) and np.allclose(images[0, 25, 2], 1.0)
+    assert boxes[0].side == pytest.approx(50.0)
+    again, _ = canonical_masks([mask], 50, margin=0.1)
+    assert np.array_equal(again, crops)
