@@ -4,7 +4,8 @@
   128 px (elevations 0-60, random start azimuth, both walking directions) rendered with
   ``dataset.render_dataset``; retrieval from their masks against the full library; median
   rotation error of the kept photos' retrieved poses after similarity alignment
-  (``cameras.pose_errors``) for both solvers.
+  (``cameras.pose_errors``) for our DP, the paper's Algorithm 1, the DP as it was before its
+  spread prior and walk-based model choice, and two ablations; per set and per mesh.
 - Speed: the DP and Algorithm 1 on a 10 photos x 100 views table; a whole retrieval of 9 photo
   masks against the full library (background removal excluded).
 - Real photos: ``ners_espresso`` (ordered by its metadata azimuths, coarse ground truth) and
@@ -44,9 +45,22 @@ SIZE = 128
 SEED = 0
 
 
+# Variants retrieved on every synthetic walk: ours (defaults), the paper's Algorithm 1, the DP
+# as it was before the spread prior and the walk-based model choice ("DP, old"), and two
+# ablations of ours.
+VARIANTS: dict[str, tuple[str, dict[str, Any]]] = {
+    "dp": ("**DP (ours)**", {}),
+    "paper": ("Algorithm 1", {"solver": "paper"}),
+    "old": ("DP, old", {"model_choice": "votes", "spread_weight": 0.0,
+                        "direction_margin": 0.005}),
+    "votes": ("DP, model by votes", {"model_choice": "votes"}),
+    "nospread": ("DP, no spread prior", {"spread_weight": 0.0}),
+}
+
+
 @dataclass
 class SetResult:
-    """One synthetic walk retrieved with both solvers."""
+    """One synthetic walk retrieved with every variant."""
 
     mesh: str
     views: int
@@ -55,6 +69,7 @@ class SetResult:
     mean_iou: float
     errors: dict[str, float]  # variant -> median rotation error (degrees) of kept photos
     dropped: dict[str, int]  # variant -> photos discarded
+    directions: dict[str, int]  # variant -> walking direction found
 
 
 def rotation_error(result: Any, c2w_gt: np.ndarray) -> float:
@@ -68,20 +83,15 @@ def rotation_error(result: Any, c2w_gt: np.ndarray) -> float:
 
 
 def retrieve_all(masks: list[np.ndarray], names: list[str], library: Any) -> dict[str, Any]:
-    """Retrieval with each solver, and with the DP choosing the model by its walk.
-
-    Returns:
-        "dp", "paper", "walk" -> RetrievalResult.
-    """
+    """Retrieval with every variant of ``VARIANTS``. Returns variant -> RetrievalResult."""
     from cadnerf_core.retrieval import RetrievalConfig, retrieve
 
-    configs = {"dp": RetrievalConfig(), "paper": RetrievalConfig(solver="paper"),
-               "walk": RetrievalConfig(model_choice="walk")}
-    return {key: retrieve(masks, names, library, c) for key, c in configs.items()}
+    return {key: retrieve(masks, names, library, RetrievalConfig(**options))
+            for key, (_, options) in VARIANTS.items()}
 
 
 def synthetic_set(name: str, views: int, direction: int, library: Any, work: Path) -> SetResult:
-    """Render one walk of a mesh and retrieve it with both solvers."""
+    """Render one walk of a mesh and retrieve it with every variant."""
     from cadnerf_core.dataset import load_dataset, render_dataset
 
     folder = render_dataset(mesh_file(EVAL_ROOT / "meshes" / name), work / f"{name}_{views}_"
@@ -89,32 +99,50 @@ def synthetic_set(name: str, views: int, direction: int, library: Any, work: Pat
                             else "y", direction=direction)
     data = load_dataset(folder)
     results = retrieve_all(list(data.masks), data.names, library)
-    dp = results["dp"]
-    model = dp.model_id if results["walk"].model_id == dp.model_id else \
-        f"{dp.model_id}; walk: {results['walk'].model_id}"
+    dp, paper = results["dp"], results["paper"]
+    model = dp.model_id if paper.model_id == dp.model_id else \
+        f"{dp.model_id}; votes: {paper.model_id}"
     return SetResult(name, views, direction, f"{model} ({dp.category})",
                      float(np.mean([m.iou for m in dp.matches])),
                      {s: rotation_error(r, data.c2w) for s, r in results.items()},
-                     {s: sum(m.discarded for m in r.matches) for s, r in results.items()})
+                     {s: sum(m.discarded for m in r.matches) for s, r in results.items()},
+                     {s: r.direction for s, r in results.items()})
 
 
 def synthetic_table(results: list[SetResult]) -> list[str]:
     """Markdown table rows of the synthetic walks, with a summary line."""
-    lines = ["| mesh | views | dir | model by votes (category) | mean IoU | rot. err. DP | "
-             "rot. err. Alg. 1 | rot. err. DP, walk model | discarded DP / Alg. 1 |",
-             "|---|---|---|---|---|---|---|---|---|"]
+    keys = list(VARIANTS)
+    lines = ["| mesh | views | dir | model, ours (votes) | mean IoU | dir found | "
+             + " | ".join(f"rot. err. {VARIANTS[k][0]}" for k in keys)
+             + " | discarded ours / Alg. 1 |", "|---" * (7 + len(keys)) + "|"]
     for r in results:
         lines.append(f"| {r.mesh} | {r.views} | {r.direction:+d} | {r.model} | "
-                     f"{r.mean_iou:.2f} | {r.errors['dp']:.1f} | {r.errors['paper']:.1f} | "
-                     f"{r.errors['walk']:.1f} | {r.dropped['dp']} / {r.dropped['paper']} |")
-    errors = {k: [r.errors[k] for r in results] for k in ("dp", "paper", "walk")}
-    worse = sum(d > p + 1e-6 for d, p in zip(errors["dp"], errors["paper"], strict=True))
-    labels = (("dp", "**DP**"), ("paper", "Algorithm 1"), ("walk", "DP, walk model"))
-    summary = "; ".join(f"{label} {statistics.median(errors[k]):.1f} deg "
-                        f"({sum(e < 15 for e in errors[k])} sets under 15 deg)"
-                        for k, label in labels)
+                     f"{r.mean_iou:.2f} | {r.directions['dp']:+d} | "
+                     + " | ".join(f"{r.errors[k]:.1f}" for k in keys)
+                     + f" | {r.dropped['dp']} / {r.dropped['paper']} |")
+    errors = {k: [r.errors[k] for r in results] for k in keys}
+    summary = "; ".join(f"{VARIANTS[k][0]} {statistics.median(errors[k]):.1f} deg "
+                        f"({sum(e < 15 for e in errors[k])} sets under 15 deg)" for k in keys)
+    worse = [f"{r.mesh} {r.views} {r.direction:+d} ({r.errors['dp']:.1f} vs "
+             f"{r.errors['paper']:.1f})" for r in results
+             if r.errors["dp"] > r.errors["paper"] + 1e-6]
+    right = sum(r.directions["dp"] == r.direction for r in results)
     lines += ["", f"Median over the {len(results)} sets of the per-set median rotation error: "
-              f"{summary}. Sets where the DP is worse than Algorithm 1: {worse}."]
+              f"{summary}. Walking direction right (ours): {right} of {len(results)}. Sets "
+              f"where ours is worse than Algorithm 1: {len(worse)}"
+              f"{': ' + ', '.join(worse) if worse else ''}.", "", *mesh_table(results)]
+    return lines
+
+
+def mesh_table(results: list[SetResult]) -> list[str]:
+    """Markdown table: per mesh, the median over its walks of each variant's error."""
+    keys = list(VARIANTS)
+    lines = ["| mesh (median of its walks) | " + " | ".join(VARIANTS[k][0] for k in keys)
+             + " |", "|---" * (1 + len(keys)) + "|"]
+    for mesh in sorted({r.mesh for r in results}):
+        mine = [r for r in results if r.mesh == mesh]
+        lines.append(f"| {mesh} | " + " | ".join(
+            f"{statistics.median(r.errors[k] for r in mine):.1f}" for k in keys) + " |")
     return lines
 
 
@@ -130,12 +158,14 @@ def _median_seconds(function: Any, repeats: int) -> float:
 def speed_lines(library: Any, masks: list[np.ndarray], quick: bool) -> list[str]:
     """Solver and whole-retrieval timings, as markdown bullet lines."""
     from cadnerf_core.posesearch import cyclic_dp, paper_algorithm1
-    from cadnerf_core.retrieval import iou_table, retrieve
+    from cadnerf_core.retrieval import RetrievalConfig, iou_table, retrieve
 
     rng = np.random.default_rng(0)
     iou = rng.random((10, 100))
     az = np.repeat(np.arange(20), 5)
-    dp_s = _median_seconds(lambda: cyclic_dp(iou, az, 20), 50 if quick else 200)
+    weight = RetrievalConfig().spread_weight
+    dp_s = _median_seconds(lambda: cyclic_dp(iou, az, 20, spread_weight=weight),
+                           50 if quick else 200)
     paper_s = _median_seconds(lambda: paper_algorithm1(iou, az), 5 if quick else 20)
     names = [f"p{i}" for i in range(len(masks))]
     start = time.perf_counter()

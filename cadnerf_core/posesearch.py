@@ -16,21 +16,27 @@ cannot beat the best complete assignment found so far.
 
     sum over kept photos p of iou[p, view_p]
     + sum over discarded photos p of (max_v iou[p, v] - discard_penalty)
+    - spread_weight * sum over the walk's gaps g of (g / n_az) ** 2
 
 over all views (no top-k cut), with ``n_discarded <= min(max_discard, P - 1)``, such that for
 one walking direction ``s`` in {+1, -1} (or +1 only) the kept photos' azimuth bins
 ``a_1 .. a_k`` satisfy ``sum_j ((s * (a_{j+1} - a_j)) mod n_az) < n_az``: the walk goes one
 way round, may start at any azimuth and wraps at most once (it never travels a full turn).
 Equivalently, some rotation ``r`` makes ``(s * a_j - r) mod n_az`` non-decreasing. Equal bins
-are allowed, as in the paper. A discarded photo scores as if it sat at its own best view, less
-the penalty, so it is discarded exactly when keeping it in order costs it more than
-``discard_penalty`` of IoU. (With equal bins allowed a photo never blocks the others, so a
-costless skip, as in the paper, would only ever be taken because of the top-k cut.) Since the
+are allowed, as in the paper. The walk's gaps, in bins, are its ``k - 1`` steps
+``(s * (a_{j+1} - a_j)) mod n_az`` and the closing gap back to the first photo,
+``n_az - sum of the steps``; they add up to ``n_az``, so the spread term is smallest for photos
+evenly spread around the object and largest (``spread_weight``) when every photo sits at one
+azimuth, a degenerate "walk" that a rotationally symmetric or poorly matching model otherwise
+wins. A discarded photo scores as if it sat at its own best view, less the penalty, so it is
+discarded exactly when keeping it in order costs it more than ``discard_penalty``. Since the
 elevation is free, only the best view per (photo, azimuth bin) matters, and the problem is an
-exact dynamic programme over (photo, discards used, azimuth bin) states, run for every start
-bin and direction at once. An optional ``backward_cost`` is subtracted from the objective of a
-decreasing walk (a mirror-symmetric object's walk and its front/back flip, which runs the other
-way, nearly tie; the paper assumes increasing azimuth).
+exact dynamic programme over (photo, discards used, azimuth bin of the last kept photo) states,
+run for every first-photo bin and direction at once; with ``cyclic=False`` the bins may not
+pass the end of the turn (bin ``n_az - 1`` going up, bin 0 going down), as in the paper. An
+optional ``backward_cost`` is subtracted from the objective of a decreasing walk (not from
+the returned score); at equal objectives the increasing walk (the paper's order), then fewer
+discards, win.
 """
 
 from __future__ import annotations
@@ -115,56 +121,76 @@ def _bin_table(iou: np.ndarray, az_index: np.ndarray,
     return best, arg
 
 
-def _forward(table: np.ndarray, drop: np.ndarray, max_discard: int) -> list[np.ndarray]:
-    """Run the DP for a batch of bin-reordered tables.
+def _gap_gain(n_az: int, spread_weight: float) -> np.ndarray:
+    """Objective gain of a gap of g bins, g = 0 .. n_az. Returns [n_az + 1] f64."""
+    return -spread_weight * (np.arange(n_az + 1) / n_az) ** 2
+
+
+def _forward(table: np.ndarray, drop: np.ndarray, max_discard: int,
+             gap: np.ndarray) -> tuple[np.ndarray, list[tuple[np.ndarray, ...]]]:
+    """Run the DP for a batch of bin-reordered tables (the first kept photo sits at bin 0).
 
     Args:
-        table: [B, P, n_az] gain of keeping photo p at (reordered) bin b.
+        table: [B, P, n_az] gain of keeping photo p at (reordered) bin j.
         drop: [P] gain of discarding photo p.
+        max_discard: D, the most discards.
+        gap: [n_az + 1] gain of a gap of g bins.
     Returns:
-        P + 1 arrays G_i [B, D + 1, n_az]: best score of photos < i with d discards and the
-        last kept bin <= b (G_0 is the empty prefix).
+        G [B, D + 1, n_az]: best score of all photos with d discards and the last kept photo
+        at bin j (before the closing gap); and per photo the back pointers (previous bin
+        [B, D + 1, n_az], first-kept flag, discard flag), all of the same shape.
     """
     n_batch, n_photos, n_az = table.shape
+    j = np.arange(n_az)
+    step = j[None, :] - j[:, None]  # [j_prev, j]
+    step_gain = np.where(step >= 0, gap[np.clip(step, 0, n_az)], NEG_INF)
     g = np.full((n_batch, max_discard + 1, n_az), NEG_INF)
-    g[:, 0, :] = 0.0
-    out = [g]
+    empty = np.full(max_discard + 1, NEG_INF)  # nothing kept yet, d discards
+    empty[0] = 0.0
+    pointers: list[tuple[np.ndarray, ...]] = []
     for p in range(n_photos):
-        keep = np.maximum.accumulate(g + table[:, None, p, :], axis=2)
+        moves = g[..., :, None] + step_gain  # [B, D + 1, j_prev, j]
+        prev = moves.argmax(axis=2)
+        keep = np.take_along_axis(moves, prev[:, :, None, :], axis=2)[:, :, 0, :]
+        first = np.zeros(keep.shape, dtype=bool)
+        first[:, :, 0] = empty[None, :] > keep[:, :, 0]
+        keep[:, :, 0] = np.maximum(keep[:, :, 0], empty[None, :])
+        keep = keep + table[:, None, p, :]
         skip = np.full_like(g, NEG_INF)
         skip[:, 1:, :] = g[:, :-1, :] + drop[p]
-        g = np.maximum(keep, skip)
-        out.append(g)
-    return out
+        dropped = skip > keep
+        g = np.where(dropped, skip, keep)
+        pointers.append((prev, first, dropped))
+        empty = np.concatenate([[NEG_INF], empty[:-1] + drop[p]])
+    return g, pointers
 
 
-def _backtrack(gs: list[np.ndarray], table: np.ndarray, d: int) -> np.ndarray:
-    """Recover chosen (reordered) bins from one batch item's DP tables. Returns [P], -1 = drop.
-
-    Args:
-        gs: P + 1 arrays [D + 1, n_az] for the chosen batch item.
-        table: [P, n_az] its gains.
-        d: discards used by the optimum.
-    """
-    n_photos, n_az = table.shape
-    bins = np.full(n_photos, -1)
-    bound = n_az - 1
-    target = gs[n_photos][d, bound]
-    for p in range(n_photos - 1, -1, -1):
-        prev = gs[p]
-        keep = prev[d, : bound + 1] + table[p, : bound + 1]
-        b = int(np.argmax(keep))
-        if np.isclose(keep[b], target, rtol=0.0, atol=1e-9) and np.isfinite(keep[b]):
-            bins[p], bound, target = b, b, prev[d, b]
-        else:
+def _backtrack(pointers: list[tuple[np.ndarray, ...]], c: int, d: int, j: int) -> np.ndarray:
+    """Recover the chosen (reordered) bins of batch item c ending at (d, j). Returns [P]."""
+    bins = np.full(len(pointers), -1)
+    for p in range(len(pointers) - 1, -1, -1):
+        prev, first, dropped = (a[c, d, j] for a in pointers[p])
+        if dropped:
             d -= 1
-            target = prev[d, bound]
+            continue
+        bins[p] = j
+        if first:
+            break  # every earlier photo was discarded
+        j = int(prev)
     return bins
+
+
+def _walks(n_az: int, both_directions: bool) -> tuple[list[int], np.ndarray]:
+    """Candidate walks: direction of each, and order[c, j] = bin visited j-th by walk c."""
+    signs = [sign for sign in ((1, -1) if both_directions else (1,)) for _ in range(n_az)]
+    order = np.array([[(s + sign * j) % n_az for j in range(n_az)]
+                      for sign in ((1, -1) if both_directions else (1,)) for s in range(n_az)])
+    return signs, order
 
 
 def cyclic_dp(iou: np.ndarray, az_index: np.ndarray, n_az: int, discard_penalty: float = 0.3,
               max_discard: int = 2, both_directions: bool = True, cyclic: bool = True,
-              backward_cost: float = 0.0) -> PoseSearchResult:
+              backward_cost: float = 0.0, spread_weight: float = 0.0) -> PoseSearchResult:
     """Exact cyclic-order pose search by dynamic programming (see the module docstring).
 
     Args:
@@ -175,31 +201,32 @@ def cyclic_dp(iou: np.ndarray, az_index: np.ndarray, n_az: int, discard_penalty:
             loses more than this against its own best view).
         max_discard: most photos that may be discarded.
         both_directions: also try the walk with decreasing azimuth.
-        cyclic: allow any start bin (else the walk starts at bin 0 and never wraps, as in the
+        cyclic: allow the walk to wrap past the end of the turn (else it may not, as in the
             paper).
         backward_cost: subtracted from the objective of a decreasing walk (not counted in the
             returned score), so it must win by this much to be chosen.
+        spread_weight: weight of the gap-spread term (0: none).
     Returns:
         Chosen views (``-1`` = discarded), the objective's value, and the walking direction.
     """
     iou = np.asarray(iou, dtype=np.float64)
-    az_index = np.asarray(az_index)
     n_photos = iou.shape[0]
-    best_bin, arg_bin = _bin_table(iou, az_index, n_az)
-    walks = [(sign, s) for sign in ((1, -1) if both_directions else (1,))
-             for s in (range(n_az) if cyclic else [0 if sign > 0 else n_az - 1])]
-    # order[c, j] = the original bin visited j-th by candidate walk c.
-    order = np.array([[(s + sign * j) % n_az for j in range(n_az)] for sign, s in walks])
+    best_bin, arg_bin = _bin_table(iou, np.asarray(az_index), n_az)
+    signs, order = _walks(n_az, both_directions)
     table = best_bin[:, order].transpose(1, 0, 2)  # [B, P, n_az]
+    if not cyclic:  # reordered bin j of walk c wraps when it passes the end of the turn
+        unrolled = order[:, :1] + np.array(signs)[:, None] * np.arange(n_az)
+        table = np.where(((unrolled < 0) | (unrolled >= n_az))[:, None, :], NEG_INF, table)
     drop = iou.max(axis=1) - discard_penalty  # a discarded photo: its own best, less the fee
-    gs = _forward(table, drop, min(max_discard, n_photos - 1))
-    cost = np.array([backward_cost if sign < 0 else 0.0 for sign, _ in walks])
-    ends = gs[-1][:, :, -1] - cost[:, None]  # [B, D + 1]
-    final = ends.max(axis=0)  # best over walks per discard count
-    # Fewest discards among (numerically) equal optima.
-    d = int(np.flatnonzero(final >= final.max() - 1e-12)[0])
-    c = int(np.argmax(ends[:, d]))
-    score = float(gs[-1][c, d, -1])
-    bins = _backtrack([g[c] for g in gs], table[c], d)
+    gap = _gap_gain(n_az, spread_weight)
+    g, pointers = _forward(table, drop, min(max_discard, n_photos - 1), gap)
+    ends = g + gap[n_az - np.arange(n_az)]  # the closing gap, [B, D + 1, n_az]
+    charged = ends - np.array([backward_cost if s < 0 else 0.0 for s in signs])[:, None, None]
+    per_discard = charged.max(axis=(0, 2))
+    # Among (numerically) equal optima: fewest discards, then the first (increasing) walk.
+    d = int(np.flatnonzero(per_discard >= per_discard.max() - 1e-12)[0])
+    c, j = np.unravel_index(int(np.argmax(charged[:, d, :] >= per_discard[d] - 1e-12)),
+                            charged[:, d, :].shape)
+    bins = _backtrack(pointers, int(c), d, int(j))
     views = np.array([arg_bin[p, order[c, b]] if b >= 0 else -1 for p, b in enumerate(bins)])
-    return PoseSearchResult(views, score, walks[c][0])
+    return PoseSearchResult(views, float(ends[c, d, j]), signs[c])

@@ -47,13 +47,19 @@ class RetrievalConfig(BaseModel):
     """DP only: the walk may start at any azimuth and wrap once (the paper's may not)."""
     both_directions: bool = True
     """DP only: also try the walk with decreasing azimuth."""
-    direction_margin: float = Field(default=0.005, ge=0.0)
-    """DP only: IoU per photo by which a decreasing walk must beat an increasing one. A
-    mirror-symmetric object's walk and its front/back flip (which runs the other way) nearly
-    tie; the margin falls back on the paper's increasing order when the evidence is weak."""
-    model_choice: Literal["votes", "walk"] = "votes"
+    direction_margin: float = Field(default=0.0, ge=0.0)
+    """DP only: IoU per photo by which a decreasing walk must beat an increasing one (at
+    equal objectives the increasing walk, the paper's order, wins anyway). Measured on the
+    synthetic walks of ``benchmarks/bench_retrieval.py``, which run both ways equally often,
+    any margin > 0 only turns true decreasing walks into their front/back flips."""
+    spread_weight: float = Field(default=3.0, ge=0.0)
+    """DP only: weight of the prior that photos taken walking around an object are spread
+    round it: ``spread_weight * sum over the walk's gaps g of (g / 360 deg) ** 2`` is
+    subtracted (0.6 for 5 even gaps, 3 when every photo sits at one azimuth)."""
+    model_choice: Literal["votes", "walk"] = "walk"
     """"votes": the model most photos' best views belong to (the paper). "walk": of the five
-    models with most votes, the one whose best ordered walk (the pose solver's score) is best."""
+    models with most votes, the one whose best ordered walk (the pose solver's objective) is
+    best. The paper's solver always uses "votes"."""
     size: int | None = Field(default=None, ge=8)
     """Side in pixels of the canonical crop that ``K_canon`` and ``box`` refer to; None =
     the library's silhouette size. (IoU is always computed at the library's size.)"""
@@ -200,7 +206,8 @@ def solve_poses(iou: np.ndarray, az_index: np.ndarray, n_azimuths: int,
         return PoseSearchResult(np.argmax(iou, axis=1), float(iou.max(axis=1).sum()), 1)
     return cyclic_dp(iou, az_index, n_azimuths, config.discard_penalty, config.max_discard,
                      config.both_directions, config.cyclic,
-                     backward_cost=config.direction_margin * len(iou))
+                     backward_cost=config.direction_margin * len(iou),
+                     spread_weight=config.spread_weight)
 
 
 def _match(library: Library, m: int, p: int, name: str, view: int, discarded: bool,
@@ -235,7 +242,7 @@ def retrieve(masks: Sequence[np.ndarray], names: Sequence[str], library: Library
         progress.step("retrieval", 1, 2)
     az_index = azimuth_bins(library.az_el, spec.n_azimuths)
     found = solve_poses(iou[:, m, :], az_index, spec.n_azimuths, config)
-    if config.model_choice == "walk":
+    if config.model_choice == "walk" and config.solver == "dp":
         for other, _, _ in ranking[1:TOP_MODELS]:
             walk = solve_poses(iou[:, other, :], az_index, spec.n_azimuths, config)
             if walk.score > found.score:

@@ -16,14 +16,28 @@ def _walk_ok(bins: list[int], n_az: int, sign: int) -> bool:
     return sum((sign * (b - a)) % n_az for a, b in itertools.pairwise(bins)) < n_az
 
 
-def _dp_objective(iou: np.ndarray, views: tuple[int, ...], penalty: float) -> float:
-    """Kept photos score their view's IoU, discarded ones their own best IoU - penalty."""
-    return float(sum(iou[p, v] if v >= 0 else iou[p].max() - penalty
-                     for p, v in enumerate(views)))
+def _spread(bins: list[int], n_az: int, sign: int, weight: float) -> float:
+    """The gap-spread term: -weight * sum of squared gaps (steps and the closing gap)."""
+    steps = [(sign * (b - a)) % n_az for a, b in itertools.pairwise(bins)]
+    gaps = [*steps, n_az - sum(steps)]
+    return -weight * sum((g / n_az) ** 2 for g in gaps)
+
+
+def _dp_objective(iou: np.ndarray, views: tuple[int, ...], penalty: float,
+                  az: np.ndarray | None = None, n_az: int = 1, sign: int = 1,
+                  weight: float = 0.0) -> float:
+    """Kept photos score their view's IoU, discarded ones their own best IoU - penalty, plus
+    the spread term of the kept photos' walk."""
+    value = float(sum(iou[p, v] if v >= 0 else iou[p].max() - penalty
+                      for p, v in enumerate(views)))
+    if weight and az is not None:
+        value += _spread([int(az[v]) for v in views if v >= 0], n_az, sign, weight)
+    return value
 
 
 def _dp_brute(iou: np.ndarray, az: np.ndarray, n_az: int, penalty: float, max_discard: int,
-              both: bool, backward_cost: float = 0.0) -> tuple[float, float]:
+              both: bool, backward_cost: float = 0.0,
+              weight: float = 0.0) -> tuple[float, float]:
     """Optimum of the objective with the backward cost, and the objective without it there."""
     best, plain = -np.inf, -np.inf
     n_photos, n_views = iou.shape
@@ -32,7 +46,7 @@ def _dp_brute(iou: np.ndarray, az: np.ndarray, n_az: int, penalty: float, max_di
             continue
         bins = [int(az[v]) for v in views if v >= 0]
         for sign in (1, -1) if both else (1,):
-            value = _dp_objective(iou, views, penalty)
+            value = _dp_objective(iou, views, penalty, az, n_az, sign, weight)
             if _walk_ok(bins, n_az, sign) and value - backward_cost * (sign < 0) > best:
                 best, plain = value - backward_cost * (sign < 0), value
     return best, plain
@@ -60,20 +74,21 @@ def tables(draw: st.DrawFn) -> tuple[np.ndarray, np.ndarray, int]:
     return iou, np.repeat(np.arange(n_az), n_el), n_az
 
 
-@settings(max_examples=150, deadline=None)
+@settings(max_examples=200, deadline=None)
 @given(tables(), st.sampled_from([0.0, 0.15, 0.5]), st.integers(0, 2), st.booleans(),
-       st.sampled_from([0.0, 0.05]))
+       st.sampled_from([0.0, 0.05]), st.sampled_from([0.0, 0.7, 3.0]))
 def test_cyclic_dp_matches_brute_force(table: tuple[np.ndarray, np.ndarray, int],
                                        penalty: float, max_discard: int, both: bool,
-                                       backward_cost: float) -> None:
+                                       backward_cost: float, weight: float) -> None:
     iou, az, n_az = table
     found = cyclic_dp(iou, az, n_az, penalty, max_discard, both_directions=both,
-                      backward_cost=backward_cost)
-    best, plain = _dp_brute(iou, az, n_az, penalty, max_discard, both, backward_cost)
+                      backward_cost=backward_cost, spread_weight=weight)
+    best, plain = _dp_brute(iou, az, n_az, penalty, max_discard, both, backward_cost, weight)
     charged = backward_cost * (found.direction < 0)
     assert np.isclose(found.score - charged, best)
     # The returned views reach that score and obey the constraints.
-    assert np.isclose(_dp_objective(iou, tuple(found.views), penalty), found.score)
+    assert np.isclose(_dp_objective(iou, tuple(found.views), penalty, az, n_az,
+                                    found.direction, weight), found.score)
     if backward_cost == 0.0:
         assert np.isclose(found.score, plain)
     assert (found.views < 0).sum() <= max_discard
@@ -153,3 +168,41 @@ def test_dp_without_wrap_or_discards_equals_the_paper_search() -> None:
         dp = cyclic_dp(iou, az, 6, max_discard=0, both_directions=False, cyclic=False)
         assert np.isclose(paper.score, dp.score)
         assert (dp.views >= 0).all()
+
+
+@settings(max_examples=100, deadline=None)
+@given(tables(), st.integers(0, 2), st.booleans(), st.sampled_from([0.0, 1.5]))
+def test_dp_without_wrap_matches_brute_force(table: tuple[np.ndarray, np.ndarray, int],
+                                             max_discard: int, both: bool,
+                                             weight: float) -> None:
+    iou, az, n_az = table
+    found = cyclic_dp(iou, az, n_az, 0.2, max_discard, both_directions=both, cyclic=False,
+                      spread_weight=weight)
+    best = -np.inf
+    for views in itertools.product(range(-1, iou.shape[1]), repeat=iou.shape[0]):
+        if sum(v < 0 for v in views) > min(max_discard, iou.shape[0] - 1):
+            continue
+        bins = [int(az[v]) for v in views if v >= 0]
+        for sign in (1, -1) if both else (1,):
+            if bins == sorted(bins, reverse=sign < 0):  # monotone, no wrap
+                best = max(best, _dp_objective(iou, views, 0.2, az, n_az, sign, weight))
+    assert np.isclose(found.score, best)
+    kept = [int(az[v]) for v in found.views if v >= 0]
+    assert kept == sorted(kept, reverse=found.direction < 0)
+
+
+def test_spread_term_prefers_a_walk_round_the_object() -> None:
+    # Photos match bin 5 as well as or better than their own views (a symmetric model's look).
+    bins, n_az = [0, 4, 8, 12, 16], 20
+    iou = np.full((5, n_az), 0.2)
+    iou[np.arange(5), bins] = 0.8
+    iou[[0, 2, 3, 4], 5] = 0.85
+    iou[1, 5] = 0.8
+    collapsed = cyclic_dp(iou, np.arange(n_az), n_az)
+    assert collapsed.views.tolist() == [5] * 5
+    assert np.isclose(collapsed.score, 4 * 0.85 + 0.8)
+    spread = cyclic_dp(iou, np.arange(n_az), n_az, spread_weight=3.0)
+    assert spread.views.tolist() == bins and spread.direction == 1
+    # Evenly spread gaps of 4 bins cost 5 * (4 / 20) ** 2 of the weight; the collapsed walk
+    # (one gap of 20 bins) would cost all of it.
+    assert np.isclose(spread.score, 4.0 - 3.0 * 5 * 0.04)
