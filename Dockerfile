@@ -1,0 +1,30 @@
+# CAD-NeRF service image (API and worker share it). CPU torch goes in first, from PyTorch's CPU
+# index, so nothing installed later can pull a multi-gigabyte CUDA build.
+FROM python:3.11-slim
+
+ENV PYTHONDONTWRITEBYTECODE=1 PYTHONUNBUFFERED=1 PIP_NO_CACHE_DIR=1 \
+    CADNERF_DATA_ROOT=/data/jobs \
+    CADNERF_LIBRARY_DIR=/srv/cadnerf/library_data/build
+
+RUN apt-get update \
+    && apt-get install -y --no-install-recommends libglib2.0-0 \
+    && rm -rf /var/lib/apt/lists/*
+
+WORKDIR /srv/cadnerf
+RUN pip install --index-url https://download.pytorch.org/whl/cpu torch==2.13.0
+
+COPY pyproject.toml README.md ./
+COPY app ./app
+COPY worker ./worker
+COPY cadnerf_core ./cadnerf_core
+COPY cadnerf_cli ./cadnerf_cli
+COPY library_data ./library_data
+RUN pip install . \
+    && python -m cadnerf_cli.main library build --out "$CADNERF_LIBRARY_DIR"
+
+RUN useradd --create-home --uid 1000 cadnerf \
+    && mkdir -p /data/jobs && chown -R cadnerf /data
+USER cadnerf
+
+EXPOSE 8000
+CMD ["python", "-m", "cadnerf_cli.main", "serve", "--host", "0.0.0.0", "--port", "8000"]

@@ -1,0 +1,167 @@
+"""Job life cycle on the API side: accept an upload, show state, cancel and delete, clean up."""
+
+from __future__ import annotations
+
+import logging
+import os
+import shutil
+import time
+import uuid
+from pathlib import Path
+
+from celery import Celery
+from starlette.concurrency import run_in_threadpool
+from starlette.requests import Request
+
+from app.errors import ApiError
+from app.multipart import Limits, receive_form
+from app.queue import enqueue
+from app.schemas import DeleteResult, JobLinks, JobState, JobStatus
+from app.settings import Settings
+from app.store import TMP_PREFIX, JobRecord, JobStore
+from app.uploads import lay_out
+
+log = logging.getLogger(__name__)
+
+STAGING_MAX_AGE_S = 3600.0
+ACTIVE = (JobState.queued, JobState.running)
+
+
+def links(job_id: str) -> JobLinks:
+    """URLs of a job's status, result and web view."""
+    return JobLinks(self=f"/v1/jobs/{job_id}", result=f"/v1/jobs/{job_id}/result",
+                    web=f"/?job={job_id}")
+
+
+def to_status(record: JobRecord) -> JobStatus:
+    """The public view of a job record."""
+    return JobStatus(id=record.id, state=record.state, preset=record.preset,
+                     n_photos=record.n_photos, created_at=record.created_at,
+                     links=links(record.id), stage=record.stage,
+                     progress=min(max(record.progress, 0.0), 1.0), eta_s=record.eta_s,
+                     started_at=record.started_at, finished_at=record.finished_at,
+                     error=record.error)
+
+
+async def submit(request: Request, settings: Settings, store: JobStore, producer: Celery,
+                 owner: str) -> JobRecord:
+    """Receive, validate and store an upload as a new job folder, then queue it.
+
+    The upload is built in a staging folder inside the data root and renamed into place only
+    once complete, so a rejected or interrupted upload leaves no half job folder.
+
+    Args:
+        request: the multipart request.
+        settings: limits and defaults.
+        store: job state.
+        producer: the Celery app used to send the task.
+        owner: hash of the caller's API key (or the anonymous owner).
+
+    Returns:
+        The queued job's record.
+    """
+    settings.data_root.mkdir(parents=True, exist_ok=True)
+    staging = settings.data_root / f"{TMP_PREFIX}{uuid.uuid4().hex}"
+    staging.mkdir()
+    limits = Limits(settings.max_file_bytes, settings.max_total_bytes, settings.max_photos)
+    try:
+        form = await receive_form(request, staging, limits)
+        spec = await run_in_threadpool(lay_out, form, staging, settings)
+        job_id = str(uuid.uuid4())
+        os.rename(staging, store.job_dir(job_id))
+    except BaseException:
+        shutil.rmtree(staging, ignore_errors=True)
+        raise
+    record = JobRecord(id=job_id, preset=spec.preset, n_photos=len(spec.names), names=spec.names,
+                       owner=owner, created_at=time.time(), webhook_url=spec.webhook_url)
+    await run_in_threadpool(_store_and_enqueue, store, producer, record)
+    return record
+
+
+def _store_and_enqueue(store: JobStore, producer: Celery, record: JobRecord) -> None:
+    store.create(record)
+    try:
+        enqueue(producer, record.id)
+    except Exception as exc:
+        log.error("could not queue job %s: %s", record.id, exc)
+        store.delete(record)
+        raise ApiError(503, "queue_unavailable", "the job queue is not reachable",
+                       hint="try again in a minute", headers={"Retry-After": "30"}) from None
+
+
+def delete_job(store: JobStore, record: JobRecord, wait_s: float = 15.0) -> DeleteResult:
+    """Cancel a job if it is queued or running, then delete its state and folder.
+
+    A running job's worker reads the cancel flag between steps; this waits up to ``wait_s``
+    for it to acknowledge, so files are not removed under a job that is still writing them.
+    """
+    previous = record.state
+    stopped = True
+    if previous in ACTIVE:
+        store.request_cancel(record.id)
+        store.update(record.id, allowed_from=(JobState.queued,), state=JobState.cancelled,
+                     finished_at=time.time())
+        stopped = wait_until_stopped(store, record.id, wait_s)
+    store.delete(record)
+    return DeleteResult(id=record.id, deleted=True, previous_state=previous,
+                        worker_stopped=stopped)
+
+
+def wait_until_stopped(store: JobStore, job_id: str, wait_s: float) -> bool:
+    """Poll until the job is no longer running; False on timeout."""
+    deadline = time.monotonic() + wait_s
+    while True:
+        current = store.get(job_id)
+        if current is None or current.state.terminal:
+            return True
+        if time.monotonic() > deadline:
+            return False
+        time.sleep(0.2)
+
+
+def cleanup(store: JobStore, retention_s: float, now: float | None = None) -> int:
+    """Remove jobs older than the retention period; re-seed Redis from state.json on the way.
+
+    Args:
+        store: job state.
+        retention_s: age (since finishing, or creation if unfinished) after which a job goes.
+        now: the current time (default: ``time.time()``).
+
+    Returns:
+        How many job folders were removed.
+    """
+    now = time.time() if now is None else now
+    removed = 0
+    for job_id in list(store.iter_job_ids()):
+        record = store.get(job_id)  # re-seeds Redis when it lost the job
+        if record is None:
+            removed += _remove_orphan(store.job_dir(job_id), now, retention_s)
+            continue
+        reference = record.finished_at or record.created_at
+        if record.state != JobState.running and now - reference > retention_s:
+            store.delete(record)
+            removed += 1
+    _remove_stale_staging(store.data_root, now)
+    return removed
+
+
+def _remove_orphan(folder: Path, now: float, retention_s: float) -> int:
+    try:
+        age = now - folder.stat().st_mtime
+    except OSError:
+        return 0
+    if age > retention_s:
+        shutil.rmtree(folder, ignore_errors=True)
+        return 1
+    return 0
+
+
+def _remove_stale_staging(root: Path, now: float) -> None:
+    if not root.is_dir():
+        return
+    for entry in root.glob(f"{TMP_PREFIX}*"):
+        try:
+            if now - entry.stat().st_mtime > STAGING_MAX_AGE_S:
+                shutil.rmtree(entry, ignore_errors=True)
+        except OSError:
+            continue

@@ -1,0 +1,82 @@
+"""The FastAPI application: ``create_app`` wires settings, Redis, the queue and the routers."""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import logging
+from collections.abc import AsyncIterator
+
+from fastapi import FastAPI
+from fastapi.staticfiles import StaticFiles
+from starlette.concurrency import run_in_threadpool
+
+from app import jobs
+from app.errors import install_handlers
+from app.queue import make_producer
+from app.routes import health, library, pages
+from app.routes import jobs as job_routes
+from app.routes.pages import STATIC_DIR
+from app.settings import Settings, SettingsError, load_settings
+from app.store import JobStore, connect, connect_async
+
+log = logging.getLogger(__name__)
+API_VERSION = "1"
+
+
+async def _cleanup_loop(app: FastAPI) -> None:
+    """Remove expired jobs (and re-seed Redis from state.json) now and every interval."""
+    settings: Settings = app.state.settings
+    while True:
+        try:
+            removed = await run_in_threadpool(jobs.cleanup, app.state.store,
+                                              settings.retention_days * 86400.0)
+            if removed:
+                log.info("cleanup removed %d expired jobs", removed)
+        except Exception:  # a cleanup failure must not take the API down; retry next time
+            log.exception("cleanup failed")
+        await asyncio.sleep(settings.cleanup_interval_s)
+
+
+@contextlib.asynccontextmanager
+async def _lifespan(app: FastAPI) -> AsyncIterator[None]:
+    app.state.settings.data_root.mkdir(parents=True, exist_ok=True)
+    task = asyncio.create_task(_cleanup_loop(app))
+    try:
+        yield
+    finally:
+        task.cancel()
+        with contextlib.suppress(asyncio.CancelledError):
+            await task
+        app.state.store.r.close()
+        await app.state.aredis.aclose()
+
+
+def create_app(settings: Settings | None = None) -> FastAPI:
+    """Build the service.
+
+    Args:
+        settings: deployment settings (default: read from ``CADNERF_*`` variables).
+
+    Returns:
+        The FastAPI app (uvicorn: ``uvicorn --factory app.main:create_app``).
+
+    Raises:
+        SettingsError: a bad setting, or no Redis URL (``cadnerf serve`` provides one).
+    """
+    settings = settings or load_settings()
+    if not settings.redis_url:
+        raise SettingsError("CADNERF_REDIS_URL is empty: set it, or start the service with "
+                            "`cadnerf serve`, which runs an embedded Redis")
+    app = FastAPI(title="CAD-NeRF", version=API_VERSION, lifespan=_lifespan,
+                  description="Camera poses, novel views, an orbit video and a mesh from 3-10 "
+                              "ordered photos (CAD-NeRF).")
+    app.state.settings = settings
+    app.state.store = JobStore(connect(settings.redis_url), settings.data_root)
+    app.state.aredis = connect_async(settings.redis_url)
+    app.state.producer = make_producer(settings)
+    install_handlers(app)
+    for router in (job_routes.router, library.router, health.router, pages.router):
+        app.include_router(router)
+    app.mount("/static", StaticFiles(directory=STATIC_DIR), name="static")
+    return app

@@ -1,0 +1,173 @@
+"""HTTP schemas, as a ladder: what a client sends, what every job shows, and more detail on top.
+
+``JobCreate`` (the request's config) -> ``JobPublic`` (id, state, links) -> ``JobStatus``
+(stage, progress, ETA, timestamps, error) ; ``JobResult`` (the outcome of a succeeded job).
+"""
+
+from __future__ import annotations
+
+from enum import StrEnum
+from typing import Any
+
+from pydantic import BaseModel, ConfigDict, Field
+
+
+class JobState(StrEnum):
+    """Where a job is in its life."""
+
+    queued = "queued"
+    running = "running"
+    succeeded = "succeeded"
+    failed = "failed"
+    cancelled = "cancelled"
+
+    @property
+    def terminal(self) -> bool:
+        """True once the job will not change any more."""
+        return self in (JobState.succeeded, JobState.failed, JobState.cancelled)
+
+
+class JobCreate(BaseModel):
+    """The `config` form field of `POST /v1/jobs` (JSON)."""
+
+    model_config = ConfigDict(extra="forbid")
+
+    preset: str | None = Field(None, description="Preset name; default: the server's.")
+    overrides: dict[str, Any] = Field(default_factory=dict,
+                                      description="Preset fields to change, nested by section.")
+
+
+class JobLinks(BaseModel):
+    """Where to look next."""
+
+    self: str
+    result: str
+    web: str
+
+
+class JobPublic(BaseModel):
+    """What every job shows."""
+
+    id: str
+    state: JobState
+    preset: str
+    n_photos: int
+    created_at: float = Field(description="Unix time the upload was accepted.")
+    links: JobLinks
+
+
+class JobStatus(JobPublic):
+    """A job's progress."""
+
+    stage: str | None = Field(None, description="masks, retrieval, phase1..3, render, export.")
+    progress: float = Field(0.0, ge=0.0, le=1.0)
+    eta_s: float | None = Field(None, description="Expected seconds left.")
+    started_at: float | None = None
+    finished_at: float | None = None
+    error: str | None = None
+
+
+class JobList(BaseModel):
+    """A page of the caller's jobs, newest first."""
+
+    items: list[JobStatus]
+    total: int
+    limit: int
+    offset: int
+    next: str | None = Field(None, description="URL of the next page, if any.")
+
+
+class PhotoResult(BaseModel):
+    """One uploaded photo's outcome."""
+
+    index: int
+    name: str
+    discarded: bool
+    iou: float | None = None
+    view: int | None = None
+    azimuth: float | None = None
+    elevation: float | None = None
+    c2w: list[list[float]] | None = Field(None, description="4x4 camera-to-world, OpenCV axes.")
+    K: list[list[float]] | None = Field(None, description="3x3 intrinsics in the photo's pixels.")
+
+
+class ModelRef(BaseModel):
+    """The retrieved CAD model."""
+
+    id: str
+    category: str | None = None
+
+
+class JobResult(BaseModel):
+    """A succeeded job's outcome."""
+
+    id: str
+    model: ModelRef
+    photos: list[PhotoResult]
+    discarded: list[str]
+    metrics: dict[str, Any]
+    artifacts: dict[str, str] = Field(description="Artifact name -> download URL.")
+
+
+class ErrorDetail(BaseModel):
+    """What went wrong and what to do about it."""
+
+    code: str
+    message: str
+    field: str | None = None
+    photo: str | None = None
+    hint: str | None = None
+
+
+class ErrorBody(BaseModel):
+    """Every 4xx/5xx answer."""
+
+    error: ErrorDetail
+
+
+class LibraryModel(BaseModel):
+    """One model of the CAD library."""
+
+    id: str
+    category: str | None = None
+    kind: str | None = None
+    source: str | None = None
+    licence: str | None = None
+    n_triangles: int | None = None
+
+
+class LibraryPublic(BaseModel):
+    """The library the workers retrieve from."""
+
+    models: list[LibraryModel]
+    n_views: int | None = None
+
+
+class DeleteResult(BaseModel):
+    """Answer of `DELETE /v1/jobs/{id}`."""
+
+    id: str
+    deleted: bool
+    previous_state: JobState
+    worker_stopped: bool = Field(description="A running job's worker acknowledged the cancel.")
+
+
+class Readiness(BaseModel):
+    """Answer of `/readyz`."""
+
+    redis: bool
+    workers: list[str]
+    ready: bool
+
+
+class ServiceInfo(BaseModel):
+    """Presets and upload limits (`GET /v1/info`)."""
+
+    presets: list[str]
+    default_preset: str
+    min_photos: int
+    max_photos: int
+    max_file_mb: float
+    max_total_mb: float
+    max_megapixels: float
+    min_side_px: int

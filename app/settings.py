@@ -1,0 +1,155 @@
+"""Deployment settings: the one ``Settings`` class, read from ``CADNERF_*`` environment variables.
+
+A bad value stops start-up with a message that names the variable and what it accepts
+(``load_settings`` turns pydantic's error into a ``SettingsError``).
+"""
+
+from __future__ import annotations
+
+import hashlib
+from functools import cached_property
+from pathlib import Path
+from typing import Literal
+
+from pydantic import Field, ValidationError, field_validator, model_validator
+from pydantic_settings import BaseSettings, SettingsConfigDict
+
+ENV_PREFIX = "CADNERF_"
+MB = 1024 * 1024
+
+
+class SettingsError(ValueError):
+    """A ``CADNERF_*`` variable holds a value the service cannot use."""
+
+
+class Settings(BaseSettings):
+    """Everything a deployment may change; each field is the variable ``CADNERF_<NAME>``."""
+
+    model_config = SettingsConfigDict(env_prefix=ENV_PREFIX, extra="ignore", frozen=True)
+
+    data_root: Path = Field(Path("data/jobs"), description="Folder holding one folder per job.")
+    """Shared storage for job folders (API and workers must see the same path)."""
+    redis_url: str = Field("", description="redis:// URL; empty: `cadnerf serve` embeds Redis.")
+    """Broker and job-state store."""
+    library_dir: Path = Field(Path("library_data/build"), description="The built CAD library.")
+    """Folder with the library's manifest.json (read by the API, loaded by workers)."""
+    device: Literal["auto", "cpu", "cuda"] = Field("auto", description="Worker torch device.")
+    """Where the worker trains: auto picks CUDA when available."""
+    default_preset: str = Field("standard", description="Preset used when a job names none.")
+    """One of cadnerf_core.config.PRESETS."""
+    min_photos: int = Field(3, ge=1, le=100, description="Fewest photos per job.")
+    """Retrieval needs a few views; the paper uses 3 or more."""
+    max_photos: int = Field(10, ge=1, le=100, description="Most photos per job.")
+    """Bounded so one job cannot occupy a worker for hours."""
+    max_file_mb: float = Field(25.0, gt=0, le=1024, description="Largest single upload (MiB).")
+    """Per-file limit, enforced while the upload streams in."""
+    max_total_mb: float = Field(150.0, gt=0, le=8192, description="Largest request (MiB).")
+    """Limit on all files of one job together."""
+    max_megapixels: float = Field(40.0, gt=0, le=500, description="Largest photo (megapixels).")
+    """Read from the image header; guards against decompression bombs."""
+    min_side_px: int = Field(64, ge=1, le=4096, description="Smallest photo side (pixels).")
+    """Smaller photos carry too little silhouette to match."""
+    api_keys: str = Field("", description="Comma-separated API keys; empty: open service.")
+    """When set, every /v1 call needs `Authorization: Bearer <key>`."""
+    retention_days: float = Field(7.0, gt=0, description="Days a job folder is kept.")
+    """Older jobs are removed by the periodic cleanup."""
+    cleanup_interval_s: float = Field(600.0, gt=0, description="Seconds between cleanups.")
+    """How often the API sweeps old jobs and re-seeds Redis from state.json."""
+    job_soft_time_limit_s: int = Field(3600, gt=0, description="Job fails after this long.")
+    """Checked between steps, so the job stops cleanly with a clear error."""
+    job_hard_time_limit_s: int = Field(3900, gt=0, description="Worker is killed after this.")
+    """Last resort when a step hangs; must exceed the soft limit."""
+    webhook_secret: str = Field("", description="HMAC-SHA256 key signing webhook bodies.")
+    """Empty: webhooks are sent unsigned."""
+
+    @field_validator("default_preset")
+    @classmethod
+    def _known_preset(cls, value: str) -> str:
+        from cadnerf_core.config import PRESETS  # torch-free by contract
+
+        if value not in PRESETS:
+            raise ValueError(f"must be one of {', '.join(sorted(PRESETS))}")
+        return value
+
+    @field_validator("redis_url")
+    @classmethod
+    def _redis_scheme(cls, value: str) -> str:
+        if value and not value.startswith(("redis://", "rediss://", "unix://")):
+            raise ValueError("must start with redis://, rediss:// or unix:// (or be empty)")
+        return value
+
+    @model_validator(mode="after")
+    def _consistent(self) -> Settings:
+        if self.min_photos > self.max_photos:
+            raise ValueError("CADNERF_MIN_PHOTOS must not exceed CADNERF_MAX_PHOTOS")
+        if self.max_file_mb > self.max_total_mb:
+            raise ValueError("CADNERF_MAX_FILE_MB must not exceed CADNERF_MAX_TOTAL_MB")
+        if self.job_hard_time_limit_s <= self.job_soft_time_limit_s:
+            raise ValueError("CADNERF_JOB_HARD_TIME_LIMIT_S must exceed the soft limit")
+        return self
+
+    @property
+    def max_file_bytes(self) -> int:
+        """Per-file upload limit in bytes."""
+        return int(self.max_file_mb * MB)
+
+    @property
+    def max_total_bytes(self) -> int:
+        """Whole-request upload limit in bytes."""
+        return int(self.max_total_mb * MB)
+
+    @cached_property
+    def api_key_hashes(self) -> frozenset[str]:
+        """SHA-256 hex digests of the configured API keys (keys themselves are not kept around)."""
+        keys = [k.strip() for k in self.api_keys.split(",") if k.strip()]
+        return frozenset(hash_key(k) for k in keys)
+
+
+def hash_key(key: str) -> str:
+    """SHA-256 hex digest of an API key (what jobs record as their owner).
+
+    Args:
+        key: the bearer token.
+
+    Returns:
+        64 hex characters.
+    """
+    return hashlib.sha256(key.encode("utf-8")).hexdigest()
+
+
+def load_settings(**overrides: object) -> Settings:
+    """Read the settings from the environment, failing with a message naming the variable.
+
+    Args:
+        overrides: field values that win over the environment (tests, the CLI).
+
+    Returns:
+        The validated settings.
+
+    Raises:
+        SettingsError: a variable holds a value that cannot be used.
+    """
+    try:
+        return Settings(**overrides)  # type: ignore[arg-type]
+    except ValidationError as exc:
+        raise SettingsError(describe_errors(exc)) from None
+
+
+def describe_errors(exc: ValidationError) -> str:
+    """One line per bad variable: ``CADNERF_NAME=value: what it accepts``.
+
+    Args:
+        exc: pydantic's validation error for ``Settings``.
+
+    Returns:
+        A message for a person.
+    """
+    lines = []
+    for err in exc.errors():
+        loc = [str(part) for part in err.get("loc", ())]
+        name = f"{ENV_PREFIX}{loc[0].upper()}" if loc else "settings"
+        message = str(err.get("msg", "invalid value")).removeprefix("Value error, ")
+        value = err.get("input")
+        shown = f"={value!r}" if loc and isinstance(value, str | int | float) else ""
+        lines.append(f"{name}{shown}: {message}")
+    return "invalid settings: " + "; ".join(lines)

@@ -1,0 +1,284 @@
+"""Job state: one Redis hash per job, mirrored to ``<job folder>/state.json``.
+
+Redis answers the hot path (a poll is one HGETALL); ``state.json`` lets a job survive a Redis
+restart: a job Redis has forgotten is read back from its folder and re-seeded. Used by the API and
+the worker alike, so it imports neither FastAPI nor Celery.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import os
+import re
+import shutil
+import time
+from collections.abc import Iterable, Iterator
+from pathlib import Path
+from typing import Any
+
+import redis
+import redis.asyncio as aioredis
+from pydantic import BaseModel, Field, ValidationError
+
+from app.schemas import JobState
+
+log = logging.getLogger(__name__)
+
+JOB_ID_RE = re.compile(r"^[0-9a-f]{8}-[0-9a-f]{4}-4[0-9a-f]{3}-[89ab][0-9a-f]{3}-[0-9a-f]{12}$")
+STATE_FILE = "state.json"
+TMP_PREFIX = ".upload-"
+PREFIX = "cadnerf"
+ANON_OWNER = "-"
+
+# Conditional HSET: only while the job exists and (when ARGV[1] is not empty) is in one of the
+# comma-separated states, so a deleted job is never half re-created by a late worker update.
+_UPDATE_LUA = """
+if redis.call('exists', KEYS[1]) == 0 then return 0 end
+if ARGV[1] ~= '' then
+  local s = redis.call('hget', KEYS[1], 'state')
+  local ok = false
+  for st in string.gmatch(ARGV[1], '[^,]+') do if st == s then ok = true end end
+  if not ok then return 0 end
+end
+redis.call('hset', KEYS[1], unpack(ARGV, 2))
+return 1
+"""
+
+
+class JobRecord(BaseModel):
+    """Everything the service keeps about one job (the Redis hash and state.json)."""
+
+    id: str
+    state: JobState = JobState.queued
+    preset: str
+    n_photos: int
+    names: list[str] = Field(default_factory=list)
+    owner: str = ANON_OWNER
+    created_at: float
+    started_at: float | None = None
+    finished_at: float | None = None
+    updated_at: float | None = None
+    stage: str | None = None
+    progress: float = 0.0
+    eta_s: float | None = None
+    error: str | None = None
+    webhook_url: str | None = None
+
+    def to_hash(self) -> dict[str, str]:
+        """Flat string mapping for HSET (None -> empty string, lists -> JSON)."""
+        return _encode(self.model_dump(mode="json"))
+
+    @classmethod
+    def from_hash(cls, raw: dict[str, str]) -> JobRecord:
+        """Inverse of ``to_hash``."""
+        data: dict[str, Any] = {k: (None if v == "" else v) for k, v in raw.items()}
+        data["names"] = json.loads(data.get("names") or "[]")
+        if data.get("progress") is None:
+            data["progress"] = 0.0
+        return cls.model_validate(data)
+
+
+def _encode(fields: dict[str, Any]) -> dict[str, str]:
+    out = {}
+    for key, value in fields.items():
+        if value is None:
+            out[key] = ""
+        elif isinstance(value, list | dict):
+            out[key] = json.dumps(value)
+        else:
+            out[key] = str(value)
+    return out
+
+
+def _mapping(record: JobRecord) -> dict[Any, Any]:
+    return record.to_hash()
+
+
+def is_job_id(value: str) -> bool:
+    """True for a canonical lower-case uuid4 string (the only ids that map to folders)."""
+    return bool(JOB_ID_RE.match(value))
+
+
+def connect_async(url: str) -> aioredis.Redis:
+    """An asyncio Redis client (the status hot path), configured like ``connect``."""
+    return aioredis.Redis.from_url(url, decode_responses=True, socket_timeout=10,
+                                   socket_connect_timeout=3, health_check_interval=30)
+
+
+def connect(url: str) -> redis.Redis:
+    """A Redis client with short timeouts and decoded strings.
+
+    Args:
+        url: redis://, rediss:// or unix:// URL.
+
+    Returns:
+        The client (connections are opened lazily).
+    """
+    return redis.Redis.from_url(url, decode_responses=True, socket_timeout=10,
+                                socket_connect_timeout=3, health_check_interval=30)
+
+
+class JobStore:
+    """Job records in Redis, mirrored to each job folder's state.json."""
+
+    def __init__(self, client: redis.Redis, data_root: Path) -> None:
+        self.r = client
+        self.data_root = Path(data_root)
+        self._update = self.r.register_script(_UPDATE_LUA)
+
+    # --- keys and paths -------------------------------------------------------------------
+    @staticmethod
+    def job_key(job_id: str) -> str:
+        """The job's Redis hash."""
+        return f"{PREFIX}:job:{job_id}"
+
+    @staticmethod
+    def index_key(owner: str) -> str:
+        """Sorted set of an owner's job ids, scored by creation time."""
+        return f"{PREFIX}:jobs:{owner}"
+
+    @staticmethod
+    def cancel_key(job_id: str) -> str:
+        """Flag the worker's cancel check reads."""
+        return f"{PREFIX}:cancel:{job_id}"
+
+    def job_dir(self, job_id: str) -> Path:
+        """The job's folder; raises ValueError for anything but a job id (no path tricks)."""
+        if not is_job_id(job_id):
+            raise ValueError(f"not a job id: {job_id!r}")
+        return self.data_root / job_id
+
+    # --- records --------------------------------------------------------------------------
+    def create(self, record: JobRecord) -> None:
+        """Store a new job (its folder must already exist) and mirror it to state.json."""
+        pipe = self.r.pipeline()
+        pipe.hset(self.job_key(record.id), mapping=_mapping(record))
+        pipe.zadd(self.index_key(record.owner), {record.id: record.created_at})
+        pipe.execute()
+        self.write_state_file(record)
+
+    def get(self, job_id: str) -> JobRecord | None:
+        """The job's record: one HGETALL, or state.json (re-seeding Redis) when Redis lost it."""
+        if not is_job_id(job_id):
+            return None
+        raw = self.r.hgetall(self.job_key(job_id))
+        if raw:
+            return JobRecord.from_hash(raw)  # type: ignore[arg-type]
+        record = self.read_state_file(job_id)
+        if record is not None:
+            self.reseed(record)
+        return record
+
+    def reseed(self, record: JobRecord) -> None:
+        """Put a record read from disk back into Redis."""
+        pipe = self.r.pipeline()
+        pipe.hset(self.job_key(record.id), mapping=_mapping(record))
+        pipe.zadd(self.index_key(record.owner), {record.id: record.created_at})
+        pipe.execute()
+        log.info("re-seeded job %s from state.json", record.id)
+
+    def update(self, job_id: str, allowed_from: Iterable[JobState] = (),
+               **fields: Any) -> bool:
+        """Set fields of an existing job atomically.
+
+        Args:
+            job_id: the job.
+            allowed_from: apply only while the job is in one of these states (empty: any).
+            fields: JobRecord fields to set.
+
+        Returns:
+            False when the job is gone or in another state (nothing was written).
+        """
+        encoded = _encode({**fields, "updated_at": time.time()})
+        argv: list[str] = [",".join(s.value for s in allowed_from)]
+        for key, value in encoded.items():
+            argv += [key, value]
+        return bool(self._update(keys=[self.job_key(job_id)], args=argv))
+
+    def list(self, owner: str, offset: int, limit: int) -> tuple[list[JobRecord], int]:
+        """One page of an owner's jobs, newest first, and how many there are."""
+        key = self.index_key(owner)
+        ids: list[str] = self.r.zrevrange(key, offset, offset + limit - 1)  # type: ignore[assignment]
+        total = int(self.r.zcard(key))  # type: ignore[arg-type]
+        pipe = self.r.pipeline()
+        for job_id in ids:
+            pipe.hgetall(self.job_key(job_id))
+        records = [JobRecord.from_hash(raw) for raw in pipe.execute() if raw]
+        return records, total
+
+    def delete(self, record: JobRecord) -> None:
+        """Forget a job in Redis and remove its folder."""
+        pipe = self.r.pipeline()
+        pipe.delete(self.job_key(record.id), self.cancel_key(record.id))
+        pipe.zrem(self.index_key(record.owner), record.id)
+        pipe.execute()
+        shutil.rmtree(self.job_dir(record.id), ignore_errors=True)
+
+    # --- cancel flag ----------------------------------------------------------------------
+    def request_cancel(self, job_id: str) -> None:
+        """Ask the worker to stop this job at its next step."""
+        self.r.set(self.cancel_key(job_id), "1", ex=7 * 24 * 3600)
+
+    def cancel_requested(self, job_id: str) -> bool:
+        """True once someone asked the job to stop (or the job is gone)."""
+        pipe = self.r.pipeline()
+        pipe.exists(self.cancel_key(job_id))
+        pipe.exists(self.job_key(job_id))
+        flag, exists = pipe.execute()
+        return bool(flag) or not exists
+
+    # --- state.json -----------------------------------------------------------------------
+    def write_state_file(self, record: JobRecord) -> None:
+        """Atomically mirror a record into its folder (skipped when the folder is gone)."""
+        folder = self.job_dir(record.id)
+        if not folder.is_dir():
+            return
+        tmp = folder / f".{STATE_FILE}.{os.getpid()}.tmp"
+        try:
+            tmp.write_text(record.model_dump_json(indent=1))
+            os.replace(tmp, folder / STATE_FILE)
+        except OSError as exc:  # the folder was deleted under us: the job is gone anyway
+            log.debug("could not mirror %s: %s", record.id, exc)
+
+    def mirror(self, job_id: str) -> JobRecord | None:
+        """Copy the Redis record to state.json; returns it (None if the job is gone)."""
+        raw = self.r.hgetall(self.job_key(job_id))
+        if not raw:
+            return None
+        record = JobRecord.from_hash(raw)  # type: ignore[arg-type]
+        self.write_state_file(record)
+        return record
+
+    def read_state_file(self, job_id: str) -> JobRecord | None:
+        """The record saved in the job folder, or None when absent or unreadable."""
+        path = self.job_dir(job_id) / STATE_FILE
+        try:
+            return JobRecord.model_validate_json(path.read_text())
+        except (OSError, ValidationError, ValueError):
+            return None
+
+    def iter_job_ids(self) -> Iterator[str]:
+        """Ids of all job folders on disk."""
+        if not self.data_root.is_dir():
+            return
+        for entry in self.data_root.iterdir():
+            if entry.is_dir() and is_job_id(entry.name):
+                yield entry.name
+
+
+# --- worker heartbeats ----------------------------------------------------------------------
+def heartbeat_key(name: str) -> str:
+    """Key a live worker refreshes (it expires when the worker stops beating)."""
+    return f"{PREFIX}:worker:{name}"
+
+
+def beat(client: redis.Redis, name: str, ttl_s: float, info: dict[str, Any]) -> None:
+    """Announce a live worker for ``ttl_s`` seconds."""
+    client.set(heartbeat_key(name), json.dumps(info), ex=max(1, int(ttl_s)))
+
+
+def live_workers(client: redis.Redis) -> list[str]:
+    """Names of the workers whose heartbeat has not expired."""
+    prefix = heartbeat_key("")
+    return sorted(str(k)[len(prefix):] for k in client.scan_iter(match=prefix + "*", count=100))

@@ -1,0 +1,243 @@
+"""Validation of a job upload and the job folder it becomes.
+
+Photos are checked by content (magic bytes), dimensions are read from the header without decoding
+(decompression bombs are refused before any pixel is decoded), masks must match their photos,
+and the config is validated with the core's torch-free ``resolve_config``. Stored names are
+``NNN_<sanitised>.<ext>``: the client's name never becomes a path.
+"""
+
+from __future__ import annotations
+
+import json
+import re
+import warnings
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from PIL import Image
+from pydantic import AnyHttpUrl, TypeAdapter, ValidationError
+
+from app.errors import ApiError
+from app.multipart import ReceivedForm, StoredPart
+from app.schemas import JobCreate
+from app.settings import Settings
+
+_EXIF_ORIENTATION = 0x0112
+_PIL_FORMATS = {"jpg": "JPEG", "png": "PNG", "webp": "WEBP"}
+_URL = TypeAdapter(AnyHttpUrl)
+
+
+@dataclass(frozen=True)
+class ImageInfo:
+    """What the header of an image says."""
+
+    ext: str
+    width: int
+    height: int
+    oriented: tuple[int, int]  # (width, height) after the EXIF rotation
+
+
+@dataclass(frozen=True)
+class JobSpec:
+    """A validated upload, laid out in its staging folder."""
+
+    names: list[str]
+    preset: str
+    overrides: dict[str, Any]
+    webhook_url: str | None
+
+
+def sniff_type(head: bytes) -> str | None:
+    """The image type from the first bytes of a file: "jpg", "png", "webp" or None."""
+    if head.startswith(b"\xff\xd8\xff"):
+        return "jpg"
+    if head.startswith(b"\x89PNG\r\n\x1a\n"):
+        return "png"
+    if len(head) >= 12 and head[:4] == b"RIFF" and head[8:12] == b"WEBP":
+        return "webp"
+    return None
+
+
+def safe_stem(filename: str) -> str:
+    """A file-name stem made of ``[A-Za-z0-9_-]`` only, at most 40 characters."""
+    base = filename.replace("\\", "/").rsplit("/", 1)[-1]
+    stem = base.rsplit(".", 1)[0] if "." in base.lstrip(".") else base
+    clean = re.sub(r"[^A-Za-z0-9_-]+", "_", stem).strip("_-")[:40]
+    return clean or "photo"
+
+
+def inspect_image(part: StoredPart, settings: Settings) -> ImageInfo:
+    """Check one uploaded image by content and header.
+
+    Args:
+        part: the file on disk.
+        settings: size limits.
+
+    Returns:
+        Its type and size.
+
+    Raises:
+        ApiError: 415 for a type other than JPEG/PNG/WebP, 422 for an unreadable, too small or
+            too large (megapixels) image.
+    """
+    with part.path.open("rb") as handle:
+        ext = sniff_type(handle.read(16))
+    if ext is None:
+        raise ApiError(415, "unsupported_image_type", "not a JPEG, PNG or WebP image",
+                       photo=part.filename, field=part.field,
+                       hint="save it as JPEG, PNG or WebP (the type is read from the content)")
+    width, height, orientation = _read_header(part, ext)
+    megapixels = width * height / 1e6
+    if megapixels > settings.max_megapixels:
+        raise ApiError(422, "image_too_large",
+                       f"{width}x{height} is {megapixels:.1f} megapixels; the limit is "
+                       f"{settings.max_megapixels:g}", photo=part.filename, field=part.field,
+                       hint="downscale it (a few megapixels is plenty)")
+    if min(width, height) < settings.min_side_px:
+        raise ApiError(422, "image_too_small",
+                       f"{width}x{height} pixels; each side needs {settings.min_side_px} or more",
+                       photo=part.filename, field=part.field, hint="use a larger photo")
+    oriented = (height, width) if orientation in (5, 6, 7, 8) else (width, height)
+    return ImageInfo(ext, width, height, oriented)
+
+
+def _read_header(part: StoredPart, ext: str) -> tuple[int, int, int]:
+    unreadable = ApiError(422, "unreadable_image", "the image header cannot be read",
+                          photo=part.filename, field=part.field,
+                          hint="the file may be truncated or damaged; export it again")
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", Image.DecompressionBombWarning)
+            with Image.open(part.path) as image:  # lazy: reads the header only
+                if image.format != _PIL_FORMATS[ext]:
+                    raise unreadable
+                width, height = image.size
+                # PNG's getexif() decodes the whole image to find a trailing eXIf chunk: only
+                # JPEG and WebP carry the orientation in the header we already read.
+                orientation = (int(image.getexif().get(_EXIF_ORIENTATION, 1) or 1)
+                               if ext != "png" else 1)
+    except Image.DecompressionBombError:
+        raise ApiError(422, "image_too_large", "the image has far too many pixels",
+                       photo=part.filename, field=part.field, hint="downscale it") from None
+    except ApiError:
+        raise
+    except Exception:  # Pillow raises many types on damaged headers
+        raise unreadable from None
+    return width, height, orientation
+
+
+def check_counts(form: ReceivedForm, settings: Settings) -> None:
+    """The number of photos and masks."""
+    images, masks = form.files["images"], form.files["masks"]
+    lo, hi = settings.min_photos, settings.max_photos
+    if not lo <= len(images) <= hi:
+        raise ApiError(422, "photo_count", f"{len(images)} photos sent; {lo} to {hi} are needed",
+                       field="images", hint=f"upload {lo} to {hi} photos taken walking around "
+                       "the object, in walking order")
+    if masks and len(masks) != len(images):
+        raise ApiError(422, "mask_count", f"{len(masks)} masks for {len(images)} photos",
+                       field="masks", hint="send one mask per photo in the same order, or none")
+
+
+def check_mask(mask: StoredPart, photo: StoredPart, photo_info: ImageInfo,
+               settings: Settings) -> ImageInfo:
+    """A mask must be an image the size of its photo (stored or EXIF-rotated)."""
+    info = inspect_image(mask, settings)
+    sizes = {(photo_info.width, photo_info.height), photo_info.oriented}
+    if (info.width, info.height) not in sizes:
+        raise ApiError(422, "mask_size", f"the mask is {info.width}x{info.height} pixels but "
+                       f"the photo is {photo_info.oriented[0]}x{photo_info.oriented[1]}",
+                       photo=photo.filename, field="masks",
+                       hint="give each mask the size of its photo, in the same order")
+    return info
+
+
+def parse_config(raw: str | None, settings: Settings) -> tuple[str, dict[str, Any]]:
+    """Validate the `config` JSON field with the core's ``resolve_config``.
+
+    Returns:
+        (preset name, overrides) as given, once they resolve.
+    """
+    from cadnerf_core.config import resolve_config  # torch-free by contract
+
+    try:
+        create = JobCreate.model_validate_json(raw or "{}")
+    except ValidationError as exc:
+        raise _config_error(exc) from None
+    preset = create.preset or settings.default_preset
+    try:
+        resolve_config(preset, create.overrides)
+    except ValidationError as exc:
+        raise _config_error(exc) from None
+    except (ValueError, TypeError) as exc:
+        raise ApiError(422, "invalid_config", str(exc)[:300], field="config",
+                       hint='send JSON like {"preset": "preview", "overrides": {}}') from None
+    return preset, create.overrides
+
+
+def _config_error(exc: ValidationError) -> ApiError:
+    err = exc.errors()[0]
+    where = ".".join(str(p) for p in err.get("loc", ()))
+    message = f"{where}: {err.get('msg')}" if where else str(err.get("msg"))
+    if err.get("type") == "json_invalid":
+        message = "`config` is not valid JSON"
+    return ApiError(422, "invalid_config", message[:300], field="config",
+                    hint='send JSON like {"preset": "preview", "overrides": {"phase2.steps": 300}}')
+
+
+def parse_webhook(raw: str | None) -> str | None:
+    """An http(s) URL or None."""
+    if not raw:
+        return None
+    try:
+        return str(_URL.validate_python(raw.strip()))[:2048]
+    except ValidationError:
+        raise ApiError(422, "invalid_webhook_url", "`webhook_url` is not an http(s) URL",
+                       field="webhook_url", hint="send a full URL like https://host/path") from None
+
+
+def lay_out(form: ReceivedForm, staging: Path, settings: Settings) -> JobSpec:
+    """Validate a received form and move its files into the job-folder layout in ``staging``.
+
+    Args:
+        form: the streamed parts (in ``staging``).
+        staging: the staging folder that becomes the job folder.
+        settings: limits and the default preset.
+
+    Returns:
+        The job's names, preset, overrides and webhook URL; ``staging`` now holds
+        ``inputs/``, optional ``masks/`` and ``config.json``.
+    """
+    check_counts(form, settings)
+    preset, overrides = parse_config(form.texts.get("config"), settings)
+    webhook = parse_webhook(form.texts.get("webhook_url"))
+    images, masks = form.files["images"], form.files["masks"]
+    infos = [inspect_image(part, settings) for part in images]
+    mask_infos = [check_mask(m, p, i, settings) for m, p, i in zip(masks, images, infos,
+                                                                    strict=False)]
+    (staging / "inputs").mkdir()
+    for index, (part, info) in enumerate(zip(images, infos, strict=True)):
+        part.path.rename(staging / "inputs" / f"{index:03d}_{safe_stem(part.filename)}.{info.ext}")
+    if masks:
+        (staging / "masks").mkdir()
+        for index, (part, info) in enumerate(zip(masks, mask_infos, strict=True)):
+            target = staging / "masks" / f"{index:03d}_{safe_stem(part.filename)}.png"
+            _store_mask(part, info, target)
+    config = {"preset": preset, "overrides": overrides}
+    (staging / "config.json").write_text(json.dumps(config, indent=1))
+    return JobSpec([p.filename for p in images], preset, overrides, webhook)
+
+
+def _store_mask(part: StoredPart, info: ImageInfo, target: Path) -> None:
+    if info.ext == "png":
+        part.path.rename(target)
+        return
+    try:
+        with Image.open(part.path) as image:  # size already checked: decoding is bounded
+            keep = image.mode in ("1", "L", "LA", "P", "RGB", "RGBA")
+            (image if keep else image.convert("RGB")).save(target, format="PNG")
+    except Exception:  # a damaged body behind a good header
+        raise ApiError(422, "unreadable_image", "the mask cannot be decoded", photo=part.filename,
+                       field="masks", hint="export the mask again as PNG") from None
+    part.path.unlink()

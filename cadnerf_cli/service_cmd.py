@@ -1,0 +1,176 @@
+"""`cadnerf serve`, `cadnerf worker` and `cadnerf demo`: the service from the command line."""
+
+from __future__ import annotations
+
+import logging
+import os
+import sys
+import tempfile
+import threading
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+import typer
+
+if TYPE_CHECKING:
+    from app.settings import Settings
+
+log = logging.getLogger(__name__)
+
+
+def _settings_or_exit() -> Settings:
+    from app.settings import SettingsError, load_settings
+
+    try:
+        return load_settings()
+    except SettingsError as exc:
+        typer.echo(f"error: {exc}", err=True)
+        raise typer.Exit(2) from None
+
+
+def serve(host: str = typer.Option("127.0.0.1", help="Address to listen on."),
+          port: int = typer.Option(8000, help="Port to listen on."),
+          demo: bool = typer.Option(False, "--demo", help="Run the demo once the API is up."),
+          demo_preset: str = typer.Option("preview", help="Preset of the demo job.")) -> None:
+    """Run the API; without CADNERF_REDIS_URL also an embedded Redis and one worker."""
+    import uvicorn
+
+    from app.embedded import EmbeddedRedis, Supervisor
+    from app.main import create_app
+    from app.settings import load_settings
+
+    settings = _settings_or_exit()
+    embedded: EmbeddedRedis | None = None
+    supervisor: Supervisor | None = None
+    if not settings.redis_url:
+        embedded = EmbeddedRedis(settings.data_root.resolve().parent / "redis" / "cadnerf.rdb")
+        os.environ["CADNERF_REDIS_URL"] = embedded.start()  # inherited by the worker
+        settings = load_settings()
+        supervisor = Supervisor([sys.executable, "-m", "cadnerf_cli.main", "worker"],
+                                env=dict(os.environ))
+        supervisor.start()
+    if demo:
+        client_host = "127.0.0.1" if host in ("0.0.0.0", "::") else host
+        threading.Thread(target=_demo_when_ready, args=(f"http://{client_host}:{port}",
+                                                        demo_preset), daemon=True).start()
+    try:
+        uvicorn.run(create_app(settings), host=host, port=port, log_level="info")
+    finally:
+        if supervisor is not None:
+            supervisor.stop()
+        if embedded is not None:
+            embedded.stop()
+
+
+def _demo_when_ready(url: str, preset: str) -> None:
+    import httpx
+
+    from app.embedded import wait_until
+
+    def ready() -> bool:
+        try:
+            return httpx.get(f"{url}/readyz", timeout=2).status_code == 200
+        except httpx.HTTPError:
+            return False
+
+    if not wait_until(ready, timeout_s=600):
+        log.error("the service did not become ready in 10 minutes; no demo")
+        return
+    try:
+        run_demo(url, preset=preset)
+    except Exception:  # the demo failing must not stop the server
+        log.exception("the demo failed")
+
+
+def worker(loglevel: str = typer.Option("INFO", help="Celery log level.")) -> None:
+    """Run one Celery worker (solo pool, concurrency 1, queue `cadnerf`)."""
+    from app.queue import QUEUE
+    from worker.celery_app import create_celery
+
+    settings = _settings_or_exit()
+    if not settings.redis_url:
+        typer.echo("error: CADNERF_REDIS_URL is empty (`cadnerf serve` sets it for its worker)",
+                   err=True)
+        raise typer.Exit(2)
+    celery = create_celery(settings)
+    celery.worker_main(["worker", "--pool", "solo", "--concurrency", "1", "--queues", QUEUE,
+                        "--loglevel", loglevel, "--hostname", f"cadnerf-{os.getpid()}@%h",
+                        "--without-gossip", "--without-mingle"])
+
+
+def demo_mesh(path: Path) -> Path:
+    """Write a chair-like mesh (seat, back, four legs) made with trimesh.creation."""
+    import trimesh
+
+    parts = [trimesh.creation.box((1.0, 0.12, 1.0), trimesh.transformations.translation_matrix(
+        (0, 0.0, 0)))]
+    parts.append(trimesh.creation.box((1.0, 1.0, 0.12),
+                                      trimesh.transformations.translation_matrix((0, 0.56, -0.44))))
+    for x in (-0.42, 0.42):
+        for z in (-0.42, 0.42):
+            parts.append(trimesh.creation.box(
+                (0.12, 0.9, 0.12), trimesh.transformations.translation_matrix((x, -0.5, z))))
+    trimesh.util.concatenate(parts).export(path)
+    return path
+
+
+def run_demo(url: str, preset: str = "preview", views: int = 6, size: int = 160,
+             mesh: Path | None = None, out: Path | None = None,
+             api_key: str | None = None) -> dict[str, Any]:
+    """Render a synthetic object, submit it over HTTP, follow it, download the orbit.
+
+    Returns:
+        The job's final status.
+    """
+    from app.client import JobClient
+    from cadnerf_core.dataset import render_dataset
+
+    logging.getLogger("httpx").setLevel(logging.WARNING)  # one line per poll is noise here
+    out = out or Path(tempfile.mkdtemp(prefix="cadnerf-demo-"))
+    mesh = mesh or demo_mesh(out / "chair.ply")
+    dataset = render_dataset(mesh, out / "dataset", n_views=views, size=size, seed=0)
+    photos = sorted((dataset / "images").glob("*.png"))
+    client = JobClient(url, api_key=api_key)
+    try:
+        job = client.submit(photos, config={"preset": preset})
+        typer.echo(f"demo job {job['id']}: {len(photos)} photos, preset {preset}")
+        typer.echo(f"watch it at {url}/?job={job['id']}")
+        final = client.follow(job["id"], on_update=_print_status, poll_s=1.0)
+        if final["state"] != "succeeded":
+            typer.echo(f"demo job {final['state']}: {final.get('error')}", err=True)
+            return final
+        orbit = client.download(job["id"], "orbit.mp4", out / "orbit.mp4")
+        typer.echo(f"orbit video: {url}/v1/jobs/{job['id']}/artifacts/orbit.mp4")
+        typer.echo(f"downloaded to {orbit}")
+        return final
+    finally:
+        client.close()
+
+
+def _print_status(status: dict[str, Any]) -> None:
+    eta = status.get("eta_s")
+    running = status["state"] == "running" and isinstance(eta, int | float)
+    eta_text = f", about {eta:.0f} s left" if running else ""
+    typer.echo(f"  {status['state']:9s} {status.get('stage') or '-':9s} "
+               f"{100 * float(status.get('progress') or 0):5.1f}%{eta_text}")
+
+
+def demo(url: str = typer.Option("http://127.0.0.1:8000", help="The service's base URL."),
+         preset: str = typer.Option("preview", help="Preset of the job."),
+         views: int = typer.Option(6, min=3, max=10, help="Photos to render."),
+         size: int = typer.Option(160, min=64, max=1024, help="Photo side in pixels."),
+         mesh: Path | None = typer.Option(None, help="A mesh file instead of the built-in chair."),
+         out: Path | None = typer.Option(None, help="Folder for the photos and the orbit."),
+         api_key: str | None = typer.Option(None, envvar="CADNERF_DEMO_API_KEY",
+                                            help="API key, if the server needs one.")) -> None:
+    """Render a synthetic object, send it to a running service and follow it to the orbit."""
+    final = run_demo(url, preset, views, size, mesh, out, api_key)
+    if final["state"] != "succeeded":
+        raise typer.Exit(1)
+
+
+def register(app: typer.Typer) -> None:
+    """Add `serve`, `worker` and `demo` to the `cadnerf` command."""
+    app.command("serve")(serve)
+    app.command("worker")(worker)
+    app.command("demo")(demo)

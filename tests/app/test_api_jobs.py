@@ -1,0 +1,189 @@
+"""Job routes against a real Redis: submit, poll, list, result, artifacts, delete."""
+
+from __future__ import annotations
+
+import json
+import time
+import uuid
+from pathlib import Path
+
+import pytest
+import redis
+from fastapi.testclient import TestClient
+from PIL import Image
+
+from app import jobs
+from app.schemas import JobState
+from app.settings import Settings
+from app.store import JobStore, connect
+
+
+def _store(settings: Settings) -> JobStore:
+    return JobStore(connect(settings.redis_url), settings.data_root)
+
+
+def _submit(client: TestClient, photos, **data: str) -> dict:
+    response = client.post("/v1/jobs", files=photos(), data=data)
+    assert response.status_code == 202, response.text
+    return response.json()
+
+
+def _succeed(settings: Settings, job_id: str) -> Path:
+    """Write what the pipeline writes into the job folder and mark the job succeeded."""
+    folder = settings.data_root / job_id
+    (folder / "views").mkdir()
+    (folder / "orbit.mp4").write_bytes(bytes(range(256)) * 8)
+    (folder / "mesh.glb").write_bytes(b"glTF" + bytes(60))
+    Image.new("RGB", (32, 32), "gray").save(folder / "views" / "000.png")
+    eye = [[1.0, 0, 0, 0.5], [0, 1.0, 0, 0.2], [0, 0, 1.0, 3.9], [0, 0, 0, 1.0]]
+    retrieval = {"model_id": "chair_01", "category": "chair", "matches": [
+        {"index": i, "name": f"photo_{i}.png", "view": 3 * i, "azimuth": 18.0 * i,
+         "elevation": 15.0, "iou": 0.9 - 0.1 * i, "discarded": i == 2, "c2w": eye}
+        for i in range(3)]}
+    poses = {"model_id": "chair_01", "photos": [
+        {"index": i, "name": f"photo_{i}.png", "c2w": eye, "K": [[50, 0, 40], [0, 50, 32],
+                                                                  [0, 0, 1]]} for i in range(2)]}
+    (folder / "retrieval.json").write_text(json.dumps(retrieval))
+    (folder / "poses.json").write_text(json.dumps(poses))
+    (folder / "metrics.json").write_text(json.dumps({"mask_iou": 0.91}))
+    store = _store(settings)
+    assert store.update(job_id, state=JobState.succeeded, progress=1.0, finished_at=time.time())
+    store.mirror(job_id)
+    return folder
+
+
+def test_submit_stores_the_job_and_queues_it_by_name(client: TestClient, settings: Settings,
+                                                     photos, clean_redis: redis.Redis) -> None:
+    response = client.post("/v1/jobs", files=photos(3),
+                           data={"config": json.dumps({"preset": "test"})})
+    assert response.status_code == 202
+    body = response.json()
+    assert uuid.UUID(body["id"]).version == 4
+    assert response.headers["location"] == f"/v1/jobs/{body['id']}"
+    assert body["state"] == "queued" and body["n_photos"] == 3 and body["preset"] == "test"
+    folder = settings.data_root / body["id"]
+    assert sorted(p.name for p in (folder / "inputs").iterdir()) == [
+        "000_photo_0.png", "001_photo_1.png", "002_photo_2.png"]
+    assert json.loads((folder / "config.json").read_text()) == {"preset": "test", "overrides": {}}
+    assert json.loads((folder / "state.json").read_text())["state"] == "queued"
+    messages = clean_redis.lrange("cadnerf", 0, -1)
+    assert len(messages) == 1
+    headers = json.loads(messages[0])["headers"]
+    assert headers["task"] == "cadnerf.run_job" and body["id"] in headers["argsrepr"]
+    assert [p.name for p in settings.data_root.iterdir()] == [body["id"]]  # no staging left
+
+
+def test_status_is_read_back_and_unknown_ids_are_404(client: TestClient, photos) -> None:
+    job = _submit(client, photos)
+    status = client.get(f"/v1/jobs/{job['id']}").json()
+    assert status["id"] == job["id"] and status["state"] == "queued" and status["progress"] == 0
+    for bad in (str(uuid.uuid4()), "not-an-id", "..%2F..%2Fetc"):
+        response = client.get(f"/v1/jobs/{bad}")
+        assert response.status_code == 404
+        assert response.json()["error"]["code"] == "not_found"
+
+
+def test_status_survives_a_redis_flush_through_state_json(client: TestClient, photos,
+                                                          clean_redis: redis.Redis) -> None:
+    job = _submit(client, photos)
+    clean_redis.flushdb()
+    response = client.get(f"/v1/jobs/{job['id']}")
+    assert response.status_code == 200 and response.json()["state"] == "queued"
+    assert clean_redis.hget(f"cadnerf:job:{job['id']}", "state") == "queued"  # re-seeded
+    assert [j["id"] for j in client.get("/v1/jobs").json()["items"]] == [job["id"]]
+
+
+def test_list_is_newest_first_and_paginated(client: TestClient, photos) -> None:
+    ids = [_submit(client, photos)["id"] for _ in range(3)]
+    page = client.get("/v1/jobs", params={"limit": 2}).json()
+    assert [j["id"] for j in page["items"]] == ids[::-1][:2]
+    assert page["total"] == 3 and page["next"] == "/v1/jobs?limit=2&offset=2"
+    last = client.get(page["next"]).json()
+    assert [j["id"] for j in last["items"]] == [ids[0]] and last["next"] is None
+    assert client.get("/v1/jobs", params={"limit": 0}).status_code == 422
+
+
+def test_result_is_409_until_succeeded_then_complete(client: TestClient, settings: Settings,
+                                                     photos) -> None:
+    job = _submit(client, photos)
+    early = client.get(f"/v1/jobs/{job['id']}/result")
+    assert early.status_code == 409 and early.json()["error"]["code"] == "not_ready"
+    assert client.get(f"/v1/jobs/{job['id']}/artifacts/orbit.mp4").status_code == 409
+    _succeed(settings, job["id"])
+    result = client.get(f"/v1/jobs/{job['id']}/result").json()
+    assert result["model"] == {"id": "chair_01", "category": "chair"}
+    assert [p["iou"] for p in result["photos"]] == pytest.approx([0.9, 0.8, 0.7])
+    assert result["discarded"] == ["photo_2.png"]
+    assert result["photos"][0]["K"][0][0] == 50 and result["photos"][2]["c2w"] is None
+    assert result["metrics"] == {"mask_iou": 0.91}
+    assert result["artifacts"]["orbit.mp4"] == f"/v1/jobs/{job['id']}/artifacts/orbit.mp4"
+    assert "views/000.png" in result["artifacts"] and "orbit.gif" not in result["artifacts"]
+
+
+def test_artifacts_stream_with_ranges_and_stay_inside_the_job(client: TestClient,
+                                                               settings: Settings, photos) -> None:
+    job = _submit(client, photos)
+    folder = _succeed(settings, job["id"])
+    base = f"/v1/jobs/{job['id']}/artifacts"
+    whole = client.get(f"{base}/orbit.mp4")
+    assert whole.status_code == 200 and whole.headers["content-type"] == "video/mp4"
+    assert whole.headers["accept-ranges"] == "bytes"
+    part = client.get(f"{base}/orbit.mp4", headers={"Range": "bytes=10-19"})
+    assert part.status_code == 206 and part.content == bytes(range(10, 20))
+    assert part.headers["content-range"] == "bytes 10-19/2048"
+    assert client.get(f"{base}/mesh.glb").headers["content-type"] == "model/gltf-binary"
+    assert client.get(f"{base}/views/000.png").headers["content-type"] == "image/png"
+    (folder / "views" / "001.png").symlink_to("/etc/hostname")
+    for name in ("state.json", "../state.json", "views/../../x", "views/001.png",
+                 "inputs/000_photo_0.png", "orbit.avi"):
+        response = client.get(f"{base}/{name}")
+        assert response.status_code == 404, name
+
+
+def test_delete_cancels_a_queued_job_and_removes_everything(client: TestClient,
+                                                            settings: Settings, photos,
+                                                            clean_redis: redis.Redis) -> None:
+    job = _submit(client, photos)
+    response = client.delete(f"/v1/jobs/{job['id']}")
+    assert response.status_code == 200
+    assert response.json() == {"id": job["id"], "deleted": True, "previous_state": "queued",
+                               "worker_stopped": True}
+    assert not (settings.data_root / job["id"]).exists()
+    assert client.get(f"/v1/jobs/{job['id']}").status_code == 404
+    assert clean_redis.exists(f"cadnerf:job:{job['id']}") == 0
+    assert client.delete(f"/v1/jobs/{job['id']}").status_code == 404
+
+
+def test_delete_of_a_running_job_waits_for_the_worker(settings: Settings) -> None:
+    store = _store(settings)
+    record = _record(settings, state=JobState.running)
+    started = time.monotonic()
+    result = jobs.delete_job(store, record, wait_s=0.5)  # no worker acknowledges
+    assert result.worker_stopped is False and time.monotonic() - started >= 0.5
+    assert store.get(record.id) is None
+
+
+def _record(settings: Settings, state: JobState = JobState.queued, created_at: float | None = None,
+            finished_at: float | None = None):
+    from app.store import JobRecord
+
+    record = JobRecord(id=str(uuid.uuid4()), preset="test", n_photos=3, state=state,
+                       created_at=created_at or time.time(), finished_at=finished_at)
+    (settings.data_root / record.id).mkdir(parents=True)
+    _store(settings).create(record)
+    return record
+
+
+def test_cleanup_removes_expired_jobs_and_stale_uploads(settings: Settings) -> None:
+    store = _store(settings)
+    day = 86400.0
+    old = _record(settings, JobState.succeeded, time.time() - 10 * day, time.time() - 9 * day)
+    fresh = _record(settings, JobState.succeeded, time.time() - day, time.time() - day)
+    running = _record(settings, JobState.running, time.time() - 10 * day)
+    staging = settings.data_root / ".upload-abandoned"
+    staging.mkdir()
+    removed = jobs.cleanup(store, retention_s=7 * day, now=time.time() + 2 * 3600)
+    assert removed == 1
+    assert store.get(old.id) is None and not (settings.data_root / old.id).exists()
+    assert store.get(fresh.id) is not None and store.get(running.id) is not None
+    assert not staging.exists()

@@ -1,0 +1,67 @@
+"""The web page in headless Chromium: upload, watch progress, play the orbit, screenshot."""
+
+from __future__ import annotations
+
+import shutil
+from pathlib import Path
+
+import pytest
+
+pytestmark = [pytest.mark.slow, pytest.mark.browser]
+
+ROOT = Path(__file__).resolve().parents[2]
+CHROMIUM = shutil.which("chromium") or ("/usr/bin/chromium" if Path("/usr/bin/chromium").exists()
+                                         else None)
+LAUNCH_ARGS = ["--headless", "--no-sandbox", "--disable-gpu", "--disable-background-networking",
+               "--disable-component-update", "--disable-sync"]
+
+
+@pytest.mark.skipif(CHROMIUM is None, reason="chromium is not installed (apt-get install chromium)")
+def test_upload_progress_video_and_screenshot(live_service, photo_set: list[Path]) -> None:
+    from playwright.sync_api import sync_playwright
+
+    with sync_playwright() as playwright:
+        browser = playwright.chromium.launch(executable_path=CHROMIUM, args=LAUNCH_ARGS)
+        try:
+            page = browser.new_page(viewport={"width": 1100, "height": 1400})
+            page.goto(live_service.url, timeout=30_000)
+            page.wait_for_selector("#preset option[value=test]", state="attached")
+            page.set_input_files("#photos", [str(p) for p in photo_set])
+            assert page.locator("#thumbs li").count() == len(photo_set)
+            assert page.locator("#thumbs li .order").all_inner_texts() == [
+                str(i + 1) for i in range(len(photo_set))]
+            page.select_option("#preset", "test")
+            page.click("#submit")
+            page.wait_for_selector("#status", state="visible", timeout=30_000)
+            widths = _progress_samples(page)
+            page.wait_for_selector("#result", state="visible", timeout=300_000)
+            duration = page.wait_for_function(
+                "() => { const v = document.getElementById('orbit');"
+                " return v.readyState >= 1 && v.duration > 0 ? v.duration : null; }",
+                timeout=60_000).json_value()
+            assert duration > 0
+            assert max(widths) > 0 and widths == sorted(widths)  # the bar moved forward
+            assert page.locator("#matches tbody tr").count() == len(photo_set)
+            assert page.locator("#cameras circle").count() >= 2 + len(photo_set) - 2
+            assert page.locator("#downloads a", has_text="mesh.glb").count() == 1
+            assert "Retrieved CAD model" in page.inner_text("#model")
+            assert "succeeded" in page.inner_text("#status-text")
+            page.wait_for_timeout(500)
+            (ROOT / "docs").mkdir(exist_ok=True)
+            page.screenshot(path=str(ROOT / "docs" / "web_page.png"), full_page=True)
+        finally:
+            browser.close()
+
+
+def _progress_samples(page) -> list[float]:  # type: ignore[no-untyped-def]
+    """Widths (percent) of the progress bar, sampled until the job ends."""
+    widths: list[float] = []
+    for _ in range(1500):
+        width = page.evaluate("() => parseFloat(document.getElementById('bar-fill').style.width)"
+                              " || 0")
+        widths.append(float(width))
+        if not page.locator("#result").is_hidden() or page.locator("#job-error").is_visible():
+            break
+        page.wait_for_timeout(200)
+    assert not page.locator("#job-error").is_visible(), page.inner_text("#job-error")
+    return widths

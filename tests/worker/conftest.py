@@ -1,0 +1,48 @@
+"""Fixtures for the worker tests: a real Redis (see tests/redis_fixture.py) and a job store."""
+
+from __future__ import annotations
+
+import sys
+import time
+import uuid
+from collections.abc import Callable
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[2]
+if str(ROOT) not in sys.path:
+    sys.path.insert(0, str(ROOT))
+
+
+def pytest_configure(config: pytest.Config) -> None:
+    """Load the shared real-Redis fixtures (tests/redis_fixture.py) once for the session."""
+    from tests import redis_fixture
+
+    if not config.pluginmanager.is_registered(redis_fixture):
+        config.pluginmanager.register(redis_fixture, "cadnerf_redis_fixture")
+
+
+from app.schemas import JobState  # noqa: E402
+from app.store import JobRecord, JobStore, connect  # noqa: E402
+
+
+@pytest.fixture()
+def store(tmp_path: Path, redis_url: str, clean_redis: object) -> JobStore:
+    """A job store on a fresh data root and a flushed Redis database."""
+    (tmp_path / "jobs").mkdir()
+    return JobStore(connect(redis_url), tmp_path / "jobs")
+
+
+@pytest.fixture()
+def new_job(store: JobStore) -> Callable[..., JobRecord]:
+    """Create a job record and its (empty) folder."""
+    def make(state: JobState = JobState.queued, preset: str = "test",
+             webhook_url: str | None = None) -> JobRecord:
+        record = JobRecord(id=str(uuid.uuid4()), preset=preset, n_photos=3, state=state,
+                           names=["a.png", "b.png", "c.png"], created_at=time.time(),
+                           webhook_url=webhook_url)
+        store.job_dir(record.id).mkdir()
+        store.create(record)
+        return record
+    return make

@@ -1,0 +1,103 @@
+"""Progress adapter: weighted fraction, ETA, throttled writes to Redis, cancel checks."""
+
+from __future__ import annotations
+
+import json
+import time
+
+import pytest
+
+from app.store import JobStore
+from worker.progress import (
+    DEFAULT_STAGE_SECONDS,
+    EtaModel,
+    JobProgress,
+    expected_stage_seconds,
+    record_stage_seconds,
+)
+
+EXPECTED = {"masks": 1.0, "retrieval": 1.0, "phase1": 2.0, "phase2": 4.0, "phase3": 8.0,
+            "render": 2.0, "export": 2.0}  # 20 s in all
+
+
+def test_fraction_is_weighted_by_expected_stage_time() -> None:
+    eta = EtaModel(dict(EXPECTED))
+    fraction, left = eta.update("masks", 1, 1, now=0.0)
+    assert fraction == pytest.approx(1 / 20)
+    fraction, _ = eta.update("phase2", 2, 4, now=2.0)  # masks..phase1 done (4 s) + half of 4 s
+    assert fraction == pytest.approx(6 / 20)
+    fraction, _ = eta.update("phase1", 1, 2, now=3.0)  # going back never lowers the fraction
+    assert fraction == pytest.approx(6 / 20)
+
+
+def test_eta_follows_the_observed_speed() -> None:
+    eta = EtaModel(dict(EXPECTED))
+    _, table_left = eta.update("phase3", 0, 10, now=0.0)
+    assert table_left == pytest.approx(8 + 2 + 2)  # no observation yet: the table
+    # Observed: phase3 runs twice as slow as planned (half done after 8 s instead of 4 s).
+    _, left = eta.update("phase3", 5, 10, now=8.0)
+    slow = 0.5 * 16 * 0.5 + 0.5 * 8 * 0.5 + (2 + 2) * 2
+    assert left == pytest.approx(slow)
+    assert left > 8  # slower than the table's 4 + 4 s
+
+
+def test_measured_stage_times_replace_the_defaults(clean_redis) -> None:
+    defaults = DEFAULT_STAGE_SECONDS["test"]
+    assert expected_stage_seconds(clean_redis, "test", "cpu") == defaults
+    record_stage_seconds(clean_redis, "test", "cpu", {"phase2": 10.0})
+    record_stage_seconds(clean_redis, "test", "cpu", {"phase2": 20.0})
+    table = expected_stage_seconds(clean_redis, "test", "cpu")
+    assert table["phase2"] == pytest.approx(15.0) and table["masks"] == defaults["masks"]
+    assert expected_stage_seconds(clean_redis, "test", "cuda") == defaults
+
+
+class Clock:
+    def __init__(self) -> None:
+        self.now = 100.0
+
+    def __call__(self) -> float:
+        return self.now
+
+
+def test_reports_reach_redis_throttled_and_state_json_on_stage_changes(store: JobStore,
+                                                                       new_job) -> None:
+    record = new_job()
+    clock = Clock()
+    sent: list[dict] = []
+    progress = JobProgress(store, record.id, EtaModel(dict(EXPECTED)), clock=clock,
+                           celery_update=sent.append, throttle_s=0.5, mirror_every_s=5.0)
+    progress("phase1", 1, 4)
+    first = store.r.hgetall(store.job_key(record.id))
+    assert first["stage"] == "phase1" and float(first["progress"]) == pytest.approx(2.5 / 20)
+    state = json.loads((store.job_dir(record.id) / "state.json").read_text())
+    assert state["stage"] == "phase1"
+    clock.now += 0.1
+    progress("phase1", 2, 4)  # within the throttle window: not written
+    assert float(str(store.r.hget(store.job_key(record.id), "progress"))) == pytest.approx(2.5 / 20)
+    clock.now += 0.5
+    progress("phase1", 3, 4)
+    assert float(str(store.r.hget(store.job_key(record.id), "progress"))) == pytest.approx(3.5 / 20)
+    assert [s["done"] for s in sent] == [1, 3] and sent[-1]["eta_s"] > 0
+
+
+def test_cancel_flag_and_deadline(store: JobStore, new_job) -> None:
+    record = new_job()
+    clock = Clock()
+    progress = JobProgress(store, record.id, EtaModel(dict(EXPECTED)), clock=clock)
+    assert progress.cancelled() is False
+    store.request_cancel(record.id)
+    assert progress.cancelled() is False  # checked at most every 0.25 s
+    clock.now += 0.3
+    assert progress.cancelled() is True and progress.timed_out is False
+    late = JobProgress(store, new_job().id, EtaModel(dict(EXPECTED)), deadline=time.time() - 1)
+    assert late.cancelled() is True and late.timed_out is True
+
+
+def test_a_deleted_job_counts_as_cancelled_and_is_not_recreated(store: JobStore,
+                                                                 new_job) -> None:
+    record = new_job()
+    store.delete(record)
+    progress = JobProgress(store, record.id, EtaModel(dict(EXPECTED)))
+    progress("phase1", 1, 2)
+    assert store.r.exists(store.job_key(record.id)) == 0
+    assert progress.cancelled() is True

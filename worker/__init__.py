@@ -1,0 +1,1 @@
+"""Celery worker: a thin task that runs the core pipeline on one job folder."""

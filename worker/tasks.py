@@ -1,0 +1,29 @@
+"""The one task: ``cadnerf.run_job(job_id)``. Messaging only; the work is in ``worker.runner``."""
+
+from __future__ import annotations
+
+from typing import Any
+
+from celery import Task, shared_task
+
+from app.settings import Settings
+from app.store import JobStore, connect
+from worker import runner
+
+PROGRESS_STATE = "PROGRESS"
+
+
+@shared_task(name="cadnerf.run_job", bind=True, acks_late=True, reject_on_worker_lost=True,
+             ignore_result=False)
+def run_job(self: Task, job_id: str) -> dict[str, Any]:
+    """Run the job whose folder is ``<data root>/<job_id>``; returns its final state."""
+    settings: Settings = self.app.conf.cadnerf_settings
+    store = JobStore(connect(settings.redis_url), settings.data_root)
+
+    def celery_update(meta: dict[str, Any]) -> None:
+        self.update_state(state=PROGRESS_STATE, meta=meta)
+
+    try:
+        return runner.execute(job_id, settings, store, celery_update)
+    finally:
+        store.r.close()
