@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import logging
 
+import redis
 from fastapi import FastAPI, Request
 from fastapi.exceptions import RequestValidationError
 from fastapi.responses import JSONResponse
@@ -72,6 +73,22 @@ async def _validation_error(request: Request, exc: Exception) -> JSONResponse:
                                            hint="see the API description at /docs"))
 
 
+STORE_RETRY_AFTER_S = 5
+
+
+def store_unavailable() -> ApiError:
+    """The 503 for a Redis that does not answer (the client should retry shortly)."""
+    return ApiError(503, "store_unavailable", "the job store (Redis) is not reachable",
+                    hint=f"try again in {STORE_RETRY_AFTER_S} seconds",
+                    headers={"Retry-After": str(STORE_RETRY_AFTER_S)})
+
+
+async def _redis_down(request: Request, exc: Exception) -> JSONResponse:
+    log.warning("Redis unavailable on %s %s: %s", request.method, request.url.path, exc)
+    error = store_unavailable()
+    return error_response(error.status, error.detail, error.headers)
+
+
 async def _unexpected(request: Request, exc: Exception) -> JSONResponse:
     log.exception("unexpected error on %s %s", request.method, request.url.path)
     return error_response(500, ErrorDetail(code="internal", message="internal server error",
@@ -83,4 +100,6 @@ def install_handlers(app: FastAPI) -> None:
     app.add_exception_handler(ApiError, _api_error)
     app.add_exception_handler(StarletteHTTPException, _http_error)
     app.add_exception_handler(RequestValidationError, _validation_error)
+    app.add_exception_handler(redis.exceptions.ConnectionError, _redis_down)
+    app.add_exception_handler(redis.exceptions.TimeoutError, _redis_down)
     app.add_exception_handler(Exception, _unexpected)

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import contextlib
+import errno
 import logging
 import os
 import shutil
@@ -9,11 +11,12 @@ import time
 import uuid
 from pathlib import Path
 
+import redis
 from celery import Celery
 from starlette.concurrency import run_in_threadpool
 from starlette.requests import Request
 
-from app.errors import ApiError
+from app.errors import ApiError, store_unavailable
 from app.multipart import Limits, receive_form
 from app.queue import enqueue
 from app.schemas import DeleteResult, JobLinks, JobState, JobStatus
@@ -60,15 +63,18 @@ async def submit(request: Request, settings: Settings, store: JobStore, producer
     Returns:
         The queued job's record.
     """
-    settings.data_root.mkdir(parents=True, exist_ok=True)
     staging = settings.data_root / f"{TMP_PREFIX}{uuid.uuid4().hex}"
-    staging.mkdir()
     limits = Limits(settings.max_file_bytes, settings.max_total_bytes, settings.max_photos)
     try:
+        settings.data_root.mkdir(parents=True, exist_ok=True)
+        staging.mkdir()
         form = await receive_form(request, staging, limits)
         spec = await run_in_threadpool(lay_out, form, staging, settings)
         job_id = str(uuid.uuid4())
         os.rename(staging, store.job_dir(job_id))
+    except OSError as exc:
+        shutil.rmtree(staging, ignore_errors=True)
+        raise storage_error(exc) from None
     except BaseException:
         shutil.rmtree(staging, ignore_errors=True)
         raise
@@ -78,8 +84,28 @@ async def submit(request: Request, settings: Settings, store: JobStore, producer
     return record
 
 
+def storage_error(exc: OSError) -> ApiError:
+    """507 when the job storage is full, else 503 (the storage is missing or broken)."""
+    log.error("job storage error: %s", exc)
+    if exc.errno in (errno.ENOSPC, errno.EDQUOT):
+        return ApiError(507, "storage_full", "the server has no room left to store the upload",
+                        hint="try again later, or send smaller photos",
+                        headers={"Retry-After": "300"})
+    return ApiError(503, "storage_unavailable",
+                    f"the job storage cannot be written ({exc.strerror or type(exc).__name__})",
+                    hint="try again later; the operator has to check the data root",
+                    headers={"Retry-After": "30"})
+
+
 def _store_and_enqueue(store: JobStore, producer: Celery, record: JobRecord) -> None:
-    store.create(record)
+    try:
+        store.create(record)
+    except redis.RedisError as exc:
+        log.error("could not store job %s: %s", record.id, exc)
+        shutil.rmtree(store.job_dir(record.id), ignore_errors=True)
+        with contextlib.suppress(redis.RedisError):  # whatever part of the record got in
+            store.delete(record)
+        raise store_unavailable() from None
     try:
         enqueue(producer, record.id)
     except Exception as exc:

@@ -11,9 +11,9 @@ from fastapi import FastAPI
 from fastapi.staticfiles import StaticFiles
 from starlette.concurrency import run_in_threadpool
 
-from app import jobs
+from app import jobs, recovery
 from app.errors import install_handlers
-from app.queue import make_producer
+from app.queue import enqueue, make_producer
 from app.routes import health, library, pages
 from app.routes import jobs as job_routes
 from app.routes.pages import STATIC_DIR
@@ -22,6 +22,7 @@ from app.store import JobStore, connect, connect_async
 
 log = logging.getLogger(__name__)
 API_VERSION = "1"
+RECOVERY_INTERVAL_S = 2.0
 
 
 async def _cleanup_loop(app: FastAPI) -> None:
@@ -38,16 +39,40 @@ async def _cleanup_loop(app: FastAPI) -> None:
         await asyncio.sleep(settings.cleanup_interval_s)
 
 
+async def _recovery_loop(app: FastAPI) -> None:
+    """Every few seconds, re-queue jobs left ``running`` by a worker that died (app.recovery).
+
+    Cheap while nothing runs: one SMEMBERS of the running set; else a heartbeat scan and one
+    HGETALL + GET per running job.
+    """
+    producer = app.state.producer
+    watch = recovery.OrphanWatch(app.state.store, lambda job_id: enqueue(producer, job_id))
+    last_error = ""
+    while True:
+        try:
+            handled = await run_in_threadpool(watch.check)
+            if handled:
+                log.info("recovery: jobs of dead workers handled: %s", ", ".join(handled))
+            last_error = ""
+        except Exception as exc:  # Redis away: say it once, keep trying
+            if str(exc) != last_error:
+                log.warning("recovery check failed: %s", exc)
+            last_error = str(exc)
+        await asyncio.sleep(RECOVERY_INTERVAL_S)
+
+
 @contextlib.asynccontextmanager
 async def _lifespan(app: FastAPI) -> AsyncIterator[None]:
-    app.state.settings.data_root.mkdir(parents=True, exist_ok=True)
-    task = asyncio.create_task(_cleanup_loop(app))
+    with contextlib.suppress(OSError):  # a broken data root is reported per request (503)
+        app.state.settings.data_root.mkdir(parents=True, exist_ok=True)
+    tasks = [asyncio.create_task(_cleanup_loop(app)), asyncio.create_task(_recovery_loop(app))]
     try:
         yield
     finally:
-        task.cancel()
-        with contextlib.suppress(asyncio.CancelledError):
-            await task
+        for task in tasks:
+            task.cancel()
+            with contextlib.suppress(asyncio.CancelledError):
+                await task
         app.state.store.r.close()
         await app.state.aredis.aclose()
 

@@ -20,6 +20,7 @@ from app.errors import ApiError
 FILE_FIELDS = ("images", "masks")
 TEXT_FIELDS = ("config", "webhook_url")
 MAX_TEXT_BYTES = 64 * 1024
+MAX_BOUNDARY_BYTES = 70  # RFC 2046
 
 
 @dataclass(frozen=True)
@@ -158,6 +159,11 @@ def _boundary(request: Request) -> bytes:
     if kind != b"multipart/form-data" or not boundary:
         raise ApiError(415, "unsupported_media_type", "the request must be multipart/form-data",
                        hint="post the photos as form fields `images` (and optional `masks`)")
+    if len(boundary) > MAX_BOUNDARY_BYTES:
+        raise ApiError(400, "malformed_multipart",
+                       f"the multipart boundary is {len(boundary)} bytes; at most "
+                       f"{MAX_BOUNDARY_BYTES} are allowed (RFC 2046)",
+                       hint="let your HTTP client build the multipart body")
     return boundary
 
 
@@ -190,8 +196,8 @@ async def receive_form(request: Request, folder: Path, limits: Limits) -> Receiv
     callbacks = {name: getattr(receiver, name) for name in (
         "on_part_begin", "on_part_data", "on_part_end", "on_header_field", "on_header_value",
         "on_header_end", "on_headers_finished")}
-    parser = MultipartParser(boundary, callbacks)  # type: ignore[arg-type]
     try:
+        parser = MultipartParser(boundary, callbacks)  # type: ignore[arg-type]
         async for chunk in request.stream():
             parser.write(chunk)
         parser.finalize()

@@ -43,7 +43,12 @@ def celery_config(settings: Settings) -> dict[str, Any]:
         "task_time_limit": settings.job_hard_time_limit_s,
         "result_expires": 24 * 3600,
         "broker_transport_options": {"visibility_timeout": visibility},
-        "result_backend_transport_options": {"visibility_timeout": visibility},
+        # Progress goes to the result backend too: fail fast when Redis is away (the job goes
+        # on; the job store has the state), instead of Celery's default 20 retries.
+        "result_backend_transport_options": {
+            "visibility_timeout": visibility,
+            "retry_policy": {"max_retries": 1, "interval_start": 0, "interval_step": 0.5,
+                             "interval_max": 0.5}},
         "broker_connection_retry_on_startup": True,
         "worker_hijack_root_logger": False,
         "task_track_started": True,

@@ -30,6 +30,8 @@ STATE_FILE = "state.json"
 TMP_PREFIX = ".upload-"
 PREFIX = "cadnerf"
 ANON_OWNER = "-"
+RUNNING_KEY = f"{PREFIX}:running"  # ids of jobs in state running
+TOMBSTONE_TTL_S = 7 * 24 * 3600
 
 # Conditional HSET: only while the job exists and (when ARGV[1] is not empty) is in one of the
 # comma-separated states, so a deleted job is never half re-created by a late worker update.
@@ -64,6 +66,8 @@ class JobRecord(BaseModel):
     eta_s: float | None = None
     error: str | None = None
     webhook_url: str | None = None
+    worker: str | None = None  # heartbeat name of the worker running it (while running)
+    attempts: int = 0  # times it was queued again after its worker died
 
     def to_hash(self) -> dict[str, str]:
         """Flat string mapping for HSET (None -> empty string, lists -> JSON)."""
@@ -143,6 +147,11 @@ class JobStore:
         """Flag the worker's cancel check reads."""
         return f"{PREFIX}:cancel:{job_id}"
 
+    @staticmethod
+    def deleted_key(job_id: str) -> str:
+        """Tombstone of a deleted job (a late worker must not bring it back)."""
+        return f"{PREFIX}:deleted:{job_id}"
+
     def job_dir(self, job_id: str) -> Path:
         """The job's folder; raises ValueError for anything but a job id (no path tricks)."""
         if not is_job_id(job_id):
@@ -175,6 +184,8 @@ class JobStore:
         pipe = self.r.pipeline()
         pipe.hset(self.job_key(record.id), mapping=_mapping(record))
         pipe.zadd(self.index_key(record.owner), {record.id: record.created_at})
+        if record.state == JobState.running:  # scanned for a dead worker (app.recovery)
+            pipe.sadd(RUNNING_KEY, record.id)
         pipe.execute()
         log.info("re-seeded job %s from state.json", record.id)
 
@@ -211,7 +222,9 @@ class JobStore:
         """Forget a job in Redis and remove its folder."""
         pipe = self.r.pipeline()
         pipe.delete(self.job_key(record.id), self.cancel_key(record.id))
+        pipe.set(self.deleted_key(record.id), "1", ex=TOMBSTONE_TTL_S)
         pipe.zrem(self.index_key(record.owner), record.id)
+        pipe.srem(RUNNING_KEY, record.id)
         pipe.execute()
         shutil.rmtree(self.job_dir(record.id), ignore_errors=True)
 
@@ -221,12 +234,23 @@ class JobStore:
         self.r.set(self.cancel_key(job_id), "1", ex=7 * 24 * 3600)
 
     def cancel_requested(self, job_id: str) -> bool:
-        """True once someone asked the job to stop (or the job is gone)."""
+        """True once someone asked the job to stop, or the job was deleted.
+
+        A job missing from Redis whose folder is still there was lost by a Redis restart (the
+        API re-seeds it from state.json), not deleted.
+        """
         pipe = self.r.pipeline()
-        pipe.exists(self.cancel_key(job_id))
+        pipe.exists(self.cancel_key(job_id), self.deleted_key(job_id))
         pipe.exists(self.job_key(job_id))
-        flag, exists = pipe.execute()
-        return bool(flag) or not exists
+        flags, exists = pipe.execute()
+        if flags:
+            return True
+        return not exists and not (self.job_dir(job_id) / STATE_FILE).is_file()
+
+    def was_deleted(self, job_id: str) -> bool:
+        """True when the job was deleted (in the last ``TOMBSTONE_TTL_S``) or its folder is gone."""
+        return bool(self.r.exists(self.deleted_key(job_id))) or not (
+            self.job_dir(job_id) / STATE_FILE).is_file()
 
     # --- state.json -----------------------------------------------------------------------
     def write_state_file(self, record: JobRecord) -> None:
@@ -268,17 +292,43 @@ class JobStore:
 
 
 # --- worker heartbeats ----------------------------------------------------------------------
+WORKERS_KEY = f"{PREFIX}:workers"  # sorted set: worker name -> expiry (Redis server time)
+
+# Both scripts read Redis's own clock, so workers and API hosts need not agree on the time.
+_BEAT_LUA = """
+local t = redis.call('time')
+local now = tonumber(t[1]) + tonumber(t[2]) / 1e6
+redis.call('set', KEYS[1], ARGV[3], 'PX', ARGV[2])
+redis.call('zadd', KEYS[2], now + tonumber(ARGV[2]) / 1000, ARGV[1])
+redis.call('zremrangebyscore', KEYS[2], '-inf', now)
+return 1
+"""
+_LIVE_LUA = """
+local t = redis.call('time')
+return redis.call('zrangebyscore', KEYS[1], tonumber(t[1]) + tonumber(t[2]) / 1e6, '+inf')
+"""
+
+
 def heartbeat_key(name: str) -> str:
     """Key a live worker refreshes (it expires when the worker stops beating)."""
     return f"{PREFIX}:worker:{name}"
 
 
 def beat(client: redis.Redis, name: str, ttl_s: float, info: dict[str, Any]) -> None:
-    """Announce a live worker for ``ttl_s`` seconds."""
-    client.set(heartbeat_key(name), json.dumps(info), ex=max(1, int(ttl_s)))
+    """Announce a live worker for ``ttl_s`` seconds (its key, and its entry in the worker set)."""
+    ttl_ms = str(max(1, int(ttl_s * 1000)))
+    client.eval(_BEAT_LUA, 2, heartbeat_key(name), WORKERS_KEY, name, ttl_ms, json.dumps(info))
+
+
+def forget_worker(client: redis.Redis, name: str) -> None:
+    """Remove a stopping worker at once (readiness drops without waiting for the TTL)."""
+    pipe = client.pipeline()
+    pipe.delete(heartbeat_key(name))
+    pipe.zrem(WORKERS_KEY, name)
+    pipe.execute()
 
 
 def live_workers(client: redis.Redis) -> list[str]:
-    """Names of the workers whose heartbeat has not expired."""
-    prefix = heartbeat_key("")
-    return sorted(str(k)[len(prefix):] for k in client.scan_iter(match=prefix + "*", count=100))
+    """Names of the workers whose heartbeat has not expired (one cheap call, no key scan)."""
+    names = client.eval(_LIVE_LUA, 1, WORKERS_KEY)
+    return sorted(str(n) for n in names)  # type: ignore[union-attr]

@@ -94,6 +94,7 @@ def inspect_image(part: StoredPart, settings: Settings) -> ImageInfo:
                        f"{width}x{height} is {megapixels:.1f} megapixels; the limit is "
                        f"{settings.max_megapixels:g}", photo=part.filename, field=part.field,
                        hint="downscale it (a few megapixels is plenty)")
+    _decode_fully(part, ext)  # bounded now that the pixel count is known
     if min(width, height) < settings.min_side_px:
         raise ApiError(422, "image_too_small",
                        f"{width}x{height} pixels; each side needs {settings.min_side_px} or more",
@@ -125,6 +126,28 @@ def _read_header(part: StoredPart, ext: str) -> tuple[int, int, int]:
     except Exception:  # Pillow raises many types on damaged headers
         raise unreadable from None
     return width, height, orientation
+
+
+def _decode_fully(part: StoredPart, ext: str) -> None:
+    """Decode the whole image once, so a file cut off after its header is refused here.
+
+    Call only after the megapixel check. JPEGs are decoded at 1/8 scale (every byte of the scan
+    data is still read, which is what finds a truncated file).
+
+    Raises:
+        ApiError: 422 ``unreadable_image`` naming the photo when the data cannot be decoded.
+    """
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", Image.DecompressionBombWarning)
+            with Image.open(part.path) as image:
+                if ext == "jpg":
+                    image.draft("RGB", (max(1, image.width // 8), max(1, image.height // 8)))
+                image.load()
+    except Exception:  # Pillow raises OSError, SyntaxError, ValueError... on bad data
+        raise ApiError(422, "unreadable_image", "the image data is truncated or damaged",
+                       photo=part.filename, field=part.field,
+                       hint="the file is truncated or damaged; export it again") from None
 
 
 def check_counts(form: ReceivedForm, settings: Settings) -> None:

@@ -4,18 +4,22 @@ from __future__ import annotations
 
 import logging
 import os
+import signal
 import sys
 import tempfile
 import threading
 from pathlib import Path
+from types import FrameType
 from typing import TYPE_CHECKING, Any
 
 import typer
 
 if TYPE_CHECKING:
+    from app.embedded import EmbeddedRedis, Supervisor
     from app.settings import Settings
 
 log = logging.getLogger(__name__)
+_STOP_SIGNALS = (signal.SIGTERM, signal.SIGINT)
 
 
 def _settings_or_exit() -> Settings:
@@ -32,32 +36,68 @@ def serve(host: str = typer.Option("127.0.0.1", help="Address to listen on."),
           port: int = typer.Option(8000, help="Port to listen on."),
           demo: bool = typer.Option(False, "--demo", help="Run the demo once the API is up."),
           demo_preset: str = typer.Option("preview", help="Preset of the demo job.")) -> None:
-    """Run the API; without CADNERF_REDIS_URL also an embedded Redis and one worker."""
+    """Run the API; without CADNERF_REDIS_URL also an embedded Redis and one worker.
+
+    SIGTERM or SIGINT (docker stop, systemd, Ctrl-C) stops the API, then the worker, then the
+    embedded Redis (saved), so nothing is left running.
+    """
     import uvicorn
 
-    from app.embedded import EmbeddedRedis, Supervisor
     from app.main import create_app
-    from app.settings import load_settings
 
     settings = _settings_or_exit()
+    _exit_on_signals()
     embedded: EmbeddedRedis | None = None
     supervisor: Supervisor | None = None
-    if not settings.redis_url:
-        embedded = EmbeddedRedis(settings.data_root.resolve().parent / "redis" / "cadnerf.rdb")
+    try:
+        if not settings.redis_url:
+            settings, embedded, supervisor = _start_backends(settings)
+        if demo:
+            client_host = "127.0.0.1" if host in ("0.0.0.0", "::") else host
+            threading.Thread(target=_demo_when_ready, args=(f"http://{client_host}:{port}",
+                                                            demo_preset), daemon=True).start()
+        # uvicorn handles the signals while it runs, then re-raises them: our handler turns
+        # that into SystemExit, which runs the clean-up below.
+        uvicorn.run(create_app(settings), host=host, port=port, log_level="info")
+    finally:
+        _stop_backends(supervisor, embedded)
+
+
+def _exit_on_signals() -> None:
+    """Make SIGTERM and SIGINT raise SystemExit in the main thread (so ``finally`` runs)."""
+    def _handler(signum: int, _frame: FrameType | None) -> None:
+        for sig in _STOP_SIGNALS:  # a second signal must not cut the clean-up short
+            signal.signal(sig, signal.SIG_IGN)
+        log.info("signal %d received; stopping", signum)
+        raise SystemExit(0)
+
+    for sig in _STOP_SIGNALS:
+        signal.signal(sig, _handler)
+
+
+def _start_backends(settings: Settings) -> tuple[Settings, EmbeddedRedis, Supervisor]:
+    """Start the embedded Redis and a supervised worker; returns the settings that use them."""
+    from app.embedded import EmbeddedRedis, Supervisor
+    from app.settings import load_settings
+
+    embedded = EmbeddedRedis(settings.data_root.resolve().parent / "redis" / "cadnerf.rdb")
+    try:
         os.environ["CADNERF_REDIS_URL"] = embedded.start()  # inherited by the worker
-        settings = load_settings()
         supervisor = Supervisor([sys.executable, "-m", "cadnerf_cli.main", "worker"],
                                 env=dict(os.environ))
         supervisor.start()
-    if demo:
-        client_host = "127.0.0.1" if host in ("0.0.0.0", "::") else host
-        threading.Thread(target=_demo_when_ready, args=(f"http://{client_host}:{port}",
-                                                        demo_preset), daemon=True).start()
+    except BaseException:
+        embedded.stop()
+        raise
+    return load_settings(), embedded, supervisor
+
+
+def _stop_backends(supervisor: Supervisor | None, embedded: EmbeddedRedis | None) -> None:
+    """Stop the worker first (it may still write to Redis), then save and stop Redis."""
     try:
-        uvicorn.run(create_app(settings), host=host, port=port, log_level="info")
-    finally:
         if supervisor is not None:
             supervisor.stop()
+    finally:
         if embedded is not None:
             embedded.stop()
 

@@ -1,11 +1,9 @@
-"""The worker's Celery app: the shared queue settings, a heartbeat, the library preloaded."""
+"""The worker's Celery app: the shared queue settings, liveness (heartbeat, claims), the library
+preloaded."""
 
 from __future__ import annotations
 
 import logging
-import os
-import socket
-import threading
 from typing import Any
 
 from celery import Celery
@@ -13,43 +11,9 @@ from celery.signals import worker_ready, worker_shutdown
 
 from app.queue import QUEUE, celery_config
 from app.settings import Settings
-from app.store import beat, connect, heartbeat_key
+from worker.liveness import Liveness, worker_name
 
 log = logging.getLogger(__name__)
-
-HEARTBEAT_EVERY_S = 5.0
-HEARTBEAT_TTL_S = 15.0
-
-
-class Heartbeat:
-    """Refreshes ``cadnerf:worker:<name>`` in Redis from a thread while the worker lives."""
-
-    def __init__(self, settings: Settings, name: str) -> None:
-        self.client = connect(settings.redis_url)
-        self.name = name
-        self._stop = threading.Event()
-        self._thread = threading.Thread(target=self._loop, name="heartbeat", daemon=True)
-
-    def start(self) -> None:
-        """Beat now and every few seconds."""
-        self._thread.start()
-
-    def _loop(self) -> None:
-        info = {"pid": os.getpid(), "host": socket.gethostname()}
-        while not self._stop.is_set():
-            try:
-                beat(self.client, self.name, HEARTBEAT_TTL_S, info)
-            except Exception as exc:  # Redis away for a moment: keep trying
-                log.warning("heartbeat failed: %s", exc)
-            self._stop.wait(HEARTBEAT_EVERY_S)
-
-    def stop(self) -> None:
-        """Stop beating and remove the key (readiness drops at once)."""
-        self._stop.set()
-        try:
-            self.client.delete(heartbeat_key(self.name))
-        except Exception as exc:
-            log.debug("could not remove heartbeat: %s", exc)
 
 
 def create_celery(settings: Settings) -> Celery:
@@ -70,18 +34,19 @@ def create_celery(settings: Settings) -> Celery:
 
 
 def _connect_signals(celery: Celery, settings: Settings) -> None:
-    name = f"{socket.gethostname()}-{os.getpid()}"
-    heartbeat = Heartbeat(settings, name)
+    name = worker_name()
+    liveness = Liveness(settings, name)
+    celery.conf.cadnerf_liveness = liveness  # the task claims its jobs through it
 
     @worker_ready.connect(weak=False)
     def _ready(**_: Any) -> None:
         _preload_library(settings)
-        heartbeat.start()
+        liveness.start()  # heartbeat, claims, and re-queueing jobs of dead workers
         log.info("worker %s ready on queue %s", name, QUEUE)
 
     @worker_shutdown.connect(weak=False)
     def _shutdown(**_: Any) -> None:
-        heartbeat.stop()
+        liveness.stop()
 
 
 def _preload_library(settings: Settings) -> None:

@@ -117,12 +117,16 @@ class EtaModel:
 
 
 class JobProgress:
-    """Reporter and cancel check for one job, throttled so Redis sees a few writes a second."""
+    """Reporter and cancel check for one job, throttled so Redis sees a few writes a second.
+
+    Redis going away does not stop the job: a failed write or cancel check is logged, skipped,
+    and retried after ``retry_s`` (training goes on; the final state reaches state.json first).
+    """
 
     def __init__(self, store: JobStore, job_id: str, eta: EtaModel, *,
                  deadline: float | None = None,
                  celery_update: Callable[[dict[str, Any]], None] | None = None,
-                 throttle_s: float = 0.5, mirror_every_s: float = 5.0,
+                 throttle_s: float = 0.5, mirror_every_s: float = 5.0, retry_s: float = 2.0,
                  clock: Callable[[], float] = time.monotonic) -> None:
         self.store = store
         self.job_id = job_id
@@ -131,12 +135,15 @@ class JobProgress:
         self.celery_update = celery_update
         self.throttle_s = throttle_s
         self.mirror_every_s = mirror_every_s
+        self.retry_s = retry_s
         self.clock = clock
         self.timed_out = False
         self._last_write = -1e9
         self._last_mirror = clock()
         self._last_cancel_check = -1e9
         self._cancelled = False
+        self._redis_down_until = -1e9
+        self.redis_failures = 0
 
     def __call__(self, stage: str, done: int, total: int) -> None:
         """Record a finished step; write to Redis on a stage change or every ``throttle_s``."""
@@ -145,15 +152,30 @@ class JobProgress:
         fraction, eta_s = self.eta.update(stage, done, total, now)
         if not changed and now - self._last_write < self.throttle_s:
             return
+        if now < self._redis_down_until:
+            return
         self._last_write = now
         progress, eta = round(fraction, 4), round(eta_s, 1)
-        self.store.update(self.job_id, stage=stage, progress=progress, eta_s=eta)
+        try:
+            self.store.update(self.job_id, stage=stage, progress=progress, eta_s=eta)
+            if changed or now - self._last_mirror > self.mirror_every_s:
+                self._last_mirror = now
+                self.store.mirror(self.job_id)
+        except redis.RedisError as exc:
+            self._redis_failed(now, exc)
+            return
         if self.celery_update is not None:
-            self.celery_update({"stage": stage, "progress": progress, "eta_s": eta,
-                                "done": done, "total": total})
-        if changed or now - self._last_mirror > self.mirror_every_s:
-            self._last_mirror = now
-            self.store.mirror(self.job_id)
+            try:
+                self.celery_update({"stage": stage, "progress": progress, "eta_s": eta,
+                                    "done": done, "total": total})
+            except Exception as exc:  # the result backend is Redis too: same treatment
+                self._redis_failed(now, exc)
+
+    def _redis_failed(self, now: float, exc: Exception) -> None:
+        self.redis_failures += 1
+        self._redis_down_until = now + self.retry_s
+        log.warning("job %s: Redis unavailable (%s); training goes on, retrying in %.0f s",
+                    self.job_id, exc, self.retry_s)
 
     def cancelled(self) -> bool:
         """True when the job was cancelled (Redis flag) or ran past its soft time limit."""
@@ -161,7 +183,11 @@ class JobProgress:
         if self.deadline is not None and time.time() > self.deadline:
             self.timed_out = True
             return True
-        if not self._cancelled and now - self._last_cancel_check >= 0.25:
+        if (not self._cancelled and now - self._last_cancel_check >= 0.25
+                and now >= self._redis_down_until):
             self._last_cancel_check = now
-            self._cancelled = self.store.cancel_requested(self.job_id)
+            try:
+                self._cancelled = self.store.cancel_requested(self.job_id)
+            except redis.RedisError as exc:
+                self._redis_failed(now, exc)
         return self._cancelled

@@ -2,15 +2,20 @@
 
 from __future__ import annotations
 
+import errno
 import logging
 import os
+import socket
 import threading
 import time
 from collections.abc import Callable
 from functools import lru_cache
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, Protocol
 
+import redis
+
+from app import recovery
 from app.schemas import JobState
 from app.settings import Settings
 from app.store import JobRecord, JobStore
@@ -21,6 +26,8 @@ if TYPE_CHECKING:
     from cadnerf_core.library import Library
 
 log = logging.getLogger(__name__)
+
+FINISH_RETRY_S = 30.0  # how long the final state is retried while Redis is away
 
 
 @lru_cache(maxsize=2)
@@ -40,30 +47,79 @@ def device_kind(device: str) -> str:
     return "cuda" if torch.cuda.is_available() else "cpu"
 
 
+class Claims(Protocol):
+    """How a job is claimed for one worker (``worker.liveness.Liveness``)."""
+
+    name: str
+
+    def hold(self, job_id: str) -> bool:
+        """Claim the job; False when another live worker holds it."""
+
+    def drop(self, job_id: str) -> None:
+        """Release the claim."""
+
+
+class _FixedClaim:
+    """Claims without a heartbeat to refresh them (tests, one-off runs): held for the hard limit."""
+
+    def __init__(self, store: JobStore, ttl_s: float) -> None:
+        self.store = store
+        self.ttl_s = ttl_s
+        self.name = f"{socket.gethostname()}-{os.getpid()}"
+
+    def hold(self, job_id: str) -> bool:
+        return recovery.claim(self.store.r, job_id, self.name, self.ttl_s)
+
+    def drop(self, job_id: str) -> None:
+        recovery.release(self.store.r, job_id, self.name)
+
+
 def execute(job_id: str, settings: Settings, store: JobStore,
-            celery_update: Callable[[dict[str, Any]], None] | None = None) -> dict[str, Any]:
-    """Run one job to a final state.
+            celery_update: Callable[[dict[str, Any]], None] | None = None,
+            claims: Claims | None = None) -> dict[str, Any]:
+    """Run one job to a final state, unless it is final already or another worker runs it.
 
     Args:
         job_id: the job (its folder is ``settings.data_root / job_id``).
         settings: deployment settings (library, device, time limits, webhook secret).
         store: job state.
         celery_update: receives progress fields for Celery's custom state.
+        claims: this worker's claims (default: one held for the hard time limit).
 
     Returns:
-        ``{"id", "state", "error"}`` (a JSON-serialisable summary).
+        ``{"id", "state", "error"}`` (a JSON-serialisable summary); state "duplicate" when
+        another live worker holds the job (this delivery is dropped).
     """
     record = store.get(job_id)
     if record is None or record.state.terminal:
         state = "missing" if record is None else record.state.value
         log.info("job %s: nothing to do (%s)", job_id, state)
         return {"id": job_id, "state": state, "error": None}
+    claims = claims or _FixedClaim(store, settings.job_hard_time_limit_s)
+    if not claims.hold(job_id):
+        log.warning("job %s is being run by %s; duplicate delivery dropped", job_id,
+                    recovery.claim_holder(store.r, job_id))
+        return {"id": job_id, "state": "duplicate", "error": None}
+    try:
+        return _execute_claimed(job_id, settings, store, celery_update, claims.name)
+    finally:
+        claims.drop(job_id)
+
+
+def _execute_claimed(job_id: str, settings: Settings, store: JobStore,
+                     celery_update: Callable[[dict[str, Any]], None] | None,
+                     worker: str) -> dict[str, Any]:
+    record = store.get(job_id)  # again, now that no one else can change it under us
+    if record is None or record.state.terminal:
+        return {"id": job_id, "state": "missing" if record is None else record.state.value,
+                "error": None}
     if store.cancel_requested(job_id):
         return _finish(store, settings, record, JobState.cancelled, None)
     started = record.started_at or time.time()
     if not store.update(job_id, allowed_from=(JobState.queued, JobState.running),
-                        state=JobState.running, started_at=started, error=None):
+                        state=JobState.running, started_at=started, error=None, worker=worker):
         return {"id": job_id, "state": "skipped", "error": None}
+    recovery.mark_running(store.r, job_id, True)
     store.mirror(job_id)
     state, error = _run(record, settings, store, started, celery_update)
     return _finish(store, settings, record, state, error)
@@ -71,9 +127,8 @@ def execute(job_id: str, settings: Settings, store: JobStore,
 
 def _run(record: JobRecord, settings: Settings, store: JobStore, started: float,
          celery_update: Callable[[dict[str, Any]], None] | None) -> tuple[JobState, str | None]:
-    from cadnerf_core.pipeline import run_job
-
     from cadnerf_core.errors import CadNerfError, InputError, JobCancelled, LibraryError
+    from cadnerf_core.pipeline import run_job
     from cadnerf_core.progress import Progress
 
     device = device_kind(settings.device)
@@ -91,6 +146,9 @@ def _run(record: JobRecord, settings: Settings, store: JobStore, started: float,
         return JobState.cancelled, None
     except (InputError, LibraryError, CadNerfError) as exc:
         return JobState.failed, str(exc)
+    except OSError as exc:
+        log.exception("job %s: storage error", record.id)
+        return JobState.failed, _storage_message(exc, store.job_dir(record.id))
     except Exception as exc:
         log.exception("job %s failed", record.id)
         return JobState.failed, f"internal error ({type(exc).__name__}); see the worker log"
@@ -98,8 +156,25 @@ def _run(record: JobRecord, settings: Settings, store: JobStore, started: float,
         watchdog.cancel()
     if eta.stage is not None:
         eta.durations[eta.stage] = time.monotonic() - eta.stage_started
-    record_stage_seconds(store.r, record.preset, device, eta.durations)
+    try:
+        record_stage_seconds(store.r, record.preset, device, eta.durations)
+    except redis.RedisError as exc:  # only the ETA of later jobs suffers
+        log.warning("could not record stage times: %s", exc)
     return JobState.succeeded, None
+
+
+def _storage_message(exc: OSError, folder: Path) -> str:
+    """What the user reads when the job folder cannot be written (no server path beyond it)."""
+    where = "the job folder"
+    if exc.filename:
+        try:
+            where = f"`{Path(exc.filename).relative_to(folder)}` in the job folder"
+        except ValueError:
+            where = f"`{Path(exc.filename).name}` in the job folder"
+    reason = exc.strerror or type(exc).__name__
+    full = exc.errno in (errno.ENOSPC, errno.EDQUOT)
+    hint = "the server's disk is full" if full else "check the storage of the job folders"
+    return f"the job folder cannot be written: {reason} ({where}); {hint}"
 
 
 def _hard_limit_watchdog(store: JobStore, job_id: str, limit_s: float) -> threading.Timer:
@@ -110,10 +185,12 @@ def _hard_limit_watchdog(store: JobStore, job_id: str, limit_s: float) -> thread
     """
     def expire() -> None:
         log.error("job %s passed the hard time limit (%s s); exiting", job_id, limit_s)
-        store.update(job_id, state=JobState.failed, finished_at=time.time(),
-                     error=f"the job passed the hard time limit of {limit_s:.0f} s")
-        store.mirror(job_id)
-        os._exit(70)
+        try:
+            store.update(job_id, state=JobState.failed, finished_at=time.time(),
+                         error=f"the job passed the hard time limit of {limit_s:.0f} s")
+            store.mirror(job_id)
+        finally:
+            os._exit(70)
 
     timer = threading.Timer(limit_s, expire)
     timer.daemon = True
@@ -122,18 +199,60 @@ def _hard_limit_watchdog(store: JobStore, job_id: str, limit_s: float) -> thread
 
 
 def _finish(store: JobStore, settings: Settings, record: JobRecord, state: JobState,
-            error: str | None) -> dict[str, Any]:
-    fields: dict[str, Any] = {"state": state, "finished_at": time.time(), "error": error}
+            error: str | None, redis_wait_s: float = FINISH_RETRY_S) -> dict[str, Any]:
+    """Write the final state: state.json first (it survives Redis), then Redis, retried for
+    ``redis_wait_s`` (after that the API re-seeds it from state.json)."""
+    fields: dict[str, Any] = {"state": state, "finished_at": time.time(), "error": error,
+                              "worker": None}
     if state == JobState.succeeded:
         fields.update(progress=1.0, eta_s=0.0)
     else:
         fields.update(eta_s=None)
-    store.update(record.id, **fields)
-    store.mirror(record.id)
+    final = _latest(store, record).model_copy(update=fields)
+    store.write_state_file(final)
+    in_redis = _update_redis(store, final, fields, redis_wait_s)
     log.info("job %s %s%s", record.id, state.value, f": {error}" if error else "")
-    if record.webhook_url and store.r.exists(store.job_key(record.id)):
+    if record.webhook_url and (in_redis or store.job_dir(record.id).is_dir()):
         payload = {"id": record.id, "state": state.value, "error": error,
                    "finished_at": fields["finished_at"], "status_url": f"/v1/jobs/{record.id}",
                    "result_url": f"/v1/jobs/{record.id}/result"}
         send_webhook(record.webhook_url, payload, settings.webhook_secret)
     return {"id": record.id, "state": state.value, "error": error}
+
+
+def _latest(store: JobStore, record: JobRecord) -> JobRecord:
+    """The newest record we can read: Redis, else state.json, else the one we started with."""
+    try:
+        raw = store.r.hgetall(store.job_key(record.id))
+        if raw:
+            return JobRecord.from_hash(raw)  # type: ignore[arg-type]
+    except redis.RedisError:
+        pass
+    return store.read_state_file(record.id) or record
+
+
+def _update_redis(store: JobStore, final: JobRecord, fields: dict[str, Any],
+                  wait_s: float = FINISH_RETRY_S) -> bool:
+    """Put the final fields in Redis, retrying for ``wait_s`` while it is away.
+
+    A job Redis has lost (restarted empty) is re-seeded from the final record when its folder is
+    still there (a deleted job is not brought back). Returns True once Redis has the job.
+    """
+    deadline = time.monotonic() + wait_s
+    delay = 0.2
+    while True:
+        try:
+            if not store.update(final.id, **fields):
+                if store.was_deleted(final.id):
+                    return False
+                store.reseed(final)
+            recovery.mark_running(store.r, final.id, False)
+            return True
+        except redis.RedisError as exc:
+            if time.monotonic() + delay > deadline:
+                log.error("job %s: Redis unavailable (%s); its final state is in state.json and "
+                          "is read back from there", final.id, exc)
+                return False
+            log.warning("job %s: Redis unavailable (%s); retrying", final.id, exc)
+            time.sleep(delay)
+            delay = min(delay * 2, 2.0)

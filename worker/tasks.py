@@ -23,7 +23,8 @@ def run_job(self: Task, job_id: str) -> dict[str, Any]:
     def celery_update(meta: dict[str, Any]) -> None:
         self.update_state(state=PROGRESS_STATE, meta=meta)
 
+    liveness = getattr(self.app.conf, "cadnerf_liveness", None)
     try:
-        return runner.execute(job_id, settings, store, celery_update)
+        return runner.execute(job_id, settings, store, celery_update, liveness)
     finally:
         store.r.close()

@@ -15,7 +15,9 @@ from app.schemas import DeleteResult, ErrorBody, JobList, JobResult, JobStatus
 router = APIRouter(prefix="/v1/jobs", tags=["jobs"])
 
 _ERRORS: dict[int | str, dict[str, Any]] = {
-    code: {"model": ErrorBody} for code in (401, 404, 409, 413, 415, 422)}
+    code: {"model": ErrorBody} for code in (401, 404, 409, 413, 415, 422, 503)}
+_UPLOAD_ERRORS: dict[int | str, dict[str, Any]] = {
+    **_ERRORS, **{code: {"model": ErrorBody} for code in (400, 507)}}
 
 _UPLOAD_BODY: dict[str, Any] = {
     "requestBody": {"required": True, "content": {"multipart/form-data": {"schema": {
@@ -32,7 +34,7 @@ _UPLOAD_BODY: dict[str, Any] = {
         }}}}}}
 
 
-@router.post("", status_code=202, response_model=JobStatus, responses=_ERRORS,
+@router.post("", status_code=202, response_model=JobStatus, responses=_UPLOAD_ERRORS,
              openapi_extra=_UPLOAD_BODY, summary="Submit ordered photos as a new job")
 async def create_job(request: Request, settings: SettingsDep, store: StoreDep,
                      producer: ProducerDep, owner: OwnerDep) -> JSONResponse:

@@ -9,6 +9,7 @@ import subprocess
 import sys
 import time
 from pathlib import Path
+from typing import IO
 
 import httpx
 import pytest
@@ -35,23 +36,56 @@ def _ready_workers(url: str, timeout_s: float, exclude: frozenset[str] = frozens
 
 
 def _alive(pid: int) -> bool:
+    """True while the process exists and is not a zombie (an orphan may wait to be reaped)."""
     try:
-        os.kill(pid, 0)
-    except ProcessLookupError:
+        stat = Path(f"/proc/{pid}/stat").read_text()
+    except OSError:
         return False
-    return True
+    return stat.rsplit(")", 1)[1].split()[0] != "Z"
+
+
+def _start_serve(tmp_path: Path, library: Path) -> tuple[subprocess.Popen[bytes], str, IO[bytes]]:
+    """`cadnerf serve` without a Redis URL (embedded Redis, its own worker); its log is open."""
+    port = free_port()
+    env = {k: v for k, v in os.environ.items() if k != "CADNERF_REDIS_URL"}
+    env.update(CADNERF_DATA_ROOT=str(tmp_path / "data" / "jobs"),
+               CADNERF_LIBRARY_DIR=str(library), CADNERF_DEVICE="cpu")
+    log = (tmp_path / "serve.log").open("wb")
+    serve = subprocess.Popen([sys.executable, "-m", "cadnerf_cli.main", "serve", "--port",
+                              str(port)], cwd=ROOT, env=env, stdout=log, stderr=subprocess.STDOUT)
+    return serve, f"http://127.0.0.1:{port}", log
+
+
+def _embedded_redis_url(log: Path) -> str:
+    found = re.search(r"embedded Redis on (redis://\S+)", log.read_text())
+    assert found is not None, log.read_text()[-3000:]
+    return found.group(1)
+
+
+def test_serve_stops_its_worker_and_redis_on_sigterm(tmp_path: Path,
+                                                     tiny_library_dir: Path) -> None:
+    """SIGTERM alone (docker stop, systemd) ends serve, its worker and the embedded Redis."""
+    serve, url, log = _start_serve(tmp_path, tiny_library_dir)
+    try:
+        worker_pid = int(_ready_workers(url, 180)[0].rsplit("-", 1)[1])
+        redis_url = _embedded_redis_url(tmp_path / "serve.log")
+        redis_pid = int(redis.Redis.from_url(redis_url).info("server")["process_id"])
+        serve.send_signal(signal.SIGTERM)
+        assert serve.wait(60) == 0
+    finally:
+        if serve.poll() is None:
+            serve.kill()
+        log.close()
+    deadline = time.monotonic() + 10
+    while (_alive(worker_pid) or _alive(redis_pid)) and time.monotonic() < deadline:
+        time.sleep(0.2)
+    assert not _alive(worker_pid) and not _alive(redis_pid), \
+        (tmp_path / "serve.log").read_text()[-3000:]
 
 
 def test_serve_runs_everything_and_restarts_a_dead_worker(tmp_path: Path,
                                                           tiny_library_dir: Path) -> None:
-    port = free_port()
-    env = {k: v for k, v in os.environ.items() if k != "CADNERF_REDIS_URL"}
-    env.update(CADNERF_DATA_ROOT=str(tmp_path / "data" / "jobs"),
-               CADNERF_LIBRARY_DIR=str(tiny_library_dir), CADNERF_DEVICE="cpu")
-    log = (tmp_path / "serve.log").open("wb")
-    serve = subprocess.Popen([sys.executable, "-m", "cadnerf_cli.main", "serve", "--port",
-                              str(port)], cwd=ROOT, env=env, stdout=log, stderr=subprocess.STDOUT)
-    url = f"http://127.0.0.1:{port}"
+    serve, url, log = _start_serve(tmp_path, tiny_library_dir)
     try:
         first = _ready_workers(url, 180)
         assert (tmp_path / "data" / "redis").is_dir()  # the embedded Redis keeps its data there
@@ -73,8 +107,7 @@ def test_serve_runs_everything_and_restarts_a_dead_worker(tmp_path: Path,
     time.sleep(1)
     text = (tmp_path / "serve.log").read_text()
     assert not _alive(new_pid), text[-3000:]
-    redis_url = re.search(r"embedded Redis on (redis://\S+)", text)
-    assert redis_url is not None
     with pytest.raises(redis.ConnectionError):  # the embedded server is gone too
-        redis.Redis.from_url(redis_url.group(1), socket_connect_timeout=1).ping()
+        redis.Redis.from_url(_embedded_redis_url(tmp_path / "serve.log"),
+                             socket_connect_timeout=1).ping()
     assert list((tmp_path / "data" / "redis").glob("*.rdb"))  # and saved its data

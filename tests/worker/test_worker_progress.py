@@ -101,3 +101,29 @@ def test_a_deleted_job_counts_as_cancelled_and_is_not_recreated(store: JobStore,
     progress("phase1", 1, 2)
     assert store.r.exists(store.job_key(record.id)) == 0
     assert progress.cancelled() is True
+
+
+def test_redis_going_away_does_not_stop_the_job(store: JobStore, new_job) -> None:
+    from app.embedded import free_port
+    from app.store import connect
+
+    record = new_job()
+    down = JobStore(connect(f"redis://127.0.0.1:{free_port()}/0"), store.data_root)
+    clock = Clock()
+    sent: list[dict] = []
+    progress = JobProgress(down, record.id, EtaModel(dict(EXPECTED)), clock=clock,
+                           celery_update=sent.append, retry_s=2.0)
+    progress("phase1", 1, 4)  # the write fails: logged, not raised
+    assert progress.redis_failures == 1 and sent == []
+    assert progress.cancelled() is False  # the check is skipped while Redis is away
+    clock.now += 0.6
+    progress("phase1", 2, 4)  # inside the back-off: not even tried
+    assert progress.redis_failures == 1
+    clock.now += 2.0
+    progress("phase1", 3, 4)  # tried again after the back-off
+    assert progress.redis_failures == 2
+    progress.store = store  # Redis is back
+    clock.now += 2.1
+    progress("phase2", 1, 4)
+    assert store.r.hget(store.job_key(record.id), "stage") == "phase2"
+    assert [s["stage"] for s in sent] == ["phase2"]

@@ -55,3 +55,40 @@ def test_a_job_cancelled_before_it_starts_ends_cancelled_and_calls_its_webhook(
     saved = json.loads((store.job_dir(record.id) / "state.json").read_text())
     assert saved["state"] == "cancelled" and saved["finished_at"] is not None
     assert calls and calls[0]["id"] == record.id and calls[0]["state"] == "cancelled"
+
+
+def test_the_final_state_reaches_state_json_while_redis_is_away(store: JobStore, new_job,
+                                                                redis_url) -> None:
+    from app.embedded import free_port
+    from app.store import connect
+
+    record = new_job()
+    down = JobStore(connect(f"redis://127.0.0.1:{free_port()}/0"), store.data_root)
+    runner._finish(down, _settings(store, redis_url), record, JobState.failed, "boom",
+                   redis_wait_s=1.0)
+    saved = json.loads((store.job_dir(record.id) / "state.json").read_text())
+    assert saved["state"] == "failed" and saved["error"] == "boom" and saved["finished_at"]
+
+
+def test_a_final_state_lost_by_redis_is_reseeded_but_a_deleted_job_is_not(
+        store: JobStore, new_job, redis_url) -> None:
+    lost, deleted = new_job(), new_job()
+    store.r.delete(store.job_key(lost.id))  # Redis restarted empty
+    store.delete(deleted)
+    settings = _settings(store, redis_url)
+    runner._finish(store, settings, lost, JobState.succeeded, None)
+    runner._finish(store, settings, deleted, JobState.cancelled, None)
+    assert store.r.hget(store.job_key(lost.id), "state") == "succeeded"
+    assert store.r.exists(store.job_key(deleted.id)) == 0
+
+
+def test_an_unwritable_job_folder_gives_a_clear_error(tmp_path: Path) -> None:
+    import errno
+
+    folder = tmp_path / "job"
+    exc = FileExistsError(errno.EEXIST, "File exists", str(folder / "checkpoints"))
+    message = runner._storage_message(exc, folder)
+    assert message.startswith("the job folder cannot be written: File exists")
+    assert "`checkpoints`" in message and str(tmp_path) not in message
+    full = OSError(errno.ENOSPC, "No space left on device", str(folder / "views" / "000.png"))
+    assert "disk is full" in runner._storage_message(full, folder)

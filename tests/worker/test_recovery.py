@@ -1,0 +1,118 @@
+"""Jobs of dead workers: claims, orphan detection with a grace period, re-queueing, the bound."""
+
+from __future__ import annotations
+
+from app import recovery
+from app.schemas import JobState
+from app.store import JobStore
+from worker import runner
+from worker.runner import _FixedClaim
+
+
+class Clock:
+    """A manual monotonic clock."""
+
+    def __init__(self) -> None:
+        self.now = 100.0
+
+    def __call__(self) -> float:
+        return self.now
+
+
+def _orphan(store: JobStore, new_job, worker: str = "host-1", attempts: int = 0):
+    record = new_job()
+    store.update(record.id, state=JobState.running, worker=worker, attempts=attempts)
+    store.mirror(record.id)
+    recovery.mark_running(store.r, record.id, True)
+    return store.get(record.id)
+
+
+def test_a_claim_is_exclusive_until_released(store: JobStore, new_job) -> None:
+    job = new_job()
+    assert recovery.claim(store.r, job.id, "a") and recovery.claim(store.r, job.id, "a")
+    assert not recovery.claim(store.r, job.id, "b")
+    recovery.release(store.r, job.id, "b")  # not b's to release
+    assert recovery.claim_holder(store.r, job.id) == "a"
+    recovery.release(store.r, job.id, "a")
+    assert recovery.claim(store.r, job.id, "b")
+
+
+def test_a_duplicate_delivery_of_a_claimed_job_is_dropped(store: JobStore, new_job,
+                                                          redis_url) -> None:
+    from app.settings import load_settings
+
+    settings = load_settings(redis_url=redis_url, data_root=store.data_root)
+    job = new_job()
+    assert recovery.claim(store.r, job.id, "other-worker")
+    assert runner.execute(job.id, settings, store)["state"] == "duplicate"
+    after = store.get(job.id)
+    assert after is not None and after.state == JobState.queued and after.started_at is None
+
+
+def test_an_orphan_is_requeued_once_after_the_grace_period(store: JobStore, new_job) -> None:
+    record = _orphan(store, new_job)
+    sent: list[str] = []
+    clock = Clock()
+    watch = recovery.OrphanWatch(store, sent.append, grace_s=5.0, clock=clock)
+    other = recovery.OrphanWatch(store, sent.append, grace_s=5.0, clock=clock)
+    assert watch.check() == [] and other.check() == []  # first sighting: wait
+    clock.now += 5.0
+    assert watch.check() == [record.id]
+    assert other.check() == []  # another process saw the same orphan: not sent twice
+    assert sent == [record.id]
+    after = store.get(record.id)
+    assert after is not None and after.state == JobState.queued
+    assert after.attempts == 1 and after.worker is None
+    assert store.read_state_file(record.id).state == JobState.queued  # type: ignore[union-attr]
+    assert not store.r.sismember(recovery.RUNNING_KEY, record.id)
+
+
+def test_a_claimed_job_is_not_an_orphan_and_a_flicker_is_forgiven(store: JobStore,
+                                                                  new_job) -> None:
+    record = _orphan(store, new_job)
+    sent: list[str] = []
+    clock = Clock()
+    watch = recovery.OrphanWatch(store, sent.append, grace_s=5.0, clock=clock)
+    watch.check()  # orphaned for a moment (say Redis restarted)...
+    recovery.claim(store.r, record.id, "host-1")  # ...then its worker's heartbeat re-claims it
+    clock.now += 10.0
+    assert watch.check() == [] and sent == []
+    assert store.get(record.id).state == JobState.running  # type: ignore[union-attr]
+
+
+def test_the_attempts_are_bounded(store: JobStore, new_job) -> None:
+    record = _orphan(store, new_job, attempts=recovery.MAX_ATTEMPTS - 1)
+    sent: list[str] = []
+    assert recovery.requeue(store, record, sent.append) == "failed"
+    after = store.get(record.id)
+    assert after is not None and after.state == JobState.failed and sent == []
+    assert str(recovery.MAX_ATTEMPTS) in (after.error or "")
+
+
+def test_a_final_state_json_wins_over_a_stale_running_record(store: JobStore, new_job) -> None:
+    record = _orphan(store, new_job)
+    running = store.get(record.id)
+    assert running is not None and running.state == JobState.running
+    store.write_state_file(running.model_copy(update={"state": JobState.succeeded}))
+    assert recovery.find_orphans(store) == []  # Redis still said running
+    assert store.get(record.id).state == JobState.succeeded  # type: ignore[union-attr]
+
+
+def test_a_failed_send_fails_the_job_instead_of_leaving_it_queued(store: JobStore,
+                                                                 new_job) -> None:
+    record = _orphan(store, new_job)
+
+    def broken(_: str) -> None:
+        raise ConnectionError("broker away")
+
+    assert recovery.requeue(store, record, broken) == "failed"
+    assert store.get(record.id).state == JobState.failed  # type: ignore[union-attr]
+
+
+def test_the_fixed_claim_blocks_other_workers(store: JobStore, new_job) -> None:
+    job = new_job()
+    mine = _FixedClaim(store, ttl_s=60)
+    assert mine.hold(job.id)
+    assert not recovery.claim(store.r, job.id, "someone-else")
+    mine.drop(job.id)
+    assert recovery.claim_holder(store.r, job.id) is None
