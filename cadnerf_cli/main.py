@@ -26,6 +26,16 @@ def _configure(
 def _register() -> None:
     # Each module adds its own commands (a `register(app)` function); one line per module.
     # --- commands ---
+    from cadnerf_cli import reconstruct_cmd
+    reconstruct_cmd.register(app)
+    from cadnerf_cli import eval_cmd
+    eval_cmd.register(app)
+    from library_data import cli as library_cli
+    library_cli.register(app)
+    from cadnerf_cli import retrieve_cmd
+    retrieve_cmd.register(app)
+    from cadnerf_cli import service_cmd
+    service_cmd.register(app)
     from cadnerf_cli import dataset_cmd
     dataset_cmd.register(app)
 

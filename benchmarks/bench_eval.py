@@ -1,0 +1,231 @@
+"""The paper's tables, measured on our own runs.
+
+Datasets are rendered from the meshes in ``../shared/eval/meshes`` (128 px, 12 held-out test
+views on white, the same held-out views for every number of input views). For each object:
+
+- Table 1: novel-view PSNR / SSIM / LPIPS / Average for 3, 6, 9 input views, ours against the
+  no-prior baseline (the same networks and retrieved poses, no phase one and no deformation,
+  poses refined: the BARF-like setting).
+- Table 3: pose errors (rotation in degrees, translation x 100) of the retrieved cameras and
+  after refinement, ours against the baseline.
+- Table 4: retrieval: the paper's Algorithm 1 against our exact DP solver.
+- Table 5: ablations at 6 views: full, without CAD initialisation, without pose optimisation,
+  without deformation.
+
+QUICK: 3 objects and a reduced training schedule, sized to finish in a few minutes on 2 CPU
+cores; full: every mesh with the ``preview`` preset.
+
+Usage: ``python -m benchmarks.bench_eval [--quick]`` prints the section.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import logging
+import os
+import shutil
+import sys
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Literal
+
+from benchmarks import eval_report
+from benchmarks.eval_tables import with_mean
+
+log = logging.getLogger(__name__)
+
+ROOT = Path(__file__).resolve().parents[1]
+EVAL_ROOT = ROOT / ".." / "shared" / "eval"
+LIBRARY_DIR = ROOT / "library_data" / "build"
+WORK_DIR = ROOT / "out" / "bench_eval"
+PICTURES_DIR = ROOT / "docs" / "bench"
+MESH_SUFFIXES = (".glb", ".gltf", ".obj", ".ply", ".off", ".stl")
+# Meshes whose files are Z-up (checked by rendering them); the others are Y-up.
+Z_UP = frozenset({"YcbMustardBottle", "YcbPowerDrill", "ycb_mug", "fuze", "os_plane"})
+QUICK_MESHES = ("armchair", "CesiumMilkTruck", "ycb_mug")
+
+VARIANTS: dict[str, dict[str, Any]] = {
+    "ours": {},
+    "baseline": {"use_cad_init": False, "use_deformation": False, "optimise_poses": True},
+    "no_cad_init": {"use_cad_init": False},
+    "no_pose_opt": {"optimise_poses": False},
+    "no_deformation": {"use_deformation": False},
+}
+ABLATIONS = ("ours", "no_cad_init", "no_pose_opt", "no_deformation")
+
+
+@dataclass(frozen=True)
+class BenchPlan:
+    """What one benchmark run does."""
+
+    meshes: tuple[str, ...]
+    views: tuple[int, ...]
+    preset: str
+    overrides: dict[str, Any] = field(default_factory=dict)
+    ablation_views: int = 6
+    size: int = 128
+    test_views: int = 12
+    seed: int = 0
+    eval_size: int | None = None  # side of the scored held-out views (None: dataset size)
+
+
+# QUICK: the preview networks on 48 px crops with short phases (ours, the paper is silent),
+# held-out views scored at 64 px: every job must take seconds for the run to fit in minutes.
+QUICK_OVERRIDES: dict[str, Any] = {
+    "image_size": 48, "phase1.steps": 60, "phase1.batch_points": 1024,
+    "phase2.steps": 60, "phase2.rays": 256, "phase3.steps": 120, "phase3.rays": 256,
+    "render.samples_per_ray": 24, "export.orbit_frames": 2, "export.orbit_size": 32,
+    "export.novel_views": 0, "export.mesh_resolution": 16,
+}
+
+
+def make_plan(quick: bool) -> BenchPlan:
+    """The plan of the quick or the full benchmark."""
+    if quick:
+        return BenchPlan(meshes=QUICK_MESHES, views=(3, 6, 9), preset="preview",
+                         overrides=QUICK_OVERRIDES, eval_size=64)
+    meshes = tuple(sorted(p.name for p in (EVAL_ROOT / "meshes").iterdir() if p.is_dir()))
+    return BenchPlan(meshes=meshes, views=(3, 6, 9), preset="preview")
+
+
+def mesh_file(folder: Path) -> Path:
+    """The mesh file in one of the eval mesh folders."""
+    found = sorted(p for p in folder.iterdir() if p.suffix.lower() in MESH_SUFFIXES)
+    if not found:
+        raise FileNotFoundError(f"no mesh file in {folder}")
+    return found[0]
+
+
+def prepare_datasets(name: str, plan: BenchPlan, work: Path) -> dict[int, Path]:
+    """Render one dataset per number of views, all sharing the largest one's test split.
+
+    The largest view count is rendered first with the held-out views; the others use its
+    camera distance and get a copy of its test split, so every row is scored on the same views.
+
+    Returns:
+        view count -> dataset folder.
+    """
+    from cadnerf_core.dataset import render_dataset
+
+    mesh = mesh_file(EVAL_ROOT / "meshes" / name)
+    up: Literal["y", "z"] = "z" if name in Z_UP else "y"
+    counts = sorted(set(plan.views) | {plan.ablation_views}, reverse=True)
+    base = render_dataset(mesh, work / name / f"v{counts[0]}", counts[0], plan.size, plan.seed,
+                          up=up, test_views=plan.test_views)
+    distance = float(json.loads((base / "dataset.json").read_text())["distance"])
+    out = {counts[0]: base}
+    for n in counts[1:]:
+        folder = render_dataset(mesh, work / name / f"v{n}", n, plan.size, plan.seed, up=up,
+                                distance=distance)
+        shutil.copytree(base / "test", folder / "test")
+        shutil.copy2(base / "transforms_test.json", folder / "transforms_test.json")
+        out[n] = folder
+    return out
+
+
+def _jobs(plan: BenchPlan) -> list[tuple[str, int]]:
+    """(variant, views) pairs to run per object, without duplicates."""
+    jobs = [(v, n) for n in plan.views for v in ("ours", "baseline")]
+    jobs += [(v, plan.ablation_views) for v in ABLATIONS]
+    return list(dict.fromkeys(jobs))
+
+
+def run_job_once(name: str, variant: str, n: int, plan: BenchPlan, library: Any,
+                 lpips_net: Any, work: Path, suffix: str = "") -> Any:
+    """One evaluation job. Returns its EvalReport, or the exception it raised."""
+    from cadnerf_core.evaluation import evaluate_dataset
+
+    overrides = {**plan.overrides, **VARIANTS[variant], "seed": plan.seed}
+    start = time.perf_counter()
+    try:
+        report = evaluate_dataset(
+            work / name / f"v{n}", n, library, preset=plan.preset, overrides=overrides,
+            job_dir=work / name / f"job_{variant}_{n}{suffix}", lpips_net=lpips_net,
+            device="cpu", eval_size=plan.eval_size)
+    except Exception as exc:  # noqa: BLE001 - one failed job is a row, not a crash
+        log.exception("%s %s %d views failed", name, variant, n)
+        return exc
+    log.info("%s %s %d views: %.1f s", name, variant, n, time.perf_counter() - start)
+    return report
+
+
+def run_object(name: str, plan: BenchPlan, library: Any, lpips_net: Any,
+               work: Path) -> dict[tuple[str, int], Any]:
+    """Every job of one object. Returns (variant, views) -> EvalReport or the exception."""
+    prepare_datasets(name, plan, work)
+    return {(variant, n): run_job_once(name, variant, n, plan, library, lpips_net, work)
+            for variant, n in _jobs(plan)}
+
+
+def repeat_check(plan: BenchPlan, results: dict[str, dict[tuple[str, int], Any]],
+                 library: Any, lpips_net: Any) -> str:
+    """Re-run the first object's full method with the same seed and compare PSNR."""
+    name, n = plan.meshes[0], plan.ablation_views
+    first = results[name].get(("ours", n))
+    again = run_job_once(name, "ours", n, plan, library, lpips_net, WORK_DIR, "_repeat")
+    if isinstance(first, BaseException) or isinstance(again, BaseException) or first is None:
+        return f"Repeatability: not measured ({name}, {n} views: a run failed)."
+    delta = abs(first.image.psnr - again.image.psnr)
+    verdict = "within" if delta <= 0.1 else "NOT within"
+    return (f"Repeatability: {name}, full method, {n} views, seed {plan.seed}, run twice: "
+            f"PSNR {first.image.psnr:.3f} and {again.image.psnr:.3f} dB "
+            f"(difference {delta:.3f} dB, {verdict} 0.1 dB); rotation error "
+            f"{first.pose_refined.rotation_deg:.3f} and {again.pose_refined.rotation_deg:.3f} deg.")
+
+
+def run(quick: bool) -> str:
+    """Run the evaluation benchmark. Returns its markdown section."""
+    import torch
+
+    plan = make_plan(quick)
+    if not (EVAL_ROOT / "meshes").is_dir():
+        return "## Evaluation (paper tables)\n\nNot run: `../shared/eval/meshes` is absent.\n"
+    # The jobs are small: one thread each avoids OpenMP oversubscription, which made them
+    # up to 8x slower on a shared 2-core machine (same results, measured).
+    threads = torch.get_num_threads()
+    torch.set_num_threads(1)
+    try:
+        return _run_plan(plan, quick)
+    finally:
+        torch.set_num_threads(threads)
+
+
+def _run_plan(plan: BenchPlan, quick: bool) -> str:
+    """Every object's jobs, retrieval rows and pictures, then the section."""
+    from cadnerf_core.library import load_library
+    from cadnerf_core.metrics import load_lpips
+
+    library = load_library(LIBRARY_DIR)
+    weights = os.environ.get("CADNERF_LPIPS_WEIGHTS")
+    lpips_net = load_lpips(Path(weights) if weights else None)
+    shutil.rmtree(WORK_DIR, ignore_errors=True)
+    start = time.perf_counter()
+    results: dict[str, dict[tuple[str, int], Any]] = {}
+    retrieval_rows = []
+    for name in plan.meshes:
+        results[name] = run_object(name, plan, library, lpips_net, WORK_DIR)
+        retrieval_rows.append(eval_report.retrieval_row(name, WORK_DIR / name /
+                                                        f"v{plan.ablation_views}", library))
+        eval_report.save_pictures(name, results[name].get(("ours", plan.ablation_views)),
+                                  PICTURES_DIR)
+    repeat = repeat_check(plan, results, library, lpips_net)
+    return eval_report.section(plan, results, with_mean(retrieval_rows, "object"),
+                               lpips_net is not None, time.perf_counter() - start, quick,
+                               repeat)
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Print the section (``--quick`` for the reduced run)."""
+    parser = argparse.ArgumentParser(description="CAD-NeRF evaluation benchmark")
+    parser.add_argument("--quick", action="store_true")
+    args = parser.parse_args(argv)
+    logging.basicConfig(level=logging.INFO,
+                        format="%(asctime)s %(levelname)s %(name)s: %(message)s")
+    sys.stdout.write(run(args.quick))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,201 @@
+"""``make bench``: run every area's benchmark and write docs/benchmarks.md.
+
+Usage: ``python -m benchmarks.run [--quick] [--only AREA ...] --out docs/benchmarks.md``.
+
+Each area module ``benchmarks.bench_<area>`` has ``run(quick: bool) -> str`` returning a markdown
+section. The known areas run in a fixed order (any other ``bench_*.py`` found joins them before
+the evaluation, which runs last); one that is missing is listed as such, one that fails is
+recorded with its error in the document and the others still run.
+"""
+
+from __future__ import annotations
+
+import argparse
+import datetime as dt
+import importlib
+import logging
+import os
+import platform
+import shlex
+import subprocess
+import sys
+import time
+import traceback
+from pathlib import Path
+
+log = logging.getLogger("benchmarks")
+
+AREAS = ("renderer", "library", "retrieval", "training", "service", "eval")
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def all_areas() -> list[str]:
+    """The known areas in order, with any other ``bench_<area>.py`` inserted before ``eval``."""
+    found = sorted(p.stem.removeprefix("bench_")
+                   for p in Path(__file__).resolve().parent.glob("bench_*.py"))
+    extra = [a for a in found if a not in AREAS]
+    return [*AREAS[:-1], *extra, AREAS[-1]]
+
+
+def _cpu_model() -> str:
+    try:
+        for line in Path("/proc/cpuinfo").read_text().splitlines():
+            if line.startswith("model name"):
+                return line.split(":", 1)[1].strip()
+    except OSError:
+        pass
+    return platform.processor() or platform.machine()
+
+
+def _ram_gib() -> str:
+    try:
+        for line in Path("/proc/meminfo").read_text().splitlines():
+            if line.startswith("MemTotal"):
+                return f"{int(line.split()[1]) / 2**20:.1f} GiB"
+    except OSError:
+        pass
+    return "unknown"
+
+
+def _torch_and_gpu() -> tuple[str, str]:
+    try:
+        import torch
+    except ImportError:
+        return "not installed", "none"
+    gpu = "none"
+    if torch.cuda.is_available():
+        props = torch.cuda.get_device_properties(0)
+        gpu = f"{props.name} ({props.total_memory / 2**30:.0f} GiB)"
+    return torch.__version__, gpu
+
+
+def git_commit(root: Path = ROOT) -> str:
+    """Short commit of the tree, ``uncommitted`` when the tree differs from it (or has none).
+
+    Args:
+        root: repository root.
+    Returns:
+        e.g. ``1a2b3c4``, ``1a2b3c4 (uncommitted changes)`` or ``uncommitted``.
+    """
+    def git(*args: str) -> subprocess.CompletedProcess[str]:
+        return subprocess.run(["git", *args], cwd=root, capture_output=True, text=True,
+                              timeout=30, check=False)
+
+    try:
+        head = git("rev-parse", "--short", "HEAD")
+        dirty = git("status", "--porcelain", "--untracked-files=no").stdout.strip()
+    except (OSError, subprocess.SubprocessError):
+        return "uncommitted"
+    if head.returncode != 0:
+        return "uncommitted"
+    commit = head.stdout.strip()
+    return f"{commit} (uncommitted changes)" if dirty else commit
+
+
+def machine_lines() -> list[str]:
+    """Markdown bullet lines describing this machine and software."""
+    torch_version, gpu = _torch_and_gpu()
+    return [
+        f"- CPU: {_cpu_model()}, {os.cpu_count()} logical cores"
+        f" ({len(os.sched_getaffinity(0))} usable)",
+        f"- RAM: {_ram_gib()}",
+        f"- GPU: {gpu}",
+        f"- Python {platform.python_version()}, torch {torch_version}, {platform.platform()}",
+    ]
+
+
+def run_area(area: str, quick: bool) -> tuple[str, float]:
+    """Run one area's benchmark, turning any failure into a section that says so.
+
+    Args:
+        area: e.g. ``"renderer"`` for ``benchmarks.bench_renderer``.
+        quick: the reduced benchmark.
+    Returns:
+        (markdown section, seconds taken).
+    """
+    name = f"benchmarks.bench_{area}"
+    start = time.perf_counter()
+    try:
+        module = importlib.import_module(name)
+    except ModuleNotFoundError as exc:
+        if exc.name != name:
+            return _failure(area, exc), time.perf_counter() - start
+        return f"## {area}\n\nNot run: `{name}` does not exist yet.\n", 0.0
+    except Exception as exc:  # noqa: BLE001 - a broken area must not stop the others
+        return _failure(area, exc), time.perf_counter() - start
+    try:
+        section = str(module.run(quick))
+    except Exception as exc:  # noqa: BLE001 - recorded in the document instead
+        return _failure(area, exc), time.perf_counter() - start
+    return section.rstrip() + "\n", time.perf_counter() - start
+
+
+def _failure(area: str, exc: BaseException) -> str:
+    log.exception("benchmark %s failed", area)
+    trace = "".join(traceback.format_exception(exc)[-6:])
+    return (f"## {area}\n\n**FAILED** with `{type(exc).__name__}: {exc}`.\n\n"
+            f"```\n{trace.rstrip()}\n```\n")
+
+
+def build_document(sections: list[tuple[str, str, float]], quick: bool, command: str) -> str:
+    """Assemble docs/benchmarks.md.
+
+    Args:
+        sections: (area, markdown, seconds) in run order.
+        quick: whether this was the quick run.
+        command: the exact command line that produced it.
+    Returns:
+        The markdown document.
+    """
+    now = dt.datetime.now(dt.UTC).strftime("%Y-%m-%d %H:%M UTC")
+    lines = [
+        "# Benchmarks",
+        "",
+        "Generated by `make bench` (`benchmarks/run.py`); every figure below comes from the run"
+        " described here. Do not edit by hand.",
+        "",
+        f"- Mode: {'QUICK' if quick else 'full'}",
+        f"- Date: {now}",
+        f"- Commit: {git_commit()}",
+        f"- Command: `{command}`",
+        *machine_lines(),
+        "",
+        "| area | time (s) |",
+        "| --- | ---: |",
+        *[f"| {area} | {secs:.1f} |" for area, _, secs in sections],
+        "",
+    ]
+    for _, text, _ in sections:
+        lines += [text.rstrip(), ""]
+    return "\n".join(lines).rstrip() + "\n"
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Command-line entry point; returns the exit status."""
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--quick", action="store_true", help="the reduced benchmark (<15 min)")
+    parser.add_argument("--out", type=Path, default=ROOT / "docs" / "benchmarks.md")
+    parser.add_argument("--only", nargs="*", choices=all_areas(), help="run only these areas")
+    args = parser.parse_args(argv)
+    logging.basicConfig(level=logging.INFO,
+                        format="%(asctime)s %(levelname)s %(name)s: %(message)s")
+    command = shlex.join([os.path.relpath(sys.executable), "-m", "benchmarks.run",
+                          *(argv if argv is not None else sys.argv[1:])])
+    areas = args.only or all_areas()
+    sections: list[tuple[str, str, float]] = []
+    args.out.parent.mkdir(parents=True, exist_ok=True)
+    for area in areas:
+        log.info("benchmark %s (%s)", area, "quick" if args.quick else "full")
+        text, secs = run_area(area, args.quick)
+        sections.append((area, text, secs))
+        log.info("benchmark %s done in %.1f s", area, secs)
+        # Written after every area, so an interrupted run still leaves what it measured.
+        pending = [(a, f"## {a}\n\nNot run yet (the run was interrupted before it).\n", 0.0)
+                   for a in areas[len(sections):]]
+        args.out.write_text(build_document(sections + pending, args.quick, command))
+    log.info("wrote %s", args.out)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,87 @@
+"""``cadnerf reconstruct``: the whole pipeline in-process, with a progress bar."""
+
+from __future__ import annotations
+
+import json
+import logging
+import re
+import shutil
+from pathlib import Path
+
+import typer
+
+STAGES = ("masks", "retrieval", "phase1", "phase2", "phase3", "render", "export")
+DEFAULT_LIBRARY = Path("library_data/build")
+
+
+def _safe_name(name: str) -> str:
+    """A file name without path separators or odd characters."""
+    return re.sub(r"[^A-Za-z0-9._-]+", "_", name).strip("._") or "photo"
+
+
+def stage_inputs(photos: list[Path], masks: list[Path] | None, out: Path) -> None:
+    """Copy photos (and masks) into ``out/inputs`` and ``out/masks`` as NNN_<name>, in order."""
+    if masks and len(masks) != len(photos):
+        raise ValueError(f"{len(masks)} masks for {len(photos)} photos: give one per photo")
+    for folder in ("inputs", "masks"):
+        if (out / folder).exists():
+            shutil.rmtree(out / folder)
+    (out / "inputs").mkdir(parents=True)
+    for i, photo in enumerate(photos):
+        if not photo.is_file():
+            raise ValueError(f"{photo}: no such file")
+        stem = f"{i:03d}_{_safe_name(photo.stem)}"
+        shutil.copyfile(photo, out / "inputs" / f"{stem}{photo.suffix.lower()}")
+        if masks:
+            (out / "masks").mkdir(exist_ok=True)
+            if not masks[i].is_file():
+                raise ValueError(f"{masks[i]}: no such file")
+            shutil.copyfile(masks[i], out / "masks" / f"{stem}.png")
+
+
+def reconstruct(
+    photos: list[Path] = typer.Argument(..., help="3 to 10 photos, in walking order."),
+    out: Path = typer.Option(..., "--out", help="Job folder for the results."),
+    masks: list[Path] | None = typer.Option(None, "--masks", help="One mask per photo."),
+    preset: str = typer.Option("standard", "--preset", help="paper, standard, preview, test."),
+    device: str = typer.Option("auto", "--device", help="auto, cpu, cuda, cuda:N."),
+    library_dir: Path = typer.Option(DEFAULT_LIBRARY, "--library", help="CAD library folder."),
+) -> None:
+    """Poses, novel views, an orbit video and a mesh from ordered photos of an object."""
+    from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
+
+    from cadnerf_core.config import resolve_config
+    from cadnerf_core.errors import CadNerfError
+    from cadnerf_core.library import load_library
+    from cadnerf_core.pipeline import run_job
+    from cadnerf_core.progress import Progress as CoreProgress
+
+    try:
+        resolve_config(preset, {})
+        library = load_library(library_dir)
+        stage_inputs(photos, masks, out)
+        (out / "config.json").write_text(json.dumps({"preset": preset, "overrides": {}}))
+        columns = (TextColumn("{task.description:<10}"), BarColumn(),
+                   TextColumn("{task.percentage:>3.0f}%"), TimeElapsedColumn())
+        with Progress(*columns) as bar:
+            tasks = {s: bar.add_task(s, total=1, visible=False) for s in STAGES}
+
+            def report(stage: str, done: int, total: int) -> None:
+                task = tasks.get(stage)
+                if task is not None:
+                    bar.update(task, completed=done, total=max(total, 1), visible=True)
+
+            summary = run_job(out, library, CoreProgress(report), device)
+    except (CadNerfError, ValueError, OSError) as exc:
+        typer.echo(f"error: {exc}", err=True)
+        raise typer.Exit(2) from exc
+    metrics = summary["metrics"]
+    logging.getLogger(__name__).debug("summary: %s", summary)
+    typer.echo(f"model: {summary['model_id']} ({summary['category']}); "
+               f"mean training PSNR {metrics['mean_psnr']:.2f} dB")
+    typer.echo(f"results in {out.resolve()}: orbit.mp4, mesh.glb, poses.json, views/")
+
+
+def register(app: typer.Typer) -> None:
+    """Add ``reconstruct`` to the ``cadnerf`` command."""
+    app.command("reconstruct")(reconstruct)

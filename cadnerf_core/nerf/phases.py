@@ -1,0 +1,227 @@
+"""The three training phases, each a step function and a loop.
+
+1. D fitted to the CAD model's occupancy (binary cross entropy).
+2. G (or D, without deformation) and the camera poses fitted to the silhouettes; poses only
+   inside a window of steps, coarse-to-fine positional encoding.
+3. Colour: D, G and the colour network fitted to the photos, with the offset and correction
+   regularisers (means over evaluated samples: lambda_a * mean ||o||_2 + lambda_b * mean |c|,
+   so the weights do not depend on the batch size or sample count).
+Scene mode adds a last loop where a background field explains the photo behind the object.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import logging
+import math
+from collections.abc import Callable, Iterator
+
+import numpy as np
+import torch
+import torch.nn.functional as F
+
+from cadnerf_core.nerf.fields import FieldOutputs
+from cadnerf_core.nerf.poses import in_window
+from cadnerf_core.nerf.rays import pixel_rays
+from cadnerf_core.nerf.state import TrainData, TrainState
+from cadnerf_core.nerf.volrend import RenderOutput, render_rays
+from cadnerf_core.progress import Progress
+
+log = logging.getLogger(__name__)
+
+# points [n] -> (points [n, 3] f32 in [-1, 1]^3, occupancy [n] f32 0/1)
+OccupancySampler = Callable[[int], tuple[np.ndarray, np.ndarray]]
+
+POOL_MAX = 1 << 18  # CAD occupancy samples drawn once for phase one
+REPORTS = 50  # progress reports per phase
+
+
+def autocast(state: TrainState) -> contextlib.AbstractContextManager[None]:
+    """bfloat16 autocast on CUDA when configured; nothing on the CPU."""
+    if state.device.type == "cuda" and state.config.mixed_precision:
+        return torch.autocast("cuda", dtype=torch.bfloat16)
+    return contextlib.nullcontext()
+
+
+def _report(progress: Progress | None, stage: str, step: int, total: int) -> None:
+    every = max(1, total // REPORTS)
+    if progress is not None and ((step + 1) % every == 0 or step + 1 == total):
+        progress.step(stage, step + 1, total)
+
+
+def phase1_step(state: TrainState, optimizer: torch.optim.Optimizer, points: torch.Tensor,
+                occ: torch.Tensor) -> float:
+    """One BCE step of D on CAD occupancy. points [B, 3], occ [B] 0/1. Returns the loss."""
+    with autocast(state):
+        logit, _ = state.fields.density(points)
+    loss = F.binary_cross_entropy_with_logits(logit.float(), occ)
+    optimizer.zero_grad(set_to_none=True)
+    loss.backward()
+    optimizer.step()
+    return float(loss.detach())
+
+
+def run_phase1(state: TrainState, sampler: OccupancySampler,
+               progress: Progress | None = None) -> None:
+    """Phase one: pretrain D to the CAD occupancy, then set the skip grid from it."""
+    cfg = state.config.phase1
+    torch.manual_seed(state.config.seed + 1)
+    state.fields.set_anneal(1.0)
+    pool_pts, pool_occ = sampler(min(POOL_MAX, max(cfg.steps * cfg.batch_points, 1)))
+    pts = torch.from_numpy(np.asarray(pool_pts, np.float32)).to(state.device)
+    occ = torch.from_numpy(np.asarray(pool_occ, np.float32)).to(state.device)
+    optimizer = torch.optim.Adam(state.fields.density.parameters(), lr=cfg.lr)
+    for step in range(cfg.steps):
+        idx = torch.randint(0, pts.shape[0], (cfg.batch_points,)).to(state.device)
+        state.log("phase1/bce", phase1_step(state, optimizer, pts[idx], occ[idx]))
+        _report(progress, "phase1", step, cfg.steps)
+
+
+def sample_pixels(data: TrainData, n: int) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """Random pixels over all photos (CPU generator: same draws on every device).
+
+    Returns:
+        image index [n], x [n], y [n] (long, on the data's device).
+    """
+    flat = torch.randint(0, data.n_images * data.height * data.width, (n,))
+    img = flat // (data.height * data.width)
+    rem = flat % (data.height * data.width)
+    dev = data.images.device
+    return img.to(dev), (rem % data.width).to(dev), (rem // data.width).to(dev)
+
+
+def render_batch(state: TrainState, data: TrainData, img: torch.Tensor, x: torch.Tensor,
+                 y: torch.Tensor, with_color: bool, pose_grad: bool,
+                 background: torch.Tensor | None = None) -> RenderOutput:
+    """Render training rays of pixels (img, x, y) at the current poses."""
+    with contextlib.nullcontext() if pose_grad else torch.no_grad():
+        c2w = state.poses(img)
+    rays_o, rays_d = pixel_rays(c2w, data.K[img], x, y)
+    if background is None and with_color and state.fields.background is not None \
+            and data.scene_images is not None:
+        background = state.fields.background(rays_d)
+
+    def fn(p: torch.Tensor, d: torch.Tensor) -> FieldOutputs:
+        # Only the networks run in reduced precision; compositing stays in float32.
+        with autocast(state):
+            return state.fields.query(p, d if with_color else None)
+
+    rcfg = state.config.render
+    return render_rays(fn, rays_o, rays_d, rcfg.samples_per_ray, rcfg.bound,
+                       state.grid if rcfg.use_grid else None, with_color, True, background)
+
+
+def _maybe_update_grid(state: TrainState, step: int) -> None:
+    rcfg = state.config.render
+    if not rcfg.use_grid or (step + 1) % rcfg.grid_update_every:
+        return
+
+    def occupancy(p: torch.Tensor) -> torch.Tensor:
+        with autocast(state):
+            return state.fields.query(p, None).occupancy
+
+    state.grid.update(occupancy, rcfg.grid_threshold, rcfg.grid_dilation)
+
+
+def _apply_step(loss: torch.Tensor, optimizer: torch.optim.Optimizer,
+                pose_optimizer: torch.optim.Optimizer | None) -> float:
+    """Backpropagate and step; a non-finite loss or gradient skips the step (never NaN weights)."""
+    optimizer.zero_grad(set_to_none=True)
+    if pose_optimizer is not None:
+        pose_optimizer.zero_grad(set_to_none=True)
+    value = float(loss.detach())
+    if not math.isfinite(value):
+        log.warning("non-finite loss: step skipped")
+        return value
+    loss.backward()
+    optimizers = [optimizer] if pose_optimizer is None else [optimizer, pose_optimizer]
+    grads = [p.grad for opt in optimizers for group in opt.param_groups for p in group["params"]
+             if p.grad is not None]
+    if grads and not all(bool(torch.isfinite(g).all()) for g in grads):
+        log.warning("non-finite gradient: step skipped")
+        return value
+    for opt in optimizers:
+        opt.step()
+    return value
+
+
+def phase2_step(state: TrainState, data: TrainData, optimizer: torch.optim.Optimizer,
+                pose_optimizer: torch.optim.Optimizer | None, step: int) -> float:
+    """One silhouette step: G (or D) and, inside the window, the poses. Returns the loss."""
+    cfg = state.config.phase2
+    state.fields.set_anneal((step / max(cfg.steps, 1) - cfg.anneal[0])
+                            / max(cfg.anneal[1] - cfg.anneal[0], 1e-6))
+    img, x, y = sample_pixels(data, cfg.rays)
+    out = render_batch(state, data, img, x, y, False, pose_optimizer is not None)
+    loss = F.mse_loss(out.acc, data.masks[img, y, x])
+    loss = loss + cfg.lambda_offset * out.offset_norm + cfg.lambda_correction * out.correction_abs
+    return _apply_step(loss, optimizer, pose_optimizer)
+
+
+def _phase2_params(state: TrainState) -> Iterator[torch.nn.Parameter]:
+    deformation = state.fields.deformation
+    return iter(deformation.parameters() if deformation is not None
+                else state.fields.density.parameters())
+
+
+def run_phase2(state: TrainState, data: TrainData, progress: Progress | None = None) -> None:
+    """Phase two: deformation and poses from the silhouettes."""
+    cfg = state.config.phase2
+    torch.manual_seed(state.config.seed + 2)
+    optimizer = torch.optim.Adam(list(_phase2_params(state)), lr=cfg.lr)
+    pose_optimizer = torch.optim.Adam(state.poses.parameters(), lr=cfg.pose_lr)
+    # D stays the CAD prior while G deforms it: no parameter gradients for D (saves a third of
+    # the backward pass); gradients still flow through D to the offsets.
+    frozen = state.fields.deformation is not None
+    state.fields.density.requires_grad_(not frozen)
+    for step in range(cfg.steps):
+        active = state.config.optimise_poses and in_window(step, cfg.steps, cfg.pose_window)
+        loss = phase2_step(state, data, optimizer, pose_optimizer if active else None, step)
+        state.log("phase2/loss", loss)
+        _maybe_update_grid(state, step)
+        _report(progress, "phase2", step, cfg.steps)
+    state.fields.density.requires_grad_(True)
+    state.fields.set_anneal(1.0)
+
+
+def phase3_step(state: TrainState, data: TrainData, optimizer: torch.optim.Optimizer,
+                pose_optimizer: torch.optim.Optimizer | None = None, scene: bool = False) -> float:
+    """One colour step (D, G and colour; the background too in scene mode; the poses inside
+    phase three's window). Returns the loss."""
+    cfg = state.config.phase3
+    img, x, y = sample_pixels(data, cfg.rays)
+    out = render_batch(state, data, img, x, y, True, pose_optimizer is not None,
+                       None if scene else torch.ones(3, device=state.device))
+    assert out.rgb is not None
+    target = data.scene_images if scene and data.scene_images is not None else data.images
+    loss = F.mse_loss(out.rgb, target[img, y, x])
+    if cfg.mask_weight > 0:
+        loss = loss + cfg.mask_weight * F.mse_loss(out.acc, data.masks[img, y, x])
+    loss = loss + cfg.lambda_offset * out.offset_norm + cfg.lambda_correction * out.correction_abs
+    return _apply_step(loss, optimizer, pose_optimizer)
+
+
+def run_phase3(state: TrainState, data: TrainData, progress: Progress | None = None) -> None:
+    """Phase three: colour re-rendering on white; then, in scene mode, with the background."""
+    cfg = state.config.phase3
+    torch.manual_seed(state.config.seed + 3)
+    state.fields.set_anneal(1.0)
+    background = state.fields.background
+    params = [p for name, p in state.fields.named_parameters()
+              if not name.startswith("background.")]
+    optimizer = torch.optim.Adam(params, lr=cfg.lr)
+    scene_steps = cfg.scene_steps if background is not None and data.scene_images is not None \
+        else 0
+    total = cfg.steps + scene_steps
+    pose_optimizer = torch.optim.Adam(state.poses.parameters(), lr=cfg.pose_lr)
+    for step in range(cfg.steps):
+        active = state.config.optimise_poses and in_window(step, cfg.steps, cfg.pose_window)
+        state.log("phase3/loss", phase3_step(state, data, optimizer,
+                                             pose_optimizer if active else None))
+        _maybe_update_grid(state, step)
+        _report(progress, "phase3", step, total)
+    if scene_steps and background is not None:
+        optimizer.add_param_group({"params": list(background.parameters())})
+        for step in range(scene_steps):
+            state.log("phase3/scene_loss", phase3_step(state, data, optimizer, None, scene=True))
+            _report(progress, "phase3", cfg.steps + step, total)

@@ -1,0 +1,268 @@
+"""One job, end to end: intake -> masks -> retrieval -> three training phases -> export.
+
+A job is a folder (see docs/architecture.md). ``run_job`` reads ``inputs/``, optional ``masks/``
+and ``config.json``, and writes every artifact into the same folder. A checkpoint is saved after
+each training phase; calling ``run_job`` again on the same folder continues after the last
+finished phase (intake and retrieval are re-run: they are deterministic and take seconds).
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import resource
+import time
+from dataclasses import dataclass
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+
+from cadnerf_core.config import PipelineConfig, resolve_config
+from cadnerf_core.crop import apply_crop
+from cadnerf_core.errors import InputError
+from cadnerf_core.export import write_json
+from cadnerf_core.progress import Progress
+
+if TYPE_CHECKING:
+    import torch
+
+    from cadnerf_core.library import Library
+    from cadnerf_core.nerf.state import TrainData, TrainState
+    from cadnerf_core.retrieval import RetrievalResult
+
+log = logging.getLogger(__name__)
+
+IMAGE_SUFFIXES = {".jpg", ".jpeg", ".png", ".webp"}
+
+
+@dataclass
+class Intake:
+    """Photos, masks and the retrieval of one job."""
+
+    names: list[str]
+    photos: list[Any]  # cadnerf_core.photos.Photo
+    masks: list[np.ndarray]  # [H_i, W_i] bool
+    retrieval: RetrievalResult
+
+
+def read_job_config(job_dir: Path) -> PipelineConfig:
+    """The job's configuration: ``{"preset", "overrides"}`` as uploaded, or a resolved one
+    (what a finished or interrupted run wrote back). Missing file: the default preset.
+
+    Raises:
+        InputError: unreadable JSON or an invalid configuration.
+    """
+    path = job_dir / "config.json"
+    if not path.is_file():
+        return resolve_config(None, None)
+    try:
+        data = json.loads(path.read_text(encoding="utf-8"))
+        if not isinstance(data, dict):
+            raise ValueError("config.json must hold a JSON object")
+        if set(data) <= {"preset", "overrides"}:
+            return resolve_config(data.get("preset"), data.get("overrides"))
+        return PipelineConfig.model_validate(data)
+    except ValueError as exc:  # json and pydantic errors are ValueErrors
+        raise InputError(f"invalid configuration: {exc}", item="config.json") from exc
+
+
+def _input_files(job_dir: Path) -> tuple[list[Path], list[Path | None]]:
+    """Photos in ``inputs/`` (sorted names = photo order) and the mask of each, if any."""
+    inputs = sorted(p for p in (job_dir / "inputs").glob("*")
+                    if p.is_file() and p.suffix.lower() in IMAGE_SUFFIXES)
+    if not inputs:
+        raise InputError("no photos in inputs/", item=str(job_dir / "inputs"),
+                         hint="add 3 to 10 ordered photos")
+    mask_dir = job_dir / "masks"
+    masks: list[Path | None] = []
+    for photo in inputs:
+        found = [mask_dir / f"{photo.stem}{s}" for s in (".png", ".jpg", ".jpeg", ".webp")]
+        masks.append(next((m for m in found if m.is_file()), None))
+    return inputs, masks
+
+
+def run_intake(job_dir: Path, library: Library, config: PipelineConfig,
+               progress: Progress) -> Intake:
+    """Read photos and masks, remove backgrounds where needed, retrieve model and poses."""
+    from cadnerf_core.masks import photo_masks
+    from cadnerf_core.photos import load_photo
+    from cadnerf_core.retrieval import RetrievalConfig, retrieve
+
+    inputs, mask_paths = _input_files(job_dir)
+    photos = [load_photo(p, i, m) for i, (p, m) in enumerate(zip(inputs, mask_paths,
+                                                                 strict=True))]
+    names = [p.name for p in inputs]
+    masks = photo_masks(photos, progress=progress)
+    opts = config.retrieval
+    rcfg = RetrievalConfig(solver=opts.solver, top_k=opts.top_k, max_discard=opts.max_discard,
+                           size=config.image_size)
+    retrieval = retrieve(masks, names, library, rcfg, progress)
+    write_json(job_dir / "retrieval.json", retrieval.to_json())
+    if len(retrieval.kept) < 2:
+        raise InputError("fewer than two photos could be matched to the retrieved model",
+                         item="inputs", hint="use 3 to 10 photos walking around the object")
+    return Intake(names, photos, masks, retrieval)
+
+
+def training_data(intake: Intake, config: PipelineConfig, margin: float,
+                  device: torch.device) -> TrainData:
+    """Canonical crops (on white), masks and crop intrinsics of the kept photos."""
+    from cadnerf_core.nerf.state import TrainData
+    from cadnerf_core.photos import canonical_views
+
+    kept = intake.retrieval.kept
+    photos = [intake.photos[m.index] for m in kept]
+    masks = [intake.masks[m.index] for m in kept]
+    rgb, crops, _ = canonical_views(photos, masks, config.image_size, margin)
+    scene = None
+    if config.scene_mode:
+        scene = np.stack([np.clip(apply_crop(p.rgb.astype(np.float32), m.box, fill=1.0), 0, 1)
+                          for p, m in zip(photos, kept, strict=True)])
+    K = np.stack([m.K_canon for m in kept])
+    return TrainData.from_numpy(rgb, crops, K, device, scene)
+
+
+def _peak_memory_mb(device: torch.device) -> dict[str, float]:
+    import torch
+
+    out = {"rss_peak_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0}
+    if device.type == "cuda":
+        out["cuda_peak_mb"] = torch.cuda.max_memory_allocated(device) / 2**20
+    return out
+
+
+def _initial_state(library: Library, model_id: str, c2w_init: np.ndarray,
+                   config: PipelineConfig, device: torch.device) -> TrainState:
+    """Fresh networks; the skip grid from the CAD occupancy (full without CAD init)."""
+    from cadnerf_core.nerf.grid import grid_from_occupancy
+    from cadnerf_core.nerf.state import TrainState
+
+    rcfg = config.render
+    grid = None
+    if config.use_cad_init:
+        grid = grid_from_occupancy(library.occupancy(model_id).query, rcfg.grid_resolution,
+                                   rcfg.bound, rcfg.grid_dilation, device=device)
+    return TrainState.create(config, c2w_init, device, grid)
+
+
+def _resume(job_dir: Path, c2w_init: np.ndarray, config: PipelineConfig,
+            device: torch.device) -> tuple[int, TrainState | None, dict[str, Any]]:
+    """Last finished phase, its state and metadata, when its checkpoint fits this job."""
+    from cadnerf_core.nerf.checkpoint import last_checkpoint, load_payload, restore_state
+
+    found = last_checkpoint(job_dir)
+    if found is None:
+        return 0, None, {}
+    payload = load_payload(found[1])
+    init = payload["poses"]["c2w_init"].numpy()
+    if init.shape != c2w_init.shape or not np.allclose(init, c2w_init, atol=1e-5) \
+            or payload["config"] != config.model_dump(mode="json"):
+        log.warning("checkpoints do not match this job's inputs or config: starting over")
+        return 0, None, {}
+    log.info("resuming after phase %d", found[0])
+    return found[0], restore_state(payload, device, config), dict(payload.get("extra", {}))
+
+
+def _run_phase(phase: int, state: TrainState, library: Library, model_id: str,
+               data: TrainData, progress: Progress) -> None:
+    from cadnerf_core.nerf import phases
+    from cadnerf_core.occupancy import sample_occupancy
+
+    cfg = state.config
+    if phase == 1:
+        if cfg.use_cad_init:
+            grid = library.occupancy(model_id)
+            rng = np.random.default_rng(cfg.seed)
+            phases.run_phase1(state, lambda n: sample_occupancy(grid, n, cfg.phase1.near_surface,
+                                                                rng), progress)
+    elif phase == 2:
+        phases.run_phase2(state, data, progress)
+    else:
+        phases.run_phase3(state, data, progress)
+
+
+def train(job_dir: Path, library: Library, retrieval: RetrievalResult, data: TrainData,
+          config: PipelineConfig, device: torch.device,
+          progress: Progress) -> tuple[TrainState, dict[str, Any]]:
+    """The three phases, resuming after the last checkpointed one; a checkpoint after each.
+
+    Returns:
+        The trained state, and metadata (names, timings and peak memory per phase).
+    """
+    import torch
+
+    from cadnerf_core.nerf.checkpoint import save_checkpoint
+
+    kept = retrieval.kept
+    c2w_init = np.stack([m.c2w for m in kept])
+    done, resumed, old = _resume(job_dir, c2w_init, config, device)
+    state = resumed or _initial_state(library, retrieval.model_id, c2w_init, config, device)
+    extra: dict[str, Any] = {"model_id": retrieval.model_id, "names": [m.name for m in kept],
+                             "timings": old.get("timings", {}), "memory": old.get("memory", {}),
+                             "resumed_after_phase": done}
+    for phase in range(done + 1, 4):
+        if device.type == "cuda":
+            torch.cuda.reset_peak_memory_stats(device)
+        start = time.perf_counter()
+        _run_phase(phase, state, library, retrieval.model_id, data, progress)
+        extra["timings"][f"phase{phase}_s"] = time.perf_counter() - start
+        extra["memory"][f"phase{phase}"] = _peak_memory_mb(device)
+        save_checkpoint(job_dir, phase, state, extra)
+        log.info("phase %d done in %.1f s", phase, extra["timings"][f"phase{phase}_s"])
+    return state, extra
+
+
+def run_job(job_dir: Path, library: Library, progress: Progress | None = None,
+            device: str = "auto") -> dict[str, Any]:
+    """Run (or resume) a whole job in its folder.
+
+    Args:
+        job_dir: the job folder (``inputs/``, optional ``masks/`` and ``config.json``).
+        library: the loaded CAD library.
+        progress: progress reporter and cancel check (stages masks, retrieval, phase1-3,
+            render, export); raises JobCancelled between steps when cancelled.
+        device: "auto" (CUDA if available), "cpu", "cuda", "cuda:1", ...
+    Returns:
+        Summary: model_id, category, photos (per photo: name, pose, IoU, discarded, PSNR),
+        metrics (summary), artifacts (file names relative to the job folder).
+    Raises:
+        InputError: unusable photos, masks or configuration. JobCancelled: cancelled.
+    """
+    from cadnerf_core.export import export_job
+    from cadnerf_core.nerf.model import TrainedModel, resolve_device
+
+    job_dir = Path(job_dir)
+    progress = progress or Progress()
+    handler = _attach_log(job_dir)
+    try:
+        config = read_job_config(job_dir)
+        write_json(job_dir / "config.json", config.model_dump(mode="json"))
+        dev = resolve_device(device)
+        start = time.perf_counter()
+        intake = run_intake(job_dir, library, config, progress)
+        intake_s = time.perf_counter() - start
+        data = training_data(intake, config, library.spec.margin, dev)
+        state, extra = train(job_dir, library, intake.retrieval, data, config, dev, progress)
+        extra["timings"]["intake_s"] = intake_s
+        model = TrainedModel(state, extra)
+        return export_job(job_dir, model, intake.retrieval, intake.photos, data, progress)
+    finally:
+        _detach_log(handler)
+
+
+def _attach_log(job_dir: Path) -> logging.Handler:
+    job_dir.mkdir(parents=True, exist_ok=True)
+    handler = logging.FileHandler(job_dir / "log.txt", encoding="utf-8")
+    handler.setFormatter(logging.Formatter("%(asctime)s %(levelname)s %(name)s: %(message)s"))
+    handler.setLevel(logging.INFO)
+    root = logging.getLogger("cadnerf_core")
+    root.addHandler(handler)
+    if root.level == logging.NOTSET or root.level > logging.INFO:
+        root.setLevel(logging.INFO)
+    return handler
+
+
+def _detach_log(handler: logging.Handler) -> None:
+    logging.getLogger("cadnerf_core").removeHandler(handler)
+    handler.close()

@@ -1,0 +1,232 @@
+"""Evaluation harness: alignment math on synthetic poses, and a whole tiny evaluation."""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pytest
+from scipy.spatial.transform import Rotation
+
+from cadnerf_core.cameras import orbit_pose
+from cadnerf_core.evaluation import Similarity, centre_similarity
+
+# ---------------------------------------------------------------- alignment on synthetic poses
+
+
+def _gt_poses(n: int = 6, seed: int = 0) -> np.ndarray:
+    rng = np.random.default_rng(seed)
+    return np.stack([orbit_pose(az, el, 2.5) for az, el in
+                     zip(np.sort(rng.uniform(0, 360, n)), rng.uniform(0, 60, n), strict=True)])
+
+
+def _random_similarity(seed: int = 1) -> Similarity:
+    R = Rotation.random(random_state=seed).as_matrix()
+    return Similarity(scale=1.7, R=R, t=np.array([0.3, -1.2, 2.0]))
+
+
+def test_similarity_copy_maps_back_exactly() -> None:
+    gt = _gt_poses()
+    sim = _random_similarity()
+    moved = sim.apply_to_poses(gt)
+    # Rotations stay rotations; the moved centres are the similarity of the old ones.
+    assert np.allclose(moved[:, :3, :3] @ np.swapaxes(moved[:, :3, :3], 1, 2), np.eye(3),
+                       atol=1e-9)
+    assert np.allclose(moved[:, :3, 3], 1.7 * gt[:, :3, 3] @ sim.R.T + sim.t)
+    found = centre_similarity(gt, moved)
+    assert found.scale == pytest.approx(1.7)
+    assert np.allclose(found.R, sim.R, atol=1e-9)
+    assert np.allclose(found.t, sim.t, atol=1e-9)
+    # Held-out cameras follow the training cameras' similarity exactly.
+    held_out = _gt_poses(4, seed=5)
+    assert np.allclose(found.apply_to_poses(held_out), sim.apply_to_poses(held_out), atol=1e-9)
+    back = centre_similarity(moved, gt).apply_to_poses(moved)
+    assert np.allclose(back, gt, atol=1e-9)
+
+
+def test_similarity_with_noise_is_close_not_exact() -> None:
+    gt = _gt_poses(8)
+    sim = _random_similarity(3)
+    moved = sim.apply_to_poses(gt)
+    moved[:, :3, 3] += np.random.default_rng(4).normal(0, 0.01, (8, 3))
+    found = centre_similarity(gt, moved)
+    assert found.scale == pytest.approx(1.7, rel=0.02)
+    assert not np.allclose(found.t, sim.t, atol=1e-9)
+    assert np.allclose(found.t, sim.t, atol=0.1)
+
+
+# ---------------------------------------------------------------- end to end on a tiny box
+
+
+def test_evaluate_tiny_box_has_all_fields(tmp_path: Path, tiny_library: Any) -> None:
+    import trimesh
+
+    from cadnerf_core.dataset import render_dataset
+    from cadnerf_core.evaluation import evaluate_dataset
+
+    mesh_path = tmp_path / "box.ply"
+    trimesh.creation.box(extents=(1.2, 0.8, 0.6)).export(mesh_path)
+    dataset = render_dataset(mesh_path, tmp_path / "ds", n_views=4, size=64, seed=0,
+                             test_views=2)
+    library = tiny_library
+    report = evaluate_dataset(dataset, 3, library, preset="test", overrides={"seed": 0},
+                              job_dir=tmp_path / "job")
+    data = report.to_json()
+    json.dumps(data)  # serialisable
+    assert report.n_views == 3 and len(report.per_view) == 2
+    assert len(report.kept) + len(report.discarded) == 3
+    for value in (report.image.psnr, report.image.ssim, report.pose_refined.rotation_deg,
+                  report.pose_refined.translation_x100, report.pose_retrieved.rotation_deg,
+                  report.pose_retrieved.translation_x100, report.seconds, report.focal_used):
+        assert math.isfinite(value)
+    assert 0.0 < report.image.psnr < 100.0
+    assert report.lpips_note is not None and report.image.lpips is None
+    assert report.model_id in {m.id for m in library.models}
+    assert set(report.cameras) == {"gt", "retrieved", "refined"}
+    assert all(Path(p).is_file() for p in report.renders)
+    assert report.phases, "metrics.json phases missing"
+    assert report.eval_size == 64 and report.align == "centred"
+    with pytest.raises(ValueError, match="not empty"):
+        evaluate_dataset(dataset, 3, library, preset="test", job_dir=tmp_path / "job")
+
+
+# ---------------------------------------------------------------- benchmark tables, fake inputs
+
+
+def test_tables_mean_row_and_layout(monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.syspath_prepend(str(Path(__file__).resolve().parents[2]))
+    from benchmarks.eval_tables import markdown_table, mean_row, with_mean, worst
+
+    rows = [{"object": "a", "psnr": 20.0, "lpips": None, "ok": True},
+            {"object": "b", "psnr": 24.0, "lpips": 0.2, "ok": False},
+            {"object": "c", "psnr": math.inf, "lpips": 0.4}]
+    mean = mean_row(rows, "object")
+    assert mean["psnr"] == pytest.approx(22.0)  # the infinite value is left out
+    assert mean["lpips"] == pytest.approx(0.3)
+    assert "ok" not in mean  # booleans are not averaged
+    table = markdown_table([("object", "object", 0), ("PSNR", "psnr", 2),
+                            ("LPIPS", "lpips", 3)], with_mean(rows, "object"))
+    lines = table.splitlines()
+    assert lines[0] == "| object | PSNR | LPIPS |"
+    assert lines[1] == "| --- | ---: | ---: |"
+    assert lines[2] == "| a | 20.00 | - |"
+    assert lines[4] == "| c | inf | 0.400 |"
+    assert lines[5] == "| **mean** | 22.00 | 0.300 |"
+    bad = worst(rows, "psnr")
+    assert bad is not None and bad["object"] == "a"
+
+
+# ---------------------------------------------------------------- job read-back helpers
+
+
+def test_phase_costs_reads_both_layouts() -> None:
+    from cadnerf_core.evaluation import phase_costs
+
+    extra = {"timings": {"phase1_s": 1.0, "phase2_s": 2.0},
+             "memory": {"phase1": {"rss_peak_mb": 100.0}}}
+    metrics = {"timings_s": {"phase2_s": 2.5, "export_s": 0.5},
+               "peak_memory_mb": {"phase2": {"rss_peak_mb": 120.0, "note": "x"}}}
+    costs = phase_costs(extra, metrics)
+    assert costs["phase1"] == {"seconds": 1.0, "rss_peak_mb": 100.0}
+    assert costs["phase2"] == {"seconds": 2.5, "rss_peak_mb": 120.0}  # later source wins
+    assert costs["export"] == {"seconds": 0.5}
+
+
+def test_read_job_cameras_and_intrinsics(tmp_path: Path) -> None:
+    from cadnerf_core.evaluation import eval_intrinsics, read_job_cameras
+
+    poses = _gt_poses(4)
+    K_photo = np.array([[150.0, 0, 64], [0, 150.0, 64], [0, 0, 1]])
+    matches = [{"index": i, "name": f"p{i}", "discarded": i == 2, "c2w": poses[i].tolist(),
+                "K_photo": (K_photo * [[1 + 0.1 * i], [1 + 0.1 * i], [1]]).tolist()}
+               for i in range(4)]
+    (tmp_path / "retrieval.json").write_text(json.dumps(
+        {"model_id": "chair_a", "category": "chair", "matches": matches[::-1]}))
+
+    class FakeModel:
+        c2w = poses[[0, 1, 3]] + 0.01
+
+    cams = read_job_cameras(tmp_path, FakeModel())  # type: ignore[arg-type]
+    assert cams.kept == [0, 1, 3] and cams.discarded == [2]
+    assert np.allclose(cams.retrieved, poses[[0, 1, 3]])
+    assert np.allclose(cams.refined, poses[[0, 1, 3]] + 0.01)
+    gt_K = np.array([[170.0, 0, 64], [0, 170.0, 64], [0, 0, 1]])
+    K = eval_intrinsics(gt_K, cams, "estimated")
+    assert K[0, 0] == pytest.approx(165.0) and K[0, 2] == 64  # median of 150, 165, 195
+    assert np.array_equal(eval_intrinsics(gt_K, cams, "gt"), gt_K)
+
+    class WrongModel:
+        c2w = poses
+
+    with pytest.raises(ValueError, match="4 poses for 3 kept"):
+        read_job_cameras(tmp_path, WrongModel())  # type: ignore[arg-type]
+
+    class DivergedModel:
+        c2w = np.where(np.arange(3)[:, None, None] == 1, np.nan, poses[[0, 1, 3]])
+
+    with pytest.raises(ValueError, match=r"not finite .*\['p1'\]"):
+        read_job_cameras(tmp_path, DivergedModel())  # type: ignore[arg-type]
+
+
+def test_resize_view_scales_intrinsics() -> None:
+    from cadnerf_core.cameras import intrinsics_from_fov
+    from cadnerf_core.evaluation import resize_view
+
+    image = np.zeros((8, 8, 3), np.float32)
+    image[:4] = 1.0
+    K = intrinsics_from_fov(40.0, 8)
+    small, K_small = resize_view(image, K, 4)
+    assert small.shape == (4, 4, 3)
+    assert np.allclose(small[:2], 1.0) and np.allclose(small[2:], 0.0)
+    assert np.allclose(K_small, intrinsics_from_fov(40.0, 4))
+    same, K_same = resize_view(image, K, None)
+    assert np.array_equal(same, image)
+    assert K_same is K
+
+
+def test_centred_similarity_keeps_origin_and_distance() -> None:
+    gt = _gt_poses()
+    sim = Similarity(scale=1.6, R=_random_similarity(7).R, t=np.zeros(3))
+    moved = sim.apply_to_poses(gt)
+    found = centre_similarity(gt, moved, fix_origin=True)
+    assert found.scale == pytest.approx(1.6) and np.allclose(found.R, sim.R, atol=1e-9)
+    assert np.array_equal(found.t, np.zeros(3))
+    # A mirrored camera set has no good rotation; the cameras still keep their distance.
+    mirrored = moved.copy()
+    mirrored[:, 0, 3] *= -1.0
+    bad = centre_similarity(gt, mirrored, fix_origin=True)
+    mapped = bad.apply_to_poses(gt)[:, :3, 3]
+    assert np.allclose(np.linalg.norm(mapped, axis=1), 1.6 * np.linalg.norm(gt[:, :3, 3], axis=1))
+
+
+# ---------------------------------------------------------------- benchmark runner
+
+
+def test_runner_records_missing_and_failing_areas(monkeypatch: pytest.MonkeyPatch) -> None:
+    import sys
+    import types
+
+    monkeypatch.syspath_prepend(str(Path(__file__).resolve().parents[2]))
+    from benchmarks import run as runner
+
+    def broken(quick: bool) -> str:
+        raise RuntimeError(f"boom quick={quick}")
+
+    def fine(quick: bool) -> str:
+        return f"## fine\n\nquick={quick}\n"
+
+    for name, fn in (("broken", broken), ("fine", fine)):
+        module = types.ModuleType(f"benchmarks.bench_{name}")
+        module.run = fn  # type: ignore[attr-defined]
+        monkeypatch.setitem(sys.modules, f"benchmarks.bench_{name}", module)
+    text, _ = runner.run_area("broken", True)
+    assert "**FAILED**" in text and "boom quick=True" in text
+    text, _ = runner.run_area("nonexistent_area", True)
+    assert "does not exist yet" in text
+    sections = [("fine", runner.run_area("fine", False)[0], 1.5)]
+    doc = runner.build_document(sections, False, "python -m benchmarks.run")
+    assert "- Mode: full" in doc and "quick=False" in doc and "| fine | 1.5 |" in doc
+    assert "- Commit: " in doc and "- CPU: " in doc and "torch " in doc

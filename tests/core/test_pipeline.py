@@ -1,0 +1,167 @@
+"""The whole job on the tiny library with preset `test`: every artifact, resume, CLI errors."""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Iterator
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pytest
+import torch
+import trimesh
+from PIL import Image
+
+from cadnerf_core.cameras import intrinsics_from_fov, orbit_pose
+from cadnerf_core.errors import JobCancelled
+from cadnerf_core.progress import Progress
+
+
+@pytest.fixture(autouse=True, scope="module")
+def _one_thread() -> Iterator[None]:
+    """One torch thread: tiny tensors gain nothing from more, and the CI box is shared."""
+    before = torch.get_num_threads()
+    torch.set_num_threads(1)
+    yield
+    torch.set_num_threads(before)
+
+
+def write_job(job_dir: Path, library: Any, model_id: str = "mug", n: int = 4,
+              overrides: dict[str, Any] | None = None) -> None:
+    """Render ``n`` RGBA photos of a library model walking around it into a job folder."""
+    from cadnerf_core.renderer import MeshRenderer
+
+    renderer = MeshRenderer(library.mesh(model_id))
+    K = intrinsics_from_fov(40.0, 64)
+    (job_dir / "inputs").mkdir(parents=True)
+    for i in range(n):
+        result = renderer.render(K, orbit_pose(20.0 + 50.0 * i, 20.0, 4.0), 64, 64)
+        rgb = (result.rgb * 255).astype(np.uint8)
+        alpha = result.mask.astype(np.uint8) * 255
+        Image.fromarray(np.dstack([rgb, alpha]), "RGBA").save(job_dir / "inputs" / f"{i:03d}_p.png")
+    (job_dir / "config.json").write_text(json.dumps({"preset": "test",
+                                                     "overrides": overrides or {}}))
+
+
+def test_run_job_writes_every_artifact(tmp_path: Path, tiny_library: Any) -> None:
+    from cadnerf_core.pipeline import run_job
+
+    write_job(tmp_path, tiny_library)
+    stages: list[str] = []
+    summary = run_job(tmp_path, tiny_library, Progress(lambda s, d, t: stages.append(s)), "cpu")
+    assert summary["model_id"] in {m.id for m in tiny_library.models}
+    assert len(summary["photos"]) == 4
+    for name in summary["artifacts"]:
+        assert (tmp_path / name).is_file(), name
+    for name in ("poses.json", "transforms.json", "metrics.json", "orbit.mp4", "orbit.gif",
+                 "mesh.glb", "retrieval.json", "config.json", "views/000.png", "log.txt",
+                 "checkpoints/phase1.pt", "checkpoints/phase2.pt", "checkpoints/phase3.pt"):
+        assert (tmp_path / name).is_file(), name
+    assert {"masks", "retrieval", "phase1", "phase2", "phase3", "render", "export"} <= set(stages)
+    mesh = trimesh.load(tmp_path / "mesh.glb", force="mesh")
+    assert isinstance(mesh, trimesh.Trimesh)
+    assert len(mesh.faces) > 0
+    poses = json.loads((tmp_path / "poses.json").read_text())["photos"]
+    assert len(poses) == 4 and all(len(p["K_photo"]) == 3 for p in poses)
+    transforms = json.loads((tmp_path / "transforms.json").read_text())
+    kept = [p for p in poses if not p["discarded"]]
+    assert len(transforms["frames"]) == len(kept)
+    metrics = json.loads((tmp_path / "metrics.json").read_text())
+    assert {"phase1_s", "phase2_s", "phase3_s"} <= set(metrics["timings_s"])
+    assert metrics["peak_memory_mb"]["phase3"]["rss_peak_mb"] > 0
+    assert all(np.isfinite(p["psnr"]) and -1 <= p["ssim"] <= 1 for p in metrics["photos"])
+    config = json.loads((tmp_path / "config.json").read_text())
+    assert config["preset"] == "test" and "phase2" in config
+
+    from cadnerf_core.nerf.model import TrainedModel
+
+    model = TrainedModel.load(tmp_path, "cpu")
+    c2w = np.array(kept[0]["c2w"])
+    assert np.allclose(model.c2w[0], c2w)
+    rgb, alpha = model.render_image(c2w, np.array(kept[0]["K_canonical"]), 32, 32)
+    assert rgb.shape == (32, 32, 3) and rgb.dtype == np.float32 and alpha.shape == (32, 32)
+    assert alpha.min() >= 0.0 and alpha.max() <= 1.0
+
+
+def test_orbit_video_is_h264(tmp_path: Path, tiny_library: Any) -> None:
+    import imageio_ffmpeg
+
+    from cadnerf_core.pipeline import run_job
+
+    write_job(tmp_path, tiny_library, overrides={"export.novel_views": 0})
+    run_job(tmp_path, tiny_library, None, "cpu")
+    reader = imageio_ffmpeg.read_frames(str(tmp_path / "orbit.mp4"))
+    meta = next(reader)
+    frames = list(reader)
+    assert "h264" in meta["codec"]
+    assert len(frames) == 4
+    gif = Image.open(tmp_path / "orbit.gif")
+    assert getattr(gif, "n_frames", 1) == 4
+
+
+def test_resume_after_cancel_in_phase_three(tmp_path: Path, tiny_library: Any,
+                                            monkeypatch: pytest.MonkeyPatch) -> None:
+    from cadnerf_core.nerf import phases
+    from cadnerf_core.pipeline import run_job
+
+    write_job(tmp_path, tiny_library)
+    seen: list[str] = []
+
+    def cancel() -> bool:
+        return bool(seen) and seen[-1] == "phase3"
+
+    with pytest.raises(JobCancelled):
+        run_job(tmp_path, tiny_library, Progress(lambda s, d, t: seen.append(s), cancel), "cpu")
+    assert (tmp_path / "checkpoints/phase2.pt").is_file()
+    assert not (tmp_path / "checkpoints/phase3.pt").exists()
+    assert not (tmp_path / "mesh.glb").exists()
+
+    def fail(*args: Any, **kwargs: Any) -> None:
+        raise AssertionError("phases one and two must not run again")
+
+    monkeypatch.setattr(phases, "run_phase1", fail)
+    monkeypatch.setattr(phases, "run_phase2", fail)
+    stages: list[str] = []
+    summary = run_job(tmp_path, tiny_library, Progress(lambda s, d, t: stages.append(s)), "cpu")
+    assert "phase3" in stages and "phase2" not in stages and "phase1" not in stages
+    assert (tmp_path / "mesh.glb").is_file()
+    assert summary["metrics"]["resumed_after_phase"] == 2
+
+
+def test_cli_reports_errors_in_one_line(tmp_path: Path, tiny_library_dir: Path) -> None:
+    from typer.testing import CliRunner
+
+    from cadnerf_cli.main import app
+
+    photo = tmp_path / "a.png"
+    Image.new("RGB", (80, 80), "white").save(photo)
+    runner = CliRunner()
+    result = runner.invoke(app, ["reconstruct", str(photo), "--out", str(tmp_path / "job"),
+                                 "--preset", "nope", "--library", str(tiny_library_dir)])
+    assert result.exit_code == 2
+    assert "unknown preset" in result.output
+    result = runner.invoke(app, ["reconstruct", str(tmp_path / "missing.png"), "--out",
+                                 str(tmp_path / "job"), "--preset", "test",
+                                 "--library", str(tiny_library_dir)])
+    assert result.exit_code == 2
+    assert "no such file" in result.output
+
+
+def test_cli_reconstructs_into_the_output_folder(tmp_path: Path, tiny_library: Any,
+                                                 tiny_library_dir: Path) -> None:
+    from typer.testing import CliRunner
+
+    from cadnerf_cli.main import app
+
+    write_job(tmp_path / "src", tiny_library, n=3)
+    photos = sorted(str(p) for p in (tmp_path / "src" / "inputs").iterdir())
+    out = tmp_path / "job"
+    result = CliRunner().invoke(app, ["reconstruct", *photos, "--out", str(out), "--preset",
+                                      "test", "--device", "cpu", "--library",
+                                      str(tiny_library_dir)])
+    assert result.exit_code == 0, result.output
+    assert "results in" in result.output
+    assert sorted(p.name for p in (out / "inputs").iterdir()) == \
+        ["000_000_p.png", "001_001_p.png", "002_002_p.png"]
+    assert (out / "mesh.glb").is_file() and (out / "orbit.mp4").is_file()
