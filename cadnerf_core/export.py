@@ -212,15 +212,17 @@ def render_orbit(job_dir: Path, model: TrainedModel, data: TrainData, progress: 
     return ["orbit.mp4", "orbit.gif"]
 
 
-def export_mesh(job_dir: Path, model: TrainedModel) -> None:
+def export_mesh(job_dir: Path, model: TrainedModel, progress: Progress | None = None) -> None:
     """mesh.glb: marching cubes on the learned occupancy, vertex colours from the colour net."""
     cfg = model.state.config
     G, bound = cfg.export.mesh_resolution, cfg.render.bound
     axis = np.linspace(-bound, bound, G, dtype=np.float32)
     points = np.stack(np.meshgrid(axis, axis, axis, indexing="ij"), -1).reshape(-1, 3)
-    mesh = extract_mesh(model.occupancy(points).reshape(G, G, G), bound, cfg.export.mesh_level)
+    check = None if progress is None else progress.check
+    values = model.occupancy(points, check=check).reshape(G, G, G)
+    mesh = extract_mesh(values, bound, cfg.export.mesh_level)
     normals = np.asarray(mesh.vertex_normals, dtype=np.float32)
-    colors = model.colors(np.asarray(mesh.vertices, np.float32), -normals)
+    colors = model.colors(np.asarray(mesh.vertices, np.float32), -normals, check=check)
     write_mesh(job_dir / "mesh.glb", mesh, colors)
 
 
@@ -276,7 +278,7 @@ def export_job(job_dir: Path, model: TrainedModel, retrieval: RetrievalResult,
     views, scores = render_views(job_dir, model, data, progress, total)
     artifacts = views + render_orbit(job_dir, model, data, progress, n_views, total)
     progress.step("export", 1, 3)
-    export_mesh(job_dir, model)
+    export_mesh(job_dir, model, progress)
     progress.step("export", 2, 3)
     kept = retrieval.kept
     sizes = [(photos[m.index].rgb.shape[1], photos[m.index].rgb.shape[0]) for m in kept]

@@ -60,6 +60,10 @@ class SkipGrid:
     def set_from_values(self, values: torch.Tensor, threshold: float, dilation: int) -> None:
         """Occupied where ``values`` [G^3] (per cell, x-major) exceed ``threshold``, dilated."""
         occ = (values.reshape((self.resolution,) * 3) > threshold).float()
+        if not bool(occ.any()):
+            # An update that finds nothing (a collapsed density early in a phase) would stop all
+            # sampling for good; keep the previous grid instead.
+            return
         self.occupied = dilate(occ, dilation).bool()
 
     @torch.no_grad()

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -94,20 +95,29 @@ class TrainedModel:
                 acc.reshape(height, width).clamp(0, 1).cpu().numpy().astype(np.float32))
 
     @torch.inference_mode()
-    def occupancy(self, points: np.ndarray, chunk: int = 65536) -> np.ndarray:
-        """Learned occupancy at points [P, 3]. Returns [P] float32 in [0, 1]."""
+    def occupancy(self, points: np.ndarray, chunk: int = 65536,
+                  check: Callable[[], None] | None = None) -> np.ndarray:
+        """Learned occupancy at points [P, 3]; ``check`` runs between chunks (it may raise to
+        cancel). Returns [P] float32 in [0, 1]."""
         pts = torch.as_tensor(points, dtype=torch.float32, device=self.state.device)
-        vals = [self.state.fields.query(pts[i:i + chunk], None).occupancy.float()
-                for i in range(0, pts.shape[0], chunk)]
+        vals = []
+        for i in range(0, pts.shape[0], chunk):
+            if check is not None:
+                check()
+            vals.append(self.state.fields.query(pts[i:i + chunk], None).occupancy.float())
         return torch.cat(vals).cpu().numpy() if vals else np.zeros(0, np.float32)
 
     @torch.inference_mode()
-    def colors(self, points: np.ndarray, dirs: np.ndarray, chunk: int = 65536) -> np.ndarray:
-        """Colour at points [P, 3] seen along unit directions [P, 3]. Returns [P, 3]."""
+    def colors(self, points: np.ndarray, dirs: np.ndarray, chunk: int = 65536,
+               check: Callable[[], None] | None = None) -> np.ndarray:
+        """Colour at points [P, 3] seen along unit directions [P, 3]; ``check`` runs between
+        chunks. Returns [P, 3]."""
         pts = torch.as_tensor(points, dtype=torch.float32, device=self.state.device)
         d = torch.as_tensor(dirs, dtype=torch.float32, device=self.state.device)
         out = []
         for i in range(0, pts.shape[0], chunk):
+            if check is not None:
+                check()
             rgb = self.state.fields.query(pts[i:i + chunk], d[i:i + chunk]).rgb
             assert rgb is not None
             out.append(rgb.float())

@@ -44,9 +44,15 @@ def autocast(state: TrainState) -> contextlib.AbstractContextManager[None]:
 
 
 def _report(progress: Progress | None, stage: str, step: int, total: int) -> None:
+    if progress is None:
+        return
     every = max(1, total // REPORTS)
-    if progress is not None and ((step + 1) % every == 0 or step + 1 == total):
+    if (step + 1) % every == 0 or step + 1 == total:
         progress.step(stage, step + 1, total)
+    else:
+        # Cancelling must take effect within seconds, not within a fiftieth of a phase; the
+        # check itself is cheap (callers throttle their own look-ups).
+        progress.check()
 
 
 def phase1_step(state: TrainState, optimizer: torch.optim.Optimizer, points: torch.Tensor,
@@ -132,6 +138,9 @@ def _apply_step(loss: torch.Tensor, optimizer: torch.optim.Optimizer,
     value = float(loss.detach())
     if not math.isfinite(value):
         log.warning("non-finite loss: step skipped")
+        return value
+    if not loss.requires_grad:
+        log.warning("no sample reached the object in this batch: step skipped")
         return value
     loss.backward()
     optimizers = [optimizer] if pose_optimizer is None else [optimizer, pose_optimizer]

@@ -13,10 +13,12 @@ import trimesh
 
 from cadnerf_core.cameras import intrinsics_from_fov, orbit_pose, pose_errors, se3_exp
 from cadnerf_core.config import PipelineConfig, resolve_config
+from cadnerf_core.errors import JobCancelled
 from cadnerf_core.nerf import phases
-from cadnerf_core.nerf.grid import grid_from_occupancy
+from cadnerf_core.nerf.grid import SkipGrid, grid_from_occupancy
 from cadnerf_core.nerf.model import TrainedModel
 from cadnerf_core.nerf.state import TrainData, TrainState
+from cadnerf_core.progress import Progress
 from cadnerf_core.renderer import MeshRenderer
 
 SIZE = 32
@@ -140,3 +142,30 @@ def test_scene_mode_learns_the_background() -> None:
     with torch.no_grad():
         colour = state.fields.background(torch.tensor([[0.0, 0.0, -1.0]]))[0]
     assert colour[2] > colour[0] + 0.3
+
+
+def test_cancel_is_checked_on_every_step_between_reports() -> None:
+    calls = []
+
+    def cancel() -> bool:
+        calls.append(1)
+        return len(calls) >= 3
+
+    progress = Progress(cancel=cancel)
+    # Steps 0 and 1 of a 1000-step phase are not report steps; the third check cancels.
+    phases._report(progress, "phase1", 0, 1000)
+    phases._report(progress, "phase1", 1, 1000)
+    with pytest.raises(JobCancelled):
+        phases._report(progress, "phase1", 2, 1000)
+
+
+def test_a_grid_update_that_finds_nothing_keeps_the_previous_grid() -> None:
+    occupied = torch.zeros((4, 4, 4), dtype=torch.bool)
+    occupied[1:3, 1:3, 1:3] = True
+    grid = SkipGrid(occupied.clone(), 1.0)
+    grid.set_from_values(torch.zeros(64), threshold=0.5, dilation=1)
+    assert torch.equal(grid.occupied, occupied)
+    values = torch.zeros(64)
+    values[0] = 1.0
+    grid.set_from_values(values, threshold=0.5, dilation=0)
+    assert int(grid.occupied.sum()) == 1
