@@ -1,4 +1,5 @@
-"""Shared fixtures: a tiny CAD library built once per test session."""
+"""Shared fixtures: a tiny CAD library built once per test session, and (for the service
+tests) the real-Redis fixtures of tests/redis_fixture.py."""
 
 from __future__ import annotations
 
@@ -6,6 +7,15 @@ from pathlib import Path
 from typing import Any
 
 import pytest
+
+
+def pytest_configure(config: pytest.Config) -> None:
+    """Load the shared real-Redis fixtures (tests/redis_fixture.py) once for the session."""
+    from tests import redis_fixture
+
+    if not config.pluginmanager.is_registered(redis_fixture):
+        config.pluginmanager.register(redis_fixture, "cadnerf_redis_fixture")
+
 
 TINY_MODELS = ["chair_wood", "mug", "cuboid_slab"]
 """Models of the tiny library: a chair, a mug and a cuboid."""

@@ -15,14 +15,6 @@ if str(ROOT) not in sys.path:
     sys.path.insert(0, str(ROOT))
 
 
-def pytest_configure(config: pytest.Config) -> None:
-    """Load the shared real-Redis fixtures (tests/redis_fixture.py) once for the session."""
-    from tests import redis_fixture
-
-    if not config.pluginmanager.is_registered(redis_fixture):
-        config.pluginmanager.register(redis_fixture, "cadnerf_redis_fixture")
-
-
 from app.main import create_app  # noqa: E402
 from app.settings import Settings, load_settings  # noqa: E402
 from tests.app.images import image_bytes  # noqa: E402
