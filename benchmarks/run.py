@@ -87,7 +87,9 @@ def git_commit(root: Path = ROOT) -> str:
 
     try:
         head = git("rev-parse", "--short", "HEAD")
-        dirty = git("status", "--porcelain", "--untracked-files=no").stdout.strip()
+        # docs/ holds this run's own outputs (pictures, this document): not a change of the code.
+        dirty = git("status", "--porcelain", "--untracked-files=no", "--", ".",
+                    ":(exclude)docs").stdout.strip()
     except (OSError, subprocess.SubprocessError):
         return "uncommitted"
     if head.returncode != 0:
