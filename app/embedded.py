@@ -68,7 +68,7 @@ class EmbeddedRedis:
             process = psutil.Process(pid)
             process.wait(timeout_s)
         except psutil.NoSuchProcess:
-            pass
+            log.debug("embedded Redis (pid %d) had already stopped", pid)
         except psutil.TimeoutExpired:
             log.warning("embedded Redis (pid %d) did not stop; killing it", pid)
             process.kill()

@@ -226,8 +226,8 @@ def _latest(store: JobStore, record: JobRecord) -> JobRecord:
         raw = store.r.hgetall(store.job_key(record.id))
         if raw:
             return JobRecord.from_hash(raw)  # type: ignore[arg-type]
-    except redis.RedisError:
-        pass
+    except redis.RedisError as exc:
+        log.debug("job %s: Redis unreadable (%s); using state.json", record.id, exc)
     return store.read_state_file(record.id) or record
 
 
