@@ -44,18 +44,24 @@ def _embedded_url(folder: Path) -> str:
     return _with_db(started.url, TEST_DB)
 
 
-@pytest.fixture(scope="session")
-def redis_url(tmp_path_factory: pytest.TempPathFactory) -> Iterator[str]:
-    """URL of a flushed Redis database reserved for tests."""
+def flushed_database(db: int, tmp_path_factory: pytest.TempPathFactory) -> Iterator[str]:
+    """Yield the URL of Redis database ``db``, flushed before and after: the configured (or
+    local) server when it answers, else an embedded one."""
     configured = os.environ.get("CADNERF_REDIS_URL") or "redis://127.0.0.1:6379"
-    url = _with_db(configured, TEST_DB) if configured.startswith("redis") else configured
+    url = _with_db(configured, db) if configured.startswith("redis") else configured
     if not (configured.startswith("redis") and _answers(url)):
-        url = _embedded_url(tmp_path_factory.mktemp("redis"))
+        url = _with_db(_embedded_url(tmp_path_factory.mktemp("redis")), db)
     client = redis.Redis.from_url(url)
     client.flushdb()
     yield url
     client.flushdb()
     client.close()
+
+
+@pytest.fixture(scope="session")
+def redis_url(tmp_path_factory: pytest.TempPathFactory) -> Iterator[str]:
+    """URL of a flushed Redis database reserved for tests."""
+    yield from flushed_database(TEST_DB, tmp_path_factory)
 
 
 @pytest.fixture()

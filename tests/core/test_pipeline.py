@@ -3,13 +3,11 @@
 from __future__ import annotations
 
 import json
-from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 import pytest
-import torch
 import trimesh
 from PIL import Image
 
@@ -17,14 +15,7 @@ from cadnerf_core.cameras import intrinsics_from_fov, orbit_pose
 from cadnerf_core.errors import JobCancelled
 from cadnerf_core.progress import Progress
 
-
-@pytest.fixture(autouse=True, scope="module")
-def _one_thread() -> Iterator[None]:
-    """One torch thread: tiny tensors gain nothing from more, and the CI box is shared."""
-    before = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(before)
+pytestmark = pytest.mark.usefixtures("one_torch_thread")
 
 
 def write_job(job_dir: Path, library: Any, model_id: str = "mug", n: int = 4,

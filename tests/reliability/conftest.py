@@ -4,7 +4,6 @@ an in-process client, and a live uvicorn + worker pair in subprocesses."""
 from __future__ import annotations
 
 import json
-import os
 import sys
 from collections.abc import Callable, Iterator
 from pathlib import Path
@@ -23,6 +22,7 @@ from tests.redis_fixture import (  # noqa: E402,F401  (helpers and the session h
     _answers,
     _embedded_url,
     _with_db,
+    flushed_database,
     pytest_sessionfinish,
 )
 from tests.reliability import support  # noqa: E402
@@ -34,16 +34,7 @@ MakeSettings = Callable[..., Settings]
 @pytest.fixture(scope="session")
 def rel_redis_url(tmp_path_factory: pytest.TempPathFactory) -> Iterator[str]:
     """A Redis database of our own (13): the configured/local server, else an embedded one."""
-    configured = os.environ.get("CADNERF_REDIS_URL") or "redis://127.0.0.1:6379"
-    url = (_with_db(configured, support.RELIABILITY_DB) if configured.startswith("redis")
-           else configured)
-    if not (configured.startswith("redis") and _answers(url)):
-        url = _with_db(_embedded_url(tmp_path_factory.mktemp("redis")), support.RELIABILITY_DB)
-    client = redis.Redis.from_url(url)
-    client.flushdb()
-    yield url
-    client.flushdb()
-    client.close()
+    yield from flushed_database(support.RELIABILITY_DB, tmp_path_factory)
 
 
 @pytest.fixture()
