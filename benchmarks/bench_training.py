@@ -1,34 +1,42 @@
 """Training benchmark: whole jobs on synthetic datasets, test-view PSNR, poses, ablations.
 
-For each mesh in ``../shared/eval/meshes``: ``render_dataset`` (128 px, 6 training views in
-walking order, 12 held-out test views, white background), the training photos go through
-``run_job`` (retrieval from the built library, three phases, orbit, mesh) with preset
-``preview``. Then:
+Each run is executed and scored by ``cadnerf_core.evaluation.evaluate_dataset``, the protocol
+of the evaluation benchmark (``benchmarks.bench_eval``), so both score held-out views the same
+way. For each mesh in ``../shared/eval/meshes``: ``render_dataset`` (128 px, 6 training views in
+walking order, 12 held-out test views, white background, seed 0); the 6 training views become
+the photos of a job run by ``run_job`` (retrieval from the built library, three phases, orbit,
+mesh) with preset ``preview``; the held-out ground-truth cameras are mapped into the NeRF frame
+by the centred similarity (rotation and scale about the object's centre, which both frames
+share, fitted on the training cameras' centres), rendered at the NeRF's estimated focal length
+and scored. On top of that report this benchmark adds:
 
 - whole-job wall time;
-- rotation error (degrees, after similarity alignment of camera centres) of the retrieved and of
-  the refined poses against the ground truth;
-- test-view PSNR: the test cameras are mapped into the NeRF frame by the similarity (Umeyama)
-  between ground-truth and refined training camera centres, then rendered. Also reported, as
-  BARF and its successors do: PSNR after a short test-time pose refinement of each test camera
-  (the NeRF frozen, only the camera's 6-vector optimised on its image), which removes the error
-  of the centre-only alignment;
+- rotation error (median degrees, after similarity alignment of camera centres) of the
+  retrieved and of the refined poses against the ground truth (the report's pose metrics);
+- the train PSNR of the job's ``metrics.json``;
+- as BARF and its successors do, test PSNR after a short test-time pose refinement of each
+  test camera (the NeRF frozen, only the camera's 6-vector optimised on its image), started
+  from the same mapped camera and intrinsics as the test PSNR, so the two differ only by it;
 - the paper's Table 5 ablations (no CAD initialisation, no pose optimisation, no deformation).
 
-Usage: ``python -m benchmarks.bench_training [--quick] [--threads N]``.
+Usage: ``python -m benchmarks.bench_training [--quick] [--threads N] [--meshes NAME ...]``.
 """
 
 from __future__ import annotations
 
 import argparse
+import json
 import logging
-import shutil
+import math
 import tempfile
-import time
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
+
+if TYPE_CHECKING:
+    from cadnerf_core.evaluation import EvalReport
+    from cadnerf_core.library import Library
 
 ROOT = Path(__file__).resolve().parents[1]
 EVAL = ROOT / ".." / "shared" / "eval" / "meshes"
@@ -44,6 +52,12 @@ ABLATIONS: dict[str, dict[str, Any]] = {
 # Ablation runs skip what does not change their score: a 2-frame orbit, a coarse mesh.
 LIGHT_EXPORT = {"export.orbit_frames": 2, "export.mesh_resolution": 16, "export.novel_views": 0}
 TTA_STEPS = 20  # test-time pose refinement steps per test view
+IMAGE_SIZE = 128  # dataset side in pixels
+TRAIN_VIEWS = 6
+TEST_VIEWS = 12
+SEED = 0
+PRESET = "preview"
+DEVICE = "cpu"
 
 log = logging.getLogger(__name__)
 
@@ -61,16 +75,6 @@ def mesh_files(quick: bool, names: list[str] | None = None) -> list[Path]:
         if files:
             out.append(files[0])
     return out
-
-
-def make_job(dataset: Path, job: Path, overrides: dict[str, Any]) -> None:
-    """A job folder whose inputs are the dataset's training images (RGBA: alpha = mask)."""
-    import json
-
-    (job / "inputs").mkdir(parents=True)
-    for image in sorted((dataset / "images").glob("*.png")):
-        shutil.copyfile(image, job / "inputs" / f"{image.stem}_view.png")
-    (job / "config.json").write_text(json.dumps({"preset": "preview", "overrides": overrides}))
 
 
 def refine_test_pose(model: Any, c2w: np.ndarray, K: np.ndarray, image: np.ndarray,
@@ -109,101 +113,92 @@ def refine_test_pose(model: Any, c2w: np.ndarray, K: np.ndarray, image: np.ndarr
         return pose().double().cpu().numpy()[0]
 
 
-def _anchor_points(c2w: np.ndarray) -> np.ndarray:
-    """Camera centres and the points each camera looks at (its axis at the centre's distance
-    from the origin): aligning both fixes where the cameras point, not only where they are.
-    Returns [2N, 3]."""
-    centres = c2w[:, :3, 3]
-    distance = np.linalg.norm(centres, axis=-1, keepdims=True)
-    return np.concatenate([centres, centres + distance * c2w[:, :3, 2]])
-
-
-def _apply(similarity: tuple[float, np.ndarray, np.ndarray], c2w: np.ndarray) -> np.ndarray:
-    """Map a ground-truth camera into the NeRF frame. Returns [4, 4]."""
-    scale, R, t = similarity
-    out = c2w.copy()
-    out[:3, :3] = R @ c2w[:3, :3]
-    out[:3, 3] = scale * R @ c2w[:3, 3] + t
-    return out
-
-
-def score_job(job: Path, dataset: Any, tta: bool) -> dict[str, Any]:
-    """Pose errors and test-view PSNR of a finished job against its dataset."""
-    import json
-
-    from cadnerf_core.cameras import pose_errors, umeyama
-    from cadnerf_core.metrics import psnr
+def refined_test_psnr(report: EvalReport, steps: int) -> float:
+    """Mean held-out PSNR after ``refine_test_pose``, started from the cameras and intrinsics
+    ``evaluate_dataset`` rendered the report's test PSNR with (same mapping, same focal
+    length, same size and background), so only the refinement differs."""
+    from cadnerf_core.dataset import load_dataset
+    from cadnerf_core.evaluation import (
+        centre_similarity,
+        eval_intrinsics,
+        first_views,
+        read_job_cameras,
+        resize_view,
+    )
+    from cadnerf_core.metrics import image_metrics
     from cadnerf_core.nerf.model import TrainedModel
 
-    model = TrainedModel.load(job, "cpu")
-    poses = [p for p in json.loads((job / "poses.json").read_text())["photos"]
-             if not p["discarded"]]
-    kept = [p["index"] for p in poses]
-    gt = dataset.c2w[kept]
-    init = np.array([p["c2w_initial"] for p in poses])
-    refined = model.c2w
-    test = dataset.test
-    size = test.images.shape[1]
-    scores, scores_axis, scores_tta = [], [], []
-    by_centres = umeyama(gt[:, :3, 3], refined[:, :3, 3])
-    by_axes = umeyama(_anchor_points(gt), _anchor_points(refined))
-    for i in range(len(test.c2w)):
-        c2w = _apply(by_centres, test.c2w[i])
-        scores.append(psnr(model.render_image(c2w, test.K[i], size, size)[0], test.images[i]))
-        c2w = _apply(by_axes, test.c2w[i])
-        scores_axis.append(psnr(model.render_image(c2w, test.K[i], size, size)[0],
-                                test.images[i]))
-        if tta:
-            better = refine_test_pose(model, c2w, test.K[i], test.images[i], TTA_STEPS)
-            scores_tta.append(psnr(model.render_image(better, test.K[i], size, size)[0],
-                                   test.images[i]))
-    metrics = json.loads((job / "metrics.json").read_text())
-    return {"psnr": float(np.mean(scores)), "psnr_axis": float(np.mean(scores_axis)),
-            "psnr_tta": float(np.mean(scores_tta)) if scores_tta else float("nan"),
-            "rot_before": float(np.median(pose_errors(init, gt)[0])),
-            "rot_after": float(np.median(pose_errors(refined, gt)[0])),
-            "kept": len(kept), "model_id": model.extra.get("model_id", "?"),
-            "train_psnr": metrics["mean_psnr"]}
+    job = Path(report.job_dir)
+    model = TrainedModel.load(job, DEVICE)
+    data = first_views(load_dataset(report.dataset), report.n_views)
+    assert data.test is not None
+    cams = read_job_cameras(job, model)
+    to_nerf = centre_similarity(data.c2w[cams.kept], cams.refined,
+                                fix_origin=report.align == "centred")
+    K = eval_intrinsics(data.test.K[0], cams, report.intrinsics)
+    if not math.isclose(float(K[0, 0]), report.focal_used, rel_tol=1e-9):
+        raise RuntimeError(f"focal {K[0, 0]} differs from the evaluation's {report.focal_used}")
+    scores = []
+    for c2w, image in zip(to_nerf.apply_to_poses(data.test.c2w), data.test.images,
+                          strict=True):
+        gt, K_eval = resize_view(image, K, report.eval_size)
+        height, width = gt.shape[:2]
+        better = refine_test_pose(model, c2w, K_eval, gt, steps)
+        rgb, _ = model.render_image(better, K_eval, width, height, background=1.0)
+        scores.append(image_metrics(rgb, gt).psnr)
+    return float(np.mean(scores))
 
 
-def run_one(mesh: Path, work: Path, library: Any, name: str, overrides: dict[str, Any],
+def score_report(report: EvalReport, tta: bool) -> dict[str, Any]:
+    """The table's numbers for one evaluated job."""
+    metrics = json.loads((Path(report.job_dir) / "metrics.json").read_text())
+    return {"psnr": report.image.psnr,
+            "psnr_tta": refined_test_psnr(report, TTA_STEPS) if tta else float("nan"),
+            "rot_before": float(np.median(report.pose_retrieved.rotation_deg_per_view)),
+            "rot_after": float(np.median(report.pose_refined.rotation_deg_per_view)),
+            "kept": len(report.kept), "model_id": report.model_id,
+            "train_psnr": metrics["mean_psnr"],
+            # evaluate_dataset's wall time less the held-out renders: the whole job (writing
+            # its photos, retrieval, training, exports) and loading its model.
+            "seconds": report.seconds - report.render_seconds}
+
+
+def run_one(mesh: Path, work: Path, library: Library, name: str, overrides: dict[str, Any],
             tta: bool) -> dict[str, Any]:
-    """Render the dataset (once per mesh), run a job with ``overrides``, score it."""
-    from cadnerf_core.dataset import load_dataset, render_dataset
-    from cadnerf_core.pipeline import run_job
+    """Render the dataset (once per mesh), run and score a job with ``overrides`` through
+    ``evaluate_dataset``, and add this benchmark's numbers."""
+    from cadnerf_core.dataset import render_dataset
+    from cadnerf_core.evaluation import evaluate_dataset
 
     dataset_dir = work / mesh.parent.name / "dataset"
     if not dataset_dir.exists():
-        render_dataset(mesh, dataset_dir, 6, 128, seed=0, test_views=12)
+        render_dataset(mesh, dataset_dir, TRAIN_VIEWS, IMAGE_SIZE, seed=SEED,
+                       test_views=TEST_VIEWS)
     job = work / mesh.parent.name / name.replace(" ", "_")
-    make_job(dataset_dir, job, overrides)
-    start = time.perf_counter()
-    run_job(job, library, None, "cpu")
-    seconds = time.perf_counter() - start
-    result = score_job(job, load_dataset(dataset_dir), tta)
-    result["seconds"] = seconds
-    return result
+    report = evaluate_dataset(dataset_dir, TRAIN_VIEWS, library, preset=PRESET,
+                              overrides=overrides, job_dir=job, device=DEVICE,
+                              intrinsics="estimated", align="centred")
+    return score_report(report, tta)
 
 
 def _table(rows: list[tuple[str, str, dict[str, Any]]]) -> list[str]:
-    lines = ["| mesh | run | retrieved | kept | job s | train PSNR | test PSNR (centres) | "
-             "test PSNR (centres + axes) | + test-time pose | rot err retrieval (median deg) | "
-             "rot err refined |", "|---|---|---|---|---|---|---|---|---|---|---|"]
+    lines = ["| mesh | run | retrieved | kept | job s | train PSNR | test PSNR | "
+             "+ test-time pose | rot err retrieval (median deg) | rot err refined |",
+             "|---|---|---|---|---|---|---|---|---|---|"]
     for mesh, name, r in rows:
         lines.append(f"| {mesh} | {name} | {r['model_id']} | {r['kept']} | {r['seconds']:.0f} | "
-                     f"{r['train_psnr']:.2f} | {r['psnr']:.2f} | {r['psnr_axis']:.2f} | "
-                     f"{r['psnr_tta']:.2f} | {r['rot_before']:.1f} | {r['rot_after']:.1f} |")
+                     f"{r['train_psnr']:.2f} | {r['psnr']:.2f} | {r['psnr_tta']:.2f} | "
+                     f"{r['rot_before']:.1f} | {r['rot_after']:.1f} |")
     return lines
 
 
 def _summary(rows: list[tuple[str, str, dict[str, Any]]]) -> list[str]:
-    lines = ["", "| run | mean test PSNR (centres) | (centres + axes) | (+ test-time pose) | "
-             "mean job s |", "|---|---|---|---|---|"]
+    lines = ["", "| run | mean test PSNR | (+ test-time pose) | mean job s |",
+             "|---|---|---|---|"]
     for name in ABLATIONS:
         rs = [r for _, n, r in rows if n == name]
         if rs:
             lines.append(f"| {name} | {np.mean([r['psnr'] for r in rs]):.2f} | "
-                         f"{np.mean([r['psnr_axis'] for r in rs]):.2f} | "
                          f"{np.mean([r['psnr_tta'] for r in rs]):.2f} | "
                          f"{np.mean([r['seconds'] for r in rs]):.0f} |")
     return lines
@@ -249,16 +244,20 @@ def run(quick: bool, threads: int | None = None, names: list[str] | None = None)
     flags = " --quick" if quick else ""
     flags += f" --threads {threads}" if threads else ""
     flags += f" --meshes {' '.join(names)}" if names else ""
-    lines = ["## Training (preset `preview`, CPU)", "",
+    lines = [f"## Training (preset `{PRESET}`, CPU)", "",
              f"Command: `.venv/bin/python -m benchmarks.bench_training{flags}` "
-             f"(torch threads: {torch.get_num_threads()}). Datasets: `render_dataset` 128 px, "
-             "6 training views in walking order, 12 held-out test views, seed 0. Rotation errors "
-             "are medians over the kept photos after similarity alignment. Test cameras are mapped "
-             "into the NeRF frame by a similarity (Umeyama) fitted on the training cameras' "
-             "centres only, or on centres and the points they look at (their axes at the same "
-             "distance); test-time pose: then "
+             f"(torch threads: {torch.get_num_threads()}). Datasets: `render_dataset` "
+             f"{IMAGE_SIZE} px, {TRAIN_VIEWS} training views in walking order, {TEST_VIEWS} "
+             f"held-out test views, seed {SEED}. Each run is executed and scored by "
+             "`cadnerf_core.evaluation.evaluate_dataset`, the evaluation benchmark's protocol: "
+             "the held-out ground-truth cameras are mapped into the NeRF frame by the centred "
+             "similarity (rotation and scale about the object's centre, fitted on the training "
+             "cameras' centres), rendered at the NeRF's estimated focal length and scored "
+             "(mean PSNR over views). + test-time pose: the same cameras and intrinsics, then "
              f"{TTA_STEPS} steps of per-view pose refinement with the NeRF frozen (BARF's "
-             "protocol).", "",
+             "protocol). Rotation errors are medians over the kept photos after similarity "
+             "(Umeyama) alignment of camera centres. Job s: the evaluation's wall time less "
+             "the held-out renders (the whole job and loading its model).", "",
              *_table(rows), *_summary(rows), "",
              "An orbit frame of the first mesh's full run: `docs/orbit_frame.png`.", ""]
     return "\n".join(lines)

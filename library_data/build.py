@@ -37,7 +37,8 @@ DEFAULT_OUT = Path(__file__).resolve().parent / "build"
 _PACKAGE = Path(__file__).resolve().parent
 # The code a built library depends on: a change to any of these makes it stale.
 _LIBRARY_SOURCES = ("parts.py", "basic.py", "furniture.py", "household.py", "gadgets.py",
-                    "vehicles.py", "catalog.py", "build.py")
+                    "vehicles.py", "animals.py", "apparel.py", "tools.py", "catalog.py",
+                    "build.py")
 _CORE_SOURCES = ("library.py", "occupancy.py", "crop.py", "renderer.py", "meshio.py", "cameras.py")
 
 

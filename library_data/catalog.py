@@ -9,7 +9,16 @@ from functools import partial
 import manifold3d as mf
 import trimesh
 
-from library_data import basic, furniture, gadgets, household, vehicles
+from library_data import (
+    animals,
+    apparel,
+    basic,
+    furniture,
+    gadgets,
+    household,
+    tools,
+    vehicles,
+)
 from library_data.parts import to_trimesh
 
 SOURCE = "parametric:cadnerf"
@@ -63,6 +72,20 @@ _OBJECTS: list[tuple[str, str, Callable[[], mf.Manifold]]] = [
     ("car_sedan", "car", vehicles.car_sedan),
     ("car_suv", "car", vehicles.car_suv),
     ("bicycle", "bicycle", vehicles.bicycle),
+    ("teapot", "teapot", household.teapot),
+    ("kettle", "kettle", household.kettle),
+    ("duck_toy", "bird", animals.duck_toy),
+    ("cow_toy", "animal", animals.cow_toy),
+    ("dog_toy", "animal", animals.dog_toy),
+    ("boot", "shoe", apparel.boot),
+    ("sneaker", "shoe", apparel.sneaker),
+    ("drill", "tool", tools.drill),
+    ("oil_lamp", "lamp", household.oil_lamp),
+    ("sports_bottle", "bottle", household.sports_bottle),
+    ("armchair", "chair", furniture.armchair),
+    ("truck", "car", vehicles.truck),
+    ("squeeze_bottle", "bottle", household.squeeze_bottle),
+    ("espresso_machine", "coffee machine", household.espresso_machine),
 ]
 
 MODELS: list[ParametricModel] = [

@@ -37,7 +37,7 @@ def _errors() -> Iterator[None]:
 
 @library_app.command("build")
 def build(out: Path = typer.Option(None, help=_ROOT_HELP),
-          poses: int = typer.Option(100, help="Library poses: 20 azimuths per 5 elevations "
+          poses: int = typer.Option(180, help="Library poses: 36 azimuths per 5 elevations "
                                     "by default; must be a multiple of the 5 elevations."),
           if_stale: bool = typer.Option(False, "--if-stale",
                                         help="Do nothing when the library is current."),

@@ -1,4 +1,5 @@
-"""Parametric furniture: chairs, tables, bench, sofa, bed, bookshelf, desk, stool, piano.
+"""Parametric furniture: chairs, armchair, tables, bench, sofa, bed, bookshelf, desk, stool,
+piano.
 
 Units are roughly metres; the floor is y = 0, +Y up, the front (where a person sits or stands)
 toward +Z.
@@ -139,3 +140,15 @@ def piano() -> mf.Manifold:
     lid = box((1.56, 0.04, 0.42), (0.0, 1.27, -0.15))
     pedals = [box((0.05, 0.02, 0.1), (x, 0.05, 0.06)) for x in (-0.1, 0.0, 0.1)]
     return union([cabinet, shelf, keys, *legs, rest, lid, *pedals])
+
+
+def armchair() -> mf.Manifold:
+    """Upholstered armchair: thick base, seat cushion, reclined backrest, two arms, short legs."""
+    base = rounded_box((0.84, 0.26, 0.82), 0.05, (0.0, 0.26, 0.0))
+    cushion = rounded_box((0.58, 0.15, 0.66), 0.06, (0.0, 0.45, 0.06))
+    back = rounded_box((0.84, 0.62, 0.22), 0.08, (0.0, 0.0, 0.0)).rotate(
+        (-10.0, 0.0, 0.0)).translate((0.0, 0.68, -0.31))
+    arms = mirror_x([rounded_box((0.15, 0.36, 0.8), 0.07, (0.345, 0.49, 0.0))])
+    legs = [rod((x, 0.0, z), (x, 0.14, z), 0.022, 0.03, 16)
+            for x in (-0.36, 0.36) for z in (-0.34, 0.34)]
+    return union([base, cushion, back, *arms, *legs])

@@ -1,4 +1,4 @@
-"""Parametric vehicles: airliner, sedan, SUV, bicycle.
+"""Parametric vehicles: airliner, sedan, SUV, delivery truck, bicycle.
 
 Units are roughly metres; +Y up, the vehicle travels toward +Z (its front).
 """
@@ -72,6 +72,21 @@ def car_suv() -> mf.Manifold:
     spare = rod((0.0, 0.95, -2.25), (0.0, 0.95, -2.5), 0.36)
     shell = subtract(union([body, cabin, *rails]), _arches(axles, 0.38))
     return union([shell, spare, *_wheels(axles, 0.38, 0.8, 0.26)])
+
+
+def truck() -> mf.Manifold:
+    """Box delivery truck: tall cargo box at the back, lower cab at +Z, chassis, four wheels."""
+    axles = (2.35, -1.7)
+    cargo = box((2.3, 2.3, 4.3), (0.0, 2.05, -0.95))
+    chassis = box((1.5, 0.35, 5.6), (0.0, 0.75, 0.2))
+    cab = slab([(1.3, 0.45), (3.25, 0.45), (3.3, 1.25), (3.05, 1.45), (2.65, 2.45),
+                (1.3, 2.5)], 2.2, "x")
+    windscreen = slab([(3.03, 1.55), (2.68, 2.35), (2.5, 2.35), (2.85, 1.55)], 2.0, "x")
+    bumper = box((2.3, 0.3, 0.2), (0.0, 0.6, 3.3))
+    mirrors = mirror_x([box((0.1, 0.35, 0.08), (1.2, 1.8, 2.6)),
+                        box((0.2, 0.05, 0.05), (1.1, 1.8, 2.6))])
+    shell = subtract(union([cargo, cab, bumper, *mirrors]), [*_arches(axles, 0.5), windscreen])
+    return union([shell, chassis, *_wheels(axles, 0.5, 0.9, 0.36)])
 
 
 def bicycle() -> mf.Manifold:
