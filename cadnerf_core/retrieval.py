@@ -56,8 +56,9 @@ class RetrievalConfig(BaseModel):
     """DP only: weight of the prior that photos taken walking around an object are spread
     round it: ``spread_weight * sum over the walk's gaps g of (g / 360 deg) ** 2`` is
     subtracted (2 for 5 even gaps, 10 when every photo sits at one azimuth). Measured on the
-    52 synthetic walks of ``benchmarks/bench_retrieval.py`` (36 azimuths): median rotation
-    error 17.0 degrees at 3, 13.8 at 10, 13.0 at 20; 10 is the milder prior for real walks,
+    52 synthetic walks of ``benchmarks/bench_retrieval.py`` (36 azimuths, 48 models): median
+    rotation error 17.0 degrees at 3, 13.8 at 10, 13.0 at 20 (14.3 at 10 with the shipped
+    49 models, ``docs/bench_retrieval_full.md``); 10 is the milder prior for real walks,
     which are less even than the benchmark's (steps within 20% of 360/n). The prior assumes a
     walk around the object: the photos of half a walk may be spread round it, so lower it
     (or set 0) for partial walks."""
