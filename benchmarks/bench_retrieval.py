@@ -5,7 +5,8 @@
   ``dataset.render_dataset``; retrieval from their masks against the full library; median
   rotation error of the kept photos' retrieved poses after similarity alignment
   (``cameras.pose_errors``) for our DP, the paper's Algorithm 1, the DP as it was before its
-  spread prior and walk-based model choice, and two ablations; per set and per mesh.
+  spread prior, walk-based model choice and texture cue, and three ablations (model by votes,
+  no spread prior, no texture cue); per set and per mesh.
 - Speed: the DP and Algorithm 1 on a 10 photos x 100 views table; a whole retrieval of 9 photo
   masks against the full library (background removal excluded).
 - Real photos: ``ners_espresso`` (ordered by its metadata azimuths, coarse ground truth) and
@@ -51,10 +52,11 @@ SEED = 0
 VARIANTS: dict[str, tuple[str, dict[str, Any]]] = {
     "dp": ("**DP (ours)**", {}),
     "paper": ("Algorithm 1", {"solver": "paper"}),
-    "old": ("DP, old", {"model_choice": "votes", "spread_weight": 0.0,
+    "old": ("DP, old", {"model_choice": "votes", "spread_weight": 0.0, "appearance_weight": 0.0,
                         "direction_margin": 0.005}),
     "votes": ("DP, model by votes", {"model_choice": "votes"}),
     "nospread": ("DP, no spread prior", {"spread_weight": 0.0}),
+    "notexture": ("DP, no texture cue", {"appearance_weight": 0.0}),
 }
 
 
@@ -82,11 +84,12 @@ def rotation_error(result: Any, c2w_gt: np.ndarray) -> float:
     return float(np.median(rot))
 
 
-def retrieve_all(masks: list[np.ndarray], names: list[str], library: Any) -> dict[str, Any]:
+def retrieve_all(masks: list[np.ndarray], names: list[str], library: Any,
+                 images: list[np.ndarray]) -> dict[str, Any]:
     """Retrieval with every variant of ``VARIANTS``. Returns variant -> RetrievalResult."""
     from cadnerf_core.retrieval import RetrievalConfig, retrieve
 
-    return {key: retrieve(masks, names, library, RetrievalConfig(**options))
+    return {key: retrieve(masks, names, library, RetrievalConfig(**options), images=images)
             for key, (_, options) in VARIANTS.items()}
 
 
@@ -98,7 +101,7 @@ def synthetic_set(name: str, views: int, direction: int, library: Any, work: Pat
                             f"{direction}", views, SIZE, SEED + views, up="z" if name in Z_UP
                             else "y", direction=direction)
     data = load_dataset(folder)
-    results = retrieve_all(list(data.masks), data.names, library)
+    results = retrieve_all(list(data.masks), data.names, library, list(data.images))
     dp, paper = results["dp"], results["paper"]
     model = dp.model_id if paper.model_id == dp.model_id else \
         f"{dp.model_id}; votes: {paper.model_id}"
@@ -155,7 +158,8 @@ def _median_seconds(function: Any, repeats: int) -> float:
     return statistics.median(times)
 
 
-def speed_lines(library: Any, masks: list[np.ndarray], quick: bool) -> list[str]:
+def speed_lines(library: Any, masks: list[np.ndarray], images: list[np.ndarray],
+                quick: bool) -> list[str]:
     """Solver and whole-retrieval timings, as markdown bullet lines."""
     from cadnerf_core.posesearch import cyclic_dp, paper_algorithm1
     from cadnerf_core.retrieval import RetrievalConfig, iou_table, retrieve
@@ -177,6 +181,8 @@ def speed_lines(library: Any, masks: list[np.ndarray], quick: bool) -> list[str]
     _ = library.silhouettes  # unpacked once per process
     unpack_s = time.perf_counter() - start
     retrieve_s = _median_seconds(lambda: retrieve(masks, names, library), 5 if quick else 20)
+    texture_s = _median_seconds(lambda: retrieve(masks, names, library, images=images),
+                                5 if quick else 20)
     crops = np.stack([np.zeros((library.spec.silhouette_size,) * 2, bool)] * len(masks))
     iou_s = _median_seconds(lambda: iou_table(crops, library.silhouettes), 5)
     m, v = library.silhouettes.shape[:2]
@@ -187,6 +193,7 @@ def speed_lines(library: Any, masks: list[np.ndarray], quick: bool) -> list[str]
             f"- Whole retrieval of {len(masks)} photo masks ({masks[0].shape[1]}x"
             f"{masks[0].shape[0]} px) against the full library ({m} models x {v} views), "
             f"background removal excluded: **{retrieve_s * 1e3:.0f} ms** (target < 500 ms); "
+            f"with the texture direction cue (photos given): **{texture_s * 1e3:.0f} ms**; "
             f"of which the IoU table {iou_s * 1e3:.0f} ms. One-off silhouette unpacking when "
             f"the library is first used: {unpack_s * 1e3:.0f} ms."]
 
@@ -234,7 +241,7 @@ def real_set(name: str, library: Any, picture: Path) -> list[str]:
     shipped = load_photos(paths, mask_paths)
     names = [p.name for p in shipped]
     masks = [p.mask for p in shipped if p.mask is not None]
-    result = retrieve(masks, names, library)
+    result = retrieve(masks, names, library, images=[p.rgb for p in shipped])
     lines = _real_lines(name, "shipped masks", result, gt)
     rows = match_rows(shipped, masks, library, result)
     bare = [Photo(p.name, p.rgb) for p in shipped]
@@ -247,7 +254,7 @@ def real_set(name: str, library: Any, picture: Path) -> list[str]:
     seconds = (time.perf_counter() - start) / len(bare)
     if found is not None:
         ious = [float((a & b).sum() / (a | b).sum()) for a, b in zip(found, masks, strict=True)]
-        grab = retrieve(found, names, library)
+        grab = retrieve(found, names, library, images=[p.rgb for p in bare])
         lines += _real_lines(name, f"GrabCut masks (IoU with the shipped masks: mean "
                              f"{np.mean(ious):.2f}, min {min(ious):.2f}; {seconds:.2f} s a "
                              f"photo)", grab, gt)
@@ -285,14 +292,15 @@ def run(quick: bool, library_dir: Path = LIBRARY_DIR) -> str:
                     log.info("%s", results[-1])
         from cadnerf_core.dataset import load_dataset
 
-        nine = list(load_dataset(work / f"{names[0]}_9_1").masks)
+        nine_set = load_dataset(work / f"{names[0]}_9_1")
+        nine = (list(nine_set.masks), list(nine_set.images))
     finally:
         shutil.rmtree(work, ignore_errors=True)
     lines = [*head, f"Synthetic walks: {SIZE} px renders, elevations 0-60 deg, random start "
              "azimuth, both directions; rotation error = median over the kept photos after "
              "similarity alignment (degrees). Symmetric objects can match front/back flips.",
              "", *synthetic_table(results), "", "Speed (2 shared CPU cores):", "",
-             *speed_lines(library, nine, quick), "", "Real photos (picture: each row a photo; "
+             *speed_lines(library, *nine, quick), "", "Real photos (picture: each row a photo; "
              "left half shipped masks, right half GrabCut; tiles: canonical crop, mask, matched "
              "silhouette, overlay with white = both, red = photo only, cyan = silhouette "
              "only):", ""]

@@ -152,7 +152,8 @@ def retrieval_row(name: str, dataset_dir: Path, library: Any) -> Row:
     views = {}
     for solver in ("paper", "dp"):
         config = RetrievalConfig(solver=solver)
-        result = retrieve(list(ds.masks), ds.names, library, config)
+        result = retrieve(list(ds.masks), ds.names, library, config,
+                          images=list(ds.images))
         kept = [m for m in result.matches if not m.discarded]
         idx = [m.index for m in kept]
         if len(kept) >= 3:

@@ -146,7 +146,8 @@ def retrieve_command(
         found = photo_masks(loaded)
         lib = load_library(library)
         config = RetrievalConfig(solver="paper" if solver == Solver.paper else "dp")
-        result = retrieve(found, [p.name for p in loaded], lib, config)
+        result = retrieve(found, [p.name for p in loaded], lib, config,
+                          images=[p.rgb for p in loaded])
     except (CadNerfError, FileNotFoundError) as exc:
         typer.echo(f"error: {exc}", err=True)
         raise typer.Exit(code=2) from None
