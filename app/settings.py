@@ -7,6 +7,7 @@ A bad value stops start-up with a message that names the variable and what it ac
 from __future__ import annotations
 
 import hashlib
+import ipaddress
 from functools import cached_property
 from pathlib import Path
 from typing import Literal
@@ -61,6 +62,10 @@ class Settings(BaseSettings):
     """Last resort when a step hangs; must exceed the soft limit."""
     webhook_secret: str = Field("", description="HMAC-SHA256 key signing webhook bodies.")
     """Empty: webhooks are sent unsigned."""
+    webhook_allow_private: bool = Field(
+        False, description="Allow webhooks to private, loopback and link-local addresses; for "
+        "tests and closed networks.")
+    """Off: a webhook URL naming, or resolving to, a non-public address is refused (SSRF)."""
 
     @field_validator("default_preset")
     @classmethod
@@ -115,6 +120,34 @@ def hash_key(key: str) -> str:
         64 hex characters.
     """
     return hashlib.sha256(key.encode("utf-8")).hexdigest()
+
+
+def non_public_reason(address: str) -> str | None:
+    """Why an IP address is not a public unicast address, or None when it is.
+
+    Shared by the API (IP literals in a submitted webhook URL) and the worker (every address a
+    webhook host resolves to); it lives here because both import this light module.
+
+    Args:
+        address: an IPv4 or IPv6 address, e.g. "10.0.0.1", "::1", "fe80::1%eth0".
+
+    Returns:
+        A short description such as "a loopback address"; None for a public address.
+
+    Raises:
+        ValueError: ``address`` is not an IP address.
+    """
+    ip = ipaddress.ip_address(address)
+    if isinstance(ip, ipaddress.IPv6Address) and ip.ipv4_mapped is not None:
+        ip = ip.ipv4_mapped  # ::ffff:127.0.0.1 reaches 127.0.0.1
+    checks = [(ip.is_loopback, "a loopback address"),
+              (ip.is_link_local, "a link-local address (cloud metadata lives there)"),
+              (ip.is_unspecified, "the unspecified address"),
+              (ip.is_multicast, "a multicast address"),
+              (ip.is_reserved, "a reserved address"),
+              (ip.is_private, "a private address"),
+              (not ip.is_global, "not a globally routable address")]  # e.g. 100.64.0.0/10
+    return next((reason for failed, reason in checks if failed), None)
 
 
 def load_settings(**overrides: object) -> Settings:

@@ -21,7 +21,7 @@ from pydantic import AnyHttpUrl, TypeAdapter, ValidationError
 from app.errors import ApiError
 from app.multipart import ReceivedForm, StoredPart
 from app.schemas import JobCreate
-from app.settings import Settings
+from app.settings import Settings, non_public_reason
 
 _EXIF_ORIENTATION = 0x0112
 _PIL_FORMATS = {"jpg": "JPEG", "png": "PNG", "webp": "WEBP"}
@@ -209,15 +209,51 @@ def _config_error(exc: ValidationError) -> ApiError:
                     hint='send JSON like {"preset": "preview", "overrides": {"phase2.steps": 300}}')
 
 
-def parse_webhook(raw: str | None) -> str | None:
-    """An http(s) URL or None."""
+def parse_webhook(raw: str | None, allow_private: bool = False) -> str | None:
+    """An http(s) URL or None; a host that is plainly not public is refused (SSRF).
+
+    Only IP literals and ``localhost`` names are judged here; the worker checks what a host name
+    resolves to just before it sends.
+
+    Args:
+        raw: the `webhook_url` form field.
+        allow_private: accept private, loopback and link-local hosts
+            (``CADNERF_WEBHOOK_ALLOW_PRIVATE``).
+
+    Returns:
+        The normalised URL, or None when the field is empty.
+
+    Raises:
+        ApiError: 422 ``invalid_webhook_url`` for a URL that is not http(s),
+            422 ``webhook_url_not_public`` for a loopback, private, link-local... host.
+    """
     if not raw:
         return None
     try:
-        return str(_URL.validate_python(raw.strip()))[:2048]
+        url = _URL.validate_python(raw.strip())
     except ValidationError:
         raise ApiError(422, "invalid_webhook_url", "`webhook_url` is not an http(s) URL",
                        field="webhook_url", hint="send a full URL like https://host/path") from None
+    host = (url.host or "").strip("[]").lower()
+    reason = None if allow_private else _host_refusal(host)
+    if reason:
+        raise ApiError(422, "webhook_url_not_public",
+                       f"`webhook_url` host {host} is {reason}; the service does not call "
+                       "internal addresses", field="webhook_url",
+                       hint="use a host reachable from the internet (an operator can allow "
+                       "private addresses with CADNERF_WEBHOOK_ALLOW_PRIVATE=true)")
+    return str(url)[:2048]
+
+
+def _host_refusal(host: str) -> str | None:
+    """Why a URL host (without brackets) is not public; None for public IPs and other names."""
+    name = host.rstrip(".")
+    if name == "localhost" or name.endswith(".localhost"):  # RFC 6761: always loopback
+        return "a loopback name"
+    try:
+        return non_public_reason(host)
+    except ValueError:  # a host name: resolved and checked by the worker at delivery
+        return None
 
 
 def lay_out(form: ReceivedForm, staging: Path, settings: Settings) -> JobSpec:
@@ -234,7 +270,7 @@ def lay_out(form: ReceivedForm, staging: Path, settings: Settings) -> JobSpec:
     """
     check_counts(form, settings)
     preset, overrides = parse_config(form.texts.get("config"), settings)
-    webhook = parse_webhook(form.texts.get("webhook_url"))
+    webhook = parse_webhook(form.texts.get("webhook_url"), settings.webhook_allow_private)
     images, masks = form.files["images"], form.files["masks"]
     infos = [inspect_image(part, settings) for part in images]
     mask_infos = [check_mask(m, p, i, settings) for m, p, i in zip(masks, images, infos,

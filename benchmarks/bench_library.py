@@ -72,6 +72,11 @@ def _agreement(root: Path, model_ids: list[str]) -> list[tuple[str, float, bool]
     return rows
 
 
+def _import_id(relative: str) -> str:
+    """Library id of an imported eval mesh: prefixed, as the shipped library has a teapot."""
+    return f"imported_{Path(relative).stem.lower()}"
+
+
 def _imports(root: Path) -> list[str]:
     """Table rows for ``cadnerf library add`` on real meshes of three formats."""
     rows, added = [], []
@@ -80,7 +85,7 @@ def _imports(root: Path) -> list[str]:
         if not path.is_file():
             rows.append(f"| {relative} | skipped (../shared/eval absent) | | |")
             continue
-        model_id = Path(relative).stem.lower()
+        model_id = _import_id(relative)
         seconds, out = _timed([*CLI, "add", str(path), "--category", "import", "--id", model_id,
                                "--library", str(root)])
         rows.append(f"| {relative} | {seconds:.1f} | `{out}` |")
@@ -88,7 +93,7 @@ def _imports(root: Path) -> list[str]:
     library = load_library(root)
     for row, relative in zip(added, [r for r in IMPORTS if (EVAL / "meshes" / r).is_file()],
                              strict=True):
-        watertight = library.mesh(Path(relative).stem.lower()).is_watertight
+        watertight = library.mesh(_import_id(relative)).is_watertight
         rows[row] += f" {'yes' if watertight else 'NO'} |"
     return rows
 
@@ -154,7 +159,7 @@ def run(quick: bool) -> str:
         determinism,
         "",
         "`cadnerf library add FILE --category import` on real meshes (fresh process each; "
-        "normalise, make watertight, 100 renders, occupancy):",
+        f"normalise, make watertight, {views} renders, occupancy):",
         "",
         "| file | seconds | output | watertight |",
         "| --- | ---: | --- | --- |",

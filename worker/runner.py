@@ -216,7 +216,8 @@ def _finish(store: JobStore, settings: Settings, record: JobRecord, state: JobSt
         payload = {"id": record.id, "state": state.value, "error": error,
                    "finished_at": fields["finished_at"], "status_url": f"/v1/jobs/{record.id}",
                    "result_url": f"/v1/jobs/{record.id}/result"}
-        send_webhook(record.webhook_url, payload, settings.webhook_secret)
+        send_webhook(record.webhook_url, payload, settings.webhook_secret,
+                     allow_private=settings.webhook_allow_private)
     return {"id": record.id, "state": state.value, "error": error}
 
 

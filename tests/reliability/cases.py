@@ -100,6 +100,9 @@ CASES: dict[str, Callable[[], Case]] = {
                                   "unknown_field", "../../etc/passwd"),
     "webhook_not_http": lambda: Case(photo_files(3), {"webhook_url": "file:///etc/passwd"},
                                      422, "invalid_webhook_url", "webhook_url"),
+    "webhook_internal": lambda: Case(photo_files(3),
+                                     {"webhook_url": "http://169.254.169.254/latest/meta-data"},
+                                     422, "webhook_url_not_public", "webhook_url"),
     "name_longer_than_a_part_header": lambda: Case(
         with_photo(0, ("images", ("b" * 10_000 + ".png", image_bytes(), "image/png"))), {},
         400, "malformed_multipart", "multipart"),

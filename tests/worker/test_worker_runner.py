@@ -14,9 +14,9 @@ from app.store import JobStore
 from worker import runner
 
 
-def _settings(store: JobStore, redis_url: str, secret: str = ""):
+def _settings(store: JobStore, redis_url: str, secret: str = "", **overrides: object):
     return load_settings(redis_url=redis_url, data_root=store.data_root,
-                         library_dir=Path("/nonexistent"), webhook_secret=secret)
+                         library_dir=Path("/nonexistent"), webhook_secret=secret, **overrides)
 
 
 def test_unknown_and_finished_jobs_are_left_alone(store: JobStore, new_job, redis_url) -> None:
@@ -30,8 +30,9 @@ def test_unknown_and_finished_jobs_are_left_alone(store: JobStore, new_job, redi
     assert unchanged is not None and unchanged.started_at is None
 
 
-def test_a_job_cancelled_before_it_starts_ends_cancelled_and_calls_its_webhook(
-        store: JobStore, new_job, redis_url) -> None:
+def _cancel_with_local_webhook(store: JobStore, new_job, redis_url: str,
+                               allow_private: bool) -> tuple[dict, list[dict]]:
+    """Run a job cancelled before it starts whose webhook is a receiver on 127.0.0.1."""
     calls: list[dict] = []
 
     class Handler(BaseHTTPRequestHandler):
@@ -48,13 +49,27 @@ def test_a_job_cancelled_before_it_starts_ends_cancelled_and_calls_its_webhook(
     try:
         record = new_job(webhook_url=f"http://127.0.0.1:{server.server_address[1]}/")
         store.request_cancel(record.id)
-        outcome = runner.execute(record.id, _settings(store, redis_url, "k"), store)
+        settings = _settings(store, redis_url, "k", webhook_allow_private=allow_private)
+        outcome = runner.execute(record.id, settings, store)
     finally:
         server.shutdown()
-    assert outcome == {"id": record.id, "state": "cancelled", "error": None}
-    saved = json.loads((store.job_dir(record.id) / "state.json").read_text())
+    return {**outcome, "record_id": record.id}, calls
+
+
+def test_a_job_cancelled_before_it_starts_ends_cancelled_and_calls_its_webhook(
+        store: JobStore, new_job, redis_url) -> None:
+    outcome, calls = _cancel_with_local_webhook(store, new_job, redis_url, allow_private=True)
+    job_id = outcome.pop("record_id")
+    assert outcome == {"id": job_id, "state": "cancelled", "error": None}
+    saved = json.loads((store.job_dir(job_id) / "state.json").read_text())
     assert saved["state"] == "cancelled" and saved["finished_at"] is not None
-    assert calls and calls[0]["id"] == record.id and calls[0]["state"] == "cancelled"
+    assert calls and calls[0]["id"] == job_id and calls[0]["state"] == "cancelled"
+
+
+def test_a_webhook_to_a_private_address_is_not_called_by_default(store: JobStore, new_job,
+                                                                 redis_url) -> None:
+    outcome, calls = _cancel_with_local_webhook(store, new_job, redis_url, allow_private=False)
+    assert outcome["state"] == "cancelled" and calls == []
 
 
 def test_the_final_state_reaches_state_json_while_redis_is_away(store: JobStore, new_job,
