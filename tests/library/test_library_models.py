@@ -68,6 +68,31 @@ def test_models_face_plus_z_with_y_up(meshes: dict[str, trimesh.Trimesh]) -> Non
     assert monitor.extents[2] < 0.5 * monitor.extents[0]  # a thin panel facing +Z
 
 
+def _top(mesh: trimesh.Trimesh, depth: float = 0.15) -> np.ndarray:
+    """Vertices within ``depth`` of the mesh's highest point."""
+    return np.asarray(mesh.vertices[mesh.vertices[:, 1] > mesh.bounds[1, 1] - depth])
+
+
+def _front_tip(mesh: trimesh.Trimesh) -> np.ndarray:
+    """The vertex furthest toward +Z."""
+    return np.asarray(mesh.vertices[np.argmax(mesh.vertices[:, 2])])
+
+
+def test_added_common_objects_face_plus_z(meshes: dict[str, trimesh.Trimesh]) -> None:
+    # What sticks up is at the back: a backrest, a cargo box, a boot's shaft, a shoe's heel.
+    for model_id in ("armchair", "truck", "boot", "sneaker"):
+        assert _top(meshes[model_id])[:, 2].mean() < -0.2, model_id
+    # Heads are in front and up.
+    for model_id in ("duck_toy", "cow_toy", "dog_toy"):
+        assert _top(meshes[model_id])[:, 2].mean() > 0.2, model_id
+    # Toes are in front and low; a drill's bit is in front and high; an espresso machine's
+    # portafilter handle sticks out in front at mid height.
+    for model_id in ("boot", "sneaker"):
+        assert _front_tip(meshes[model_id])[1] < -0.3, model_id
+    assert _front_tip(meshes["drill"])[1] > 0.2
+    assert abs(_front_tip(meshes["espresso_machine"])[1]) < 0.2
+
+
 def test_find_model() -> None:
     assert find_model("mug").category == "mug"
     with pytest.raises(KeyError):
