@@ -64,13 +64,18 @@ def redis_url(tmp_path_factory: pytest.TempPathFactory) -> Iterator[str]:
     yield from flushed_database(TEST_DB, tmp_path_factory)
 
 
-@pytest.fixture()
-def clean_redis(redis_url: str) -> Iterator[redis.Redis]:
-    """A client of the test database, flushed before the test."""
-    client = redis.Redis.from_url(redis_url, decode_responses=True)
+def flushed_client(url: str) -> Iterator[redis.Redis]:
+    """A client of the database at ``url``, flushed first; closed afterwards."""
+    client = redis.Redis.from_url(url, decode_responses=True)
     client.flushdb()
     yield client
     client.close()
+
+
+@pytest.fixture()
+def clean_redis(redis_url: str) -> Iterator[redis.Redis]:
+    """A client of the test database, flushed before the test."""
+    yield from flushed_client(redis_url)
 
 
 def pytest_sessionfinish() -> None:

@@ -22,6 +22,7 @@ from tests.redis_fixture import (  # noqa: E402,F401  (helpers and the session h
     _answers,
     _embedded_url,
     _with_db,
+    flushed_client,
     flushed_database,
     pytest_sessionfinish,
 )
@@ -40,10 +41,7 @@ def rel_redis_url(tmp_path_factory: pytest.TempPathFactory) -> Iterator[str]:
 @pytest.fixture()
 def rel_redis(rel_redis_url: str) -> Iterator[redis.Redis]:
     """A client of our database, flushed before the test."""
-    client = redis.Redis.from_url(rel_redis_url, decode_responses=True)
-    client.flushdb()
-    yield client
-    client.close()
+    yield from flushed_client(rel_redis_url)
 
 
 @pytest.fixture()

@@ -17,7 +17,7 @@ import redis
 from fastapi.testclient import TestClient
 
 from app.main import create_app
-from app.settings import load_settings
+from app.settings import Settings, load_settings
 from tests.reliability import jobs
 from tests.reliability.support import (
     NEEDS_PIPELINE,
@@ -77,11 +77,16 @@ def _assert_unavailable(response: httpx.Response) -> None:
     assert error["message"] and error["code"]
 
 
+def _settings(redis_url: str, tmp_path: Path) -> Settings:
+    """API settings on the test's own Redis, with jobs and library under ``tmp_path``."""
+    return load_settings(redis_url=redis_url, data_root=tmp_path / "jobs",
+                         library_dir=tmp_path / "library", default_preset="test")
+
+
 def test_redis_down_gives_503_with_retry_after(own_redis: tuple[str, int, Path],
                                                tmp_path: Path) -> None:
     url, port, _folder = own_redis
-    settings = load_settings(redis_url=url, data_root=tmp_path / "jobs",
-                             library_dir=tmp_path / "library", default_preset="test")
+    settings = _settings(url, tmp_path)
     with TestClient(create_app(settings), raise_server_exceptions=False) as client:
         job_id = client.post("/v1/jobs", files=photo_files(3)).json()["id"]
         _kill_redis(port)
@@ -98,8 +103,7 @@ def test_redis_down_gives_503_with_retry_after(own_redis: tuple[str, int, Path],
 def test_jobs_come_back_from_state_json_after_redis_restart(own_redis: tuple[str, int, Path],
                                                             tmp_path: Path) -> None:
     url, port, folder = own_redis
-    settings = load_settings(redis_url=url, data_root=tmp_path / "jobs",
-                             library_dir=tmp_path / "library", default_preset="test")
+    settings = _settings(url, tmp_path)
     with TestClient(create_app(settings), raise_server_exceptions=False) as client:
         ids = [client.post("/v1/jobs", files=photo_files(3)).json()["id"] for _ in range(3)]
         _kill_redis(port)
