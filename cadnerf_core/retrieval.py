@@ -67,16 +67,20 @@ class RetrievalConfig(BaseModel):
     """"votes": the model most photos' best views belong to (the paper). "walk": of the five
     models with most votes, the one whose best ordered walk (the pose solver's objective) is
     best. The paper's solver always uses "votes"."""
-    appearance_weight: float = Field(default=0.1, ge=0.0)
+    appearance_weight: float = Field(default=0.2, ge=0.0)
     """DP only, with photos given: IoU per unit of texture evidence (``direction.py``) by
     which the walking direction the photos' texture favours is preferred (0: silhouettes
-    alone decide). On the 52 synthetic walks of ``benchmarks/bench_retrieval.py`` (128 px),
-    evidence of at least 0.5 points the right way on 9 of the 11 walks that have it; with
-    this weight it turns one walk flipped front to back right and no right walk wrong (0.2
-    and 0.3 turn two; 0.5 and more start to override the silhouettes wrongly)."""
-    appearance_threshold: float = Field(default=0.5, ge=0.0)
-    """DP only: texture evidence weaker than this (in absolute value) is ignored; on the
-    synthetic walks evidence below 0.3 is right barely more often than not."""
+    alone decide). Chosen with ``appearance_threshold`` by a sweep on the 52 synthetic walks of
+    ``benchmarks/bench_retrieval.py`` (128 px; weights 0.1 and 0.2, thresholds 0.5, 0.3, 0.25
+    and 0.2): weight 0.2 with threshold 0.25 turns two walks flipped front to back right (an
+    armchair and a bottle, evidence +0.32 and -0.26) and no right walk wrong, median rotation
+    error 13.6 degrees against 14.3 at the former 0.1 and 0.5. Most of those walks' meshes
+    have no texture at all (evidence 0); larger weights start to override the silhouettes."""
+    appearance_threshold: float = Field(default=0.25, ge=0.0)
+    """DP only: texture evidence weaker than this (in absolute value) is ignored. On the 52
+    synthetic walks, evidence between 0.25 and 0.5 pointed the right way on 4 of 5 walks (the
+    fifth, a textured cow walked backwards, the silhouettes had flipped already), evidence
+    between 0.1 and 0.25 on 2 of 5."""
     size: int | None = Field(default=None, ge=8)
     """Side in pixels of the canonical crop that ``K_canon`` and ``box`` refer to; None =
     the library's silhouette size. (IoU is always computed at the library's size.)"""

@@ -75,7 +75,8 @@ def test_evidence_decides_the_direction_only_when_the_silhouettes_cannot() -> No
     flat = np.full((4, n_az * n_el), 0.8)  # a symmetric object: every view fits equally
     assert solve_poses(flat, az_index, n_az, config).direction == 1  # the tie-break
     assert solve_poses(flat, az_index, n_az, config, evidence=-1.0).direction == -1
-    assert solve_poses(flat, az_index, n_az, config, evidence=-0.4).direction == 1  # weak
+    weak = -0.9 * config.appearance_threshold
+    assert solve_poses(flat, az_index, n_az, config, evidence=weak).direction == 1
     # A clear decreasing walk in the silhouettes outweighs texture evidence for +1.
     walk = np.full((4, n_az * n_el), 0.2)
     for p, a in enumerate((9, 6, 3, 0)):
