@@ -6,17 +6,24 @@ The non-blocking ones are ``async`` so the polling route never waits for a worke
 from __future__ import annotations
 
 import hmac
+import logging
 from typing import Annotated
 
+import redis
 from celery import Celery
-from fastapi import Depends, Path, Request, Security
+from fastapi import Depends, Path, Request, Response, Security
 from fastapi.security import HTTPAuthorizationCredentials, HTTPBearer
 from redis.asyncio import Redis as AsyncRedis
 from starlette.concurrency import run_in_threadpool
 
-from app.errors import ApiError, not_found
+from app.errors import ApiError, not_found, store_unavailable
 from app.settings import Settings, hash_key
 from app.store import ANON_OWNER, JobRecord, JobStore, is_job_id
+
+log = logging.getLogger(__name__)
+
+STATE_SOURCE_HEADER = "X-Job-State-Source"
+"""Set to ``disk`` when a job was read from its state.json because Redis did not answer."""
 
 _bearer = HTTPBearer(auto_error=False, description="An API key, when the server requires one.")
 
@@ -68,30 +75,62 @@ async def get_owner(settings: SettingsDep,
 OwnerDep = Annotated[str, Depends(get_owner)]
 
 
-def get_job(job_id: Annotated[str, Path(max_length=64, description="The job's id.")],
-            store: StoreDep, owner: OwnerDep) -> JobRecord:
-    """The caller's job; 404 for unknown ids and for other callers' jobs alike."""
-    record = store.get(job_id)
+def _from_disk(store: JobStore, job_id: str, response: Response,
+               exc: redis.RedisError) -> JobRecord:
+    """The job as its folder's state.json has it, while Redis does not answer.
+
+    state.json is written before Redis on every final state (worker.runner._finish) and
+    mirrored every few seconds while the job runs, so a finished job reads exactly as it was;
+    a queued or running one shows its last mirrored stage and progress (marked by the
+    ``X-Job-State-Source: disk`` header). Without a readable state.json the job's existence
+    cannot be told: the usual 503.
+    """
+    record = store.read_state_file(job_id) if is_job_id(job_id) else None
+    if record is None:
+        log.warning("Redis unavailable and no state.json for job %s: %s", job_id, exc)
+        raise store_unavailable() from exc
+    log.info("Redis unavailable (%s); job %s read from state.json", exc, job_id)
+    response.headers[STATE_SOURCE_HEADER] = "disk"
+    return record
+
+
+def _check_owner(record: JobRecord | None, owner: str) -> JobRecord:
+    """The record when the caller owns it; 404 for unknown ids and other callers' jobs alike."""
     if record is None or not hmac.compare_digest(record.owner, owner):
         raise not_found()
     return record
+
+
+def get_job(job_id: Annotated[str, Path(max_length=64, description="The job's id.")],
+            store: StoreDep, owner: OwnerDep, response: Response) -> JobRecord:
+    """The caller's job; 404 for unknown ids and for other callers' jobs alike.
+
+    Redis down: read from state.json (same owner check); 503 only when that fails too.
+    """
+    try:
+        record = store.get(job_id)
+    except redis.RedisError as exc:
+        record = _from_disk(store, job_id, response, exc)
+    return _check_owner(record, owner)
 
 
 JobDep = Annotated[JobRecord, Depends(get_job)]
 
 
 async def get_job_fast(job_id: Annotated[str, Path(max_length=64, description="The job's id.")],
-                       request: Request, store: StoreDep, owner: OwnerDep) -> JobRecord:
+                       request: Request, store: StoreDep, owner: OwnerDep,
+                       response: Response) -> JobRecord:
     """Like ``get_job``, but one asyncio HGETALL (no thread hop) when Redis has the job."""
     if not is_job_id(job_id):
         raise not_found()
     client: AsyncRedis = request.app.state.aredis
-    raw = await client.hgetall(store.job_key(job_id))
-    record = (JobRecord.from_hash(raw) if raw  # type: ignore[arg-type]
-              else await run_in_threadpool(store.get, job_id))  # state.json fallback
-    if record is None or not hmac.compare_digest(record.owner, owner):
-        raise not_found()
-    return record
+    try:
+        raw = await client.hgetall(store.job_key(job_id))
+        record = (JobRecord.from_hash(raw) if raw  # type: ignore[arg-type]
+                  else await run_in_threadpool(store.get, job_id))  # state.json fallback
+    except redis.RedisError as exc:
+        record = await run_in_threadpool(_from_disk, store, job_id, response, exc)
+    return _check_owner(record, owner)
 
 
 FastJobDep = Annotated[JobRecord, Depends(get_job_fast)]

@@ -9,10 +9,12 @@ import os
 import shutil
 import time
 import uuid
+from collections.abc import Sequence
 from pathlib import Path
 
 import redis
 from celery import Celery
+from redis.asyncio import Redis as AsyncRedis
 from starlette.concurrency import run_in_threadpool
 from starlette.requests import Request
 
@@ -21,7 +23,14 @@ from app.multipart import Limits, receive_form
 from app.queue import enqueue
 from app.schemas import DeleteResult, JobLinks, JobState, JobStatus
 from app.settings import Settings
-from app.store import TMP_PREFIX, JobRecord, JobStore
+from app.store import (
+    TMP_PREFIX,
+    JobRecord,
+    JobStore,
+    QueueEstimate,
+    history_devices,
+    queue_estimate_async,
+)
 from app.uploads import lay_out
 
 log = logging.getLogger(__name__)
@@ -36,14 +45,62 @@ def links(job_id: str) -> JobLinks:
                     web=f"/?job={job_id}")
 
 
-def to_status(record: JobRecord) -> JobStatus:
-    """The public view of a job record."""
+def to_status(record: JobRecord, queue: QueueEstimate | None = None) -> JobStatus:
+    """The public view of a job record.
+
+    Args:
+        record: the job.
+        queue: where the job stands in the queue (``queue_estimate``); used only while it is
+            queued, and then gives ``queue_position`` and ``eta_s``.
+    """
+    estimate = queue if record.state == JobState.queued else None
     return JobStatus(id=record.id, state=record.state, preset=record.preset,
                      n_photos=record.n_photos, created_at=record.created_at,
                      links=links(record.id), stage=record.stage,
-                     progress=min(max(record.progress, 0.0), 1.0), eta_s=record.eta_s,
+                     progress=min(max(record.progress, 0.0), 1.0),
+                     eta_s=record.eta_s if estimate is None else estimate.eta_s,
+                     queue_position=None if estimate is None else estimate.position,
                      started_at=record.started_at, finished_at=record.finished_at,
-                     error=record.error)
+                     error=record.error, error_detail=record.error_detail)
+
+
+def queue_estimate(store: JobStore, record: JobRecord, settings: Settings) -> QueueEstimate | None:
+    """Where a queued job stands (one Redis call; none for other states); None if unknown.
+
+    Best effort: a Redis error leaves the status without a queue position rather than failing.
+    """
+    if record.state != JobState.queued:
+        return None
+    try:
+        return store.queue_estimate(record.id, history_devices(settings.device))
+    except redis.RedisError as exc:
+        log.warning("queue estimate of job %s failed: %s", record.id, exc)
+        return None
+
+
+async def queue_estimate_fast(client: AsyncRedis, record: JobRecord,
+                              settings: Settings) -> QueueEstimate | None:
+    """``queue_estimate`` on the asyncio client of the polling route (no thread hop)."""
+    if record.state != JobState.queued:
+        return None
+    try:
+        return await queue_estimate_async(client, record.id, history_devices(settings.device))
+    except redis.RedisError as exc:
+        log.warning("queue estimate of job %s failed: %s", record.id, exc)
+        return None
+
+
+def statuses(store: JobStore, records: Sequence[JobRecord], settings: Settings
+             ) -> list[JobStatus]:
+    """Public views of several jobs; the queued ones' estimates in one round trip."""
+    queued = [r.id for r in records if r.state == JobState.queued]
+    estimates: dict[str, QueueEstimate] = {}
+    if queued:
+        try:
+            estimates = store.queue_estimates(queued, history_devices(settings.device))
+        except redis.RedisError as exc:
+            log.warning("queue estimates failed: %s", exc)
+    return [to_status(r, estimates.get(r.id)) for r in records]
 
 
 async def submit(request: Request, settings: Settings, store: JobStore, producer: Celery,

@@ -61,8 +61,23 @@ async def _recovery_loop(app: FastAPI) -> None:
         await asyncio.sleep(RECOVERY_INTERVAL_S)
 
 
+OPEN_SERVICE_WARNING = (
+    "no API keys are configured (CADNERF_API_KEYS is empty): every client shares one owner, "
+    "so anyone who can reach this server can list, read and delete every job. Set "
+    "CADNERF_API_KEYS to a comma-separated list of keys (clients then send "
+    "`Authorization: Bearer <key>`) unless the service is only reachable from a trusted "
+    "network.")
+
+
+def warn_if_open(settings: Settings) -> None:
+    """Log, once per start, that an open service lets every client see and delete every job."""
+    if not settings.api_key_hashes:
+        log.warning(OPEN_SERVICE_WARNING)
+
+
 @contextlib.asynccontextmanager
 async def _lifespan(app: FastAPI) -> AsyncIterator[None]:
+    warn_if_open(app.state.settings)
     with contextlib.suppress(OSError):  # a broken data root is reported per request (503)
         app.state.settings.data_root.mkdir(parents=True, exist_ok=True)
     tasks = [asyncio.create_task(_cleanup_loop(app)), asyncio.create_task(_recovery_loop(app))]

@@ -3,10 +3,18 @@
 Starlette's form parser spools whole files before a route sees them; this one counts bytes per
 file and per request while reading and stops at the first byte over a limit, so a client cannot
 make the server store more than the limits allow (whatever its Content-Length says).
+
+It also bounds time and concurrency, which uvicorn does not (it has no request-body timeout): an
+upload that sends nothing for ``idle_s`` or is not complete after ``deadline_s`` gets 408, and
+an upload arriving while ``max_concurrent`` others are being received gets 503 before its body
+is read (see ``Pacing``).
 """
 
 from __future__ import annotations
 
+import asyncio
+import contextlib
+from collections.abc import Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import BinaryIO
@@ -16,11 +24,13 @@ from python_multipart.multipart import MultipartParser, parse_options_header
 from starlette.requests import ClientDisconnect, Request
 
 from app.errors import ApiError
+from app.settings import Settings
 
 FILE_FIELDS = ("images", "masks")
 TEXT_FIELDS = ("config", "webhook_url")
 MAX_TEXT_BYTES = 64 * 1024
 MAX_BOUNDARY_BYTES = 70  # RFC 2046
+UPLOAD_RETRY_AFTER_S = 10
 
 
 @dataclass(frozen=True)
@@ -30,6 +40,80 @@ class Limits:
     max_file_bytes: int
     max_total_bytes: int
     max_files_per_field: int
+
+
+@dataclass(frozen=True)
+class Pacing:
+    """Time limits of one upload, and how many uploads may be received at once.
+
+    ``idle_s`` (default 30 s): a client that sends no byte for this long has stalled (a dead
+    link, a suspended laptop, or a client holding the connection on purpose); 30 s outlasts a
+    mobile hand-over or a brief dead spot, and frees the staging folder soon after.
+
+    ``deadline_s`` (default 600 s): a fixed cap on the whole body rather than one derived from
+    a minimum rate, so operators and clients can state it in one number. It stops a client that
+    trickles a byte just often enough to dodge the idle limit. The default request limit
+    (150 MiB) fits in it at about 256 KiB/s (2 Mbit/s); a typical job (10 phone photos,
+    30-50 MB) needs only 50-90 KB/s. A larger ``CADNERF_MAX_TOTAL_MB`` may need a larger one.
+
+    ``max_concurrent`` (default 8): uploads received at the same time. It bounds staging disk
+    use (``max_concurrent`` x the request limit) and open files, and how many stalled clients
+    can be waiting on their timeouts; one more is refused with 503 + Retry-After at once.
+    """
+
+    idle_s: float = 30.0
+    deadline_s: float = 600.0
+    max_concurrent: int = 8
+
+    @classmethod
+    def from_settings(cls, settings: Settings) -> Pacing:
+        """From ``CADNERF_UPLOAD_IDLE_TIMEOUT_S``, ``_DEADLINE_S``, ``_MAX_CONCURRENT_UPLOADS``."""
+        return cls(settings.upload_idle_timeout_s, settings.upload_deadline_s,
+                   settings.max_concurrent_uploads)
+
+
+class UploadSlots:
+    """Counts the uploads being received; refuses one over the limit instead of queueing it.
+
+    A plain counter rather than an ``asyncio.Semaphore``: nothing waits for a slot, and all
+    callers run on the event loop's thread, so check-and-increment cannot interleave.
+    """
+
+    def __init__(self, limit: int) -> None:
+        self.limit = limit
+        self.active = 0
+
+    @contextlib.contextmanager
+    def hold(self) -> Iterator[None]:
+        """Hold one slot for the duration of the ``with`` block.
+
+        Raises:
+            ApiError: 503 ``too_many_uploads`` (with Retry-After) when all slots are taken.
+        """
+        if self.active >= self.limit:
+            raise ApiError(503, "too_many_uploads",
+                           f"{self.limit} uploads are already being received",
+                           hint=f"try again in {UPLOAD_RETRY_AFTER_S} seconds",
+                           headers={"Retry-After": str(UPLOAD_RETRY_AFTER_S)})
+        self.active += 1
+        try:
+            yield
+        finally:
+            self.active -= 1
+
+
+def upload_slots(request: Request, limit: int) -> UploadSlots:
+    """The app's ``UploadSlots`` (``app.state.upload_slots``), made on first use."""
+    state = request.app.state
+    slots = getattr(state, "upload_slots", None)
+    if not isinstance(slots, UploadSlots):
+        slots = state.upload_slots = UploadSlots(limit)
+    return slots
+
+
+def _pacing_of(request: Request) -> Pacing:
+    settings = getattr(request.app.state, "settings", None)
+    return Pacing.from_settings(settings) if isinstance(settings, Settings) else Pacing()
 
 
 @dataclass
@@ -176,37 +260,76 @@ def _check_declared_length(request: Request, limits: Limits) -> None:
                        hint="send smaller (downscaled or recompressed) photos")
 
 
-async def receive_form(request: Request, folder: Path, limits: Limits) -> ReceivedForm:
+async def receive_form(request: Request, folder: Path, limits: Limits,
+                       pacing: Pacing | None = None) -> ReceivedForm:
     """Stream a multipart request body into ``folder``, enforcing the limits while reading.
 
     Args:
         request: the incoming request (its body is consumed).
         folder: an existing, empty staging folder the file parts are written to.
         limits: byte and count limits.
+        pacing: time limits and the concurrency cap (default: from ``app.state.settings``).
 
     Returns:
         The received files (in order, per field) and text fields.
 
     Raises:
-        ApiError: 413 on a limit, 415 when not multipart, 400 on a malformed body.
+        ApiError: 413 on a limit, 415 when not multipart, 400 on a malformed body, 408 when the
+            client stalls or is too slow, 503 when too many uploads are being received. The
+            open file is closed; the caller removes ``folder`` (as for every failure).
     """
+    pacing = pacing or _pacing_of(request)
     boundary = _boundary(request)
     _check_declared_length(request, limits)
-    receiver = _Receiver(folder, limits)
-    callbacks = {name: getattr(receiver, name) for name in (
-        "on_part_begin", "on_part_data", "on_part_end", "on_header_field", "on_header_value",
-        "on_header_end", "on_headers_finished")}
-    try:
-        parser = MultipartParser(boundary, callbacks)  # type: ignore[arg-type]
-        async for chunk in request.stream():
-            parser.write(chunk)
-        parser.finalize()
-    except (FormParserError, ValueError) as exc:
-        raise ApiError(400, "malformed_multipart", "the multipart body could not be parsed",
-                       hint="let your HTTP client build the multipart body") from exc
-    except ClientDisconnect as exc:
-        raise ApiError(400, "client_disconnected", "the upload was interrupted",
-                       hint="send it again") from exc
-    finally:
-        receiver.close()
+    with upload_slots(request, pacing.max_concurrent).hold():
+        receiver = _Receiver(folder, limits)
+        callbacks = {name: getattr(receiver, name) for name in (
+            "on_part_begin", "on_part_data", "on_part_end", "on_header_field", "on_header_value",
+            "on_header_end", "on_headers_finished")}
+        try:
+            parser = MultipartParser(boundary, callbacks)  # type: ignore[arg-type]
+            await _feed(request, parser, pacing)
+            parser.finalize()
+        except (FormParserError, ValueError) as exc:
+            raise ApiError(400, "malformed_multipart", "the multipart body could not be parsed",
+                           hint="let your HTTP client build the multipart body") from exc
+        except ClientDisconnect as exc:
+            raise ApiError(400, "client_disconnected", "the upload was interrupted",
+                           hint="send it again") from exc
+        finally:
+            receiver.close()
     return receiver.form
+
+
+async def _feed(request: Request, parser: MultipartParser, pacing: Pacing) -> None:
+    """Write the body into ``parser`` chunk by chunk, within the idle limit and the deadline.
+
+    Raises:
+        ApiError: 408 ``upload_stalled`` when no byte arrived for ``pacing.idle_s``, 408
+            ``upload_too_slow`` when the body is not complete after ``pacing.deadline_s``. Both
+            ask the server to close the connection (the rest of the body is not wanted).
+    """
+    loop = asyncio.get_running_loop()
+    deadline_at = loop.time() + pacing.deadline_s
+    window_end = deadline_at
+    try:
+        async with contextlib.aclosing(request.stream()) as chunks, \
+                asyncio.timeout(None) as window:
+            while True:
+                window_end = min(loop.time() + pacing.idle_s, deadline_at)
+                window.reschedule(window_end)
+                chunk = await anext(chunks, None)
+                if chunk is None:
+                    return
+                parser.write(chunk)
+    except TimeoutError:
+        close = {"Connection": "close"}
+        if window_end >= deadline_at:
+            raise ApiError(408, "upload_too_slow",
+                           f"the upload was not complete after {pacing.deadline_s:g} seconds",
+                           hint="send smaller (downscaled) photos, or use a faster connection",
+                           headers=close) from None
+        raise ApiError(408, "upload_stalled",
+                       f"no data arrived for {pacing.idle_s:g} seconds; the upload was dropped",
+                       hint="check your connection and send the photos again",
+                       headers=close) from None

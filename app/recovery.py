@@ -150,6 +150,7 @@ def requeue(store: JobStore, record: JobRecord, send: Callable[[str], Any],
         return "failed"
     log.warning("job %s: worker %s is gone; queued again (attempt %d of %d)", record.id,
                 record.worker or "?", outcome + 1, max_attempts)
+    store.join_queue(record.id)
     try:
         send(record.id)
     except Exception as exc:  # a queued job without a message would wait for ever

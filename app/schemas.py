@@ -1,7 +1,8 @@
 """HTTP schemas, as a ladder: what a client sends, what every job shows, and more detail on top.
 
 ``JobCreate`` (the request's config) -> ``JobPublic`` (id, state, links) -> ``JobStatus``
-(stage, progress, ETA, timestamps, error) ; ``JobResult`` (the outcome of a succeeded job).
+(stage, progress, ETA, queue position, timestamps, error) ; ``JobResult`` (the outcome of a
+succeeded job).
 """
 
 from __future__ import annotations
@@ -45,6 +46,16 @@ class JobLinks(BaseModel):
     web: str
 
 
+class ErrorDetail(BaseModel):
+    """What went wrong and what to do about it."""
+
+    code: str
+    message: str
+    field: str | None = None
+    photo: str | None = None
+    hint: str | None = None
+
+
 class JobPublic(BaseModel):
     """What every job shows."""
 
@@ -61,10 +72,17 @@ class JobStatus(JobPublic):
 
     stage: str | None = Field(None, description="masks, retrieval, phase1..3, render, export.")
     progress: float = Field(0.0, ge=0.0, le=1.0)
-    eta_s: float | None = Field(None, description="Expected seconds left.")
+    eta_s: float | None = Field(
+        None, description="Expected seconds left; for a queued job, until it is done (the wait "
+        "included). Null while no estimate exists (no job of the preset measured yet).")
+    queue_position: int | None = Field(
+        None, ge=0, description="Queued jobs ahead of this one (0 = next); null unless queued.")
     started_at: float | None = None
     finished_at: float | None = None
     error: str | None = None
+    error_detail: ErrorDetail | None = Field(
+        None, description="Why the job failed, shaped like an error body's `error` (code, "
+        "message, photo as uploaded, field, hint); null unless failed.")
 
 
 class JobList(BaseModel):
@@ -107,16 +125,6 @@ class JobResult(BaseModel):
     discarded: list[str]
     metrics: dict[str, Any]
     artifacts: dict[str, str] = Field(description="Artifact name -> download URL.")
-
-
-class ErrorDetail(BaseModel):
-    """What went wrong and what to do about it."""
-
-    code: str
-    message: str
-    field: str | None = None
-    photo: str | None = None
-    hint: str | None = None
 
 
 class ErrorBody(BaseModel):

@@ -46,6 +46,22 @@ class Settings(BaseSettings):
     """Per-file limit, enforced while the upload streams in."""
     max_total_mb: float = Field(150.0, gt=0, le=8192, description="Largest request (MiB).")
     """Limit on all files of one job together."""
+    upload_idle_timeout_s: float = Field(
+        30.0, gt=0, le=3600, description="An upload that sends nothing for this long gets 408.")
+    """Stalled clients lose their staging folder instead of holding it open indefinitely."""
+    upload_deadline_s: float = Field(
+        600.0, gt=0, le=86400, description="An upload not complete after this long gets 408.")
+    """Bounds a client that trickles bytes just often enough to dodge the idle limit. The full
+    default request limit (150 MiB) in 600 s needs about 256 KiB/s; a typical job (10 phone
+    photos, 30-50 MB) needs 50-90 KB/s, well within a weak mobile uplink."""
+    max_concurrent_uploads: int = Field(
+        8, ge=1, le=1000, description="Uploads received at once; more get 503 + Retry-After.")
+    """Bounds staging disk use (this times CADNERF_MAX_TOTAL_MB) and open files during uploads."""
+    max_connections: int = Field(
+        512, ge=0, le=100_000, description="uvicorn's limit_concurrency for `cadnerf serve`; "
+        "0: no limit.")
+    """Last resort beyond the upload cap: with this many connections or requests open, uvicorn
+    answers new requests with a plain-text 503. Below the common 1024 open-file limit."""
     max_megapixels: float = Field(40.0, gt=0, le=500, description="Largest photo (megapixels).")
     """Read from the image header; guards against decompression bombs."""
     min_side_px: int = Field(64, ge=1, le=4096, description="Smallest photo side (pixels).")
@@ -91,6 +107,11 @@ class Settings(BaseSettings):
             raise ValueError("CADNERF_MAX_FILE_MB must not exceed CADNERF_MAX_TOTAL_MB")
         if self.job_hard_time_limit_s <= self.job_soft_time_limit_s:
             raise ValueError("CADNERF_JOB_HARD_TIME_LIMIT_S must exceed the soft limit")
+        if self.upload_deadline_s <= self.upload_idle_timeout_s:
+            raise ValueError("CADNERF_UPLOAD_DEADLINE_S must exceed CADNERF_UPLOAD_IDLE_TIMEOUT_S")
+        if 0 < self.max_connections <= self.max_concurrent_uploads:
+            raise ValueError("CADNERF_MAX_CONNECTIONS must exceed CADNERF_MAX_CONCURRENT_UPLOADS "
+                             "(or be 0)")
         return self
 
     @property

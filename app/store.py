@@ -13,7 +13,8 @@ import os
 import re
 import shutil
 import time
-from collections.abc import Iterable, Iterator
+from collections.abc import Iterable, Iterator, Mapping, Sequence
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -21,7 +22,7 @@ import redis
 import redis.asyncio as aioredis
 from pydantic import BaseModel, Field, ValidationError
 
-from app.schemas import JobState
+from app.schemas import ErrorDetail, JobState
 
 log = logging.getLogger(__name__)
 
@@ -31,6 +32,8 @@ TMP_PREFIX = ".upload-"
 PREFIX = "cadnerf"
 ANON_OWNER = "-"
 RUNNING_KEY = f"{PREFIX}:running"  # ids of jobs in state running
+QUEUE_KEY = f"{PREFIX}:queue"  # sorted set: ids of queued jobs, scored by enqueue time
+WORKERS_KEY = f"{PREFIX}:workers"  # sorted set: worker name -> expiry (Redis server time)
 TOMBSTONE_TTL_S = 7 * 24 * 3600
 
 # Conditional HSET: only while the job exists and (when ARGV[1] is not empty) is in one of the
@@ -65,6 +68,7 @@ class JobRecord(BaseModel):
     progress: float = 0.0
     eta_s: float | None = None
     error: str | None = None
+    error_detail: ErrorDetail | None = None  # the failure, structured like an API error body
     webhook_url: str | None = None
     worker: str | None = None  # heartbeat name of the worker running it (while running)
     attempts: int = 0  # times it was queued again after its worker died
@@ -78,6 +82,8 @@ class JobRecord(BaseModel):
         """Inverse of ``to_hash``."""
         data: dict[str, Any] = {k: (None if v == "" else v) for k, v in raw.items()}
         data["names"] = json.loads(data.get("names") or "[]")
+        if data.get("error_detail") is not None:
+            data["error_detail"] = json.loads(data["error_detail"])
         if data.get("progress") is None:
             data["progress"] = 0.0
         return cls.model_validate(data)
@@ -88,6 +94,8 @@ def _encode(fields: dict[str, Any]) -> dict[str, str]:
     for key, value in fields.items():
         if value is None:
             out[key] = ""
+        elif isinstance(value, BaseModel):
+            out[key] = value.model_dump_json(exclude_none=True)
         elif isinstance(value, list | dict):
             out[key] = json.dumps(value)
         else:
@@ -97,6 +105,154 @@ def _encode(fields: dict[str, Any]) -> dict[str, str]:
 
 def _mapping(record: JobRecord) -> dict[Any, Any]:
     return record.to_hash()
+
+
+# --- expected job times and the queue -------------------------------------------------------
+# Starting estimates in seconds on two CPU cores, before a worker has measured its own jobs
+# (its measurements replace them after the first job of a preset; the speed observed during a
+# job rescales the rest). Proportions from a measured `preview` job on 2 shared cores (load ~6):
+# masks + retrieval 10 s, phase1 155 s, phase2 583 s; the table assumes an idle machine (~1/3).
+# Here (not in the worker) because the API estimates the wait of queued jobs from them too.
+DEFAULT_STAGE_SECONDS: dict[str, dict[str, float]] = {
+    "test": {"masks": 0.5, "retrieval": 0.5, "phase1": 0.5, "phase2": 1.0, "phase3": 1.0,
+             "render": 0.5, "export": 1.0},
+    "preview": {"masks": 3, "retrieval": 3, "phase1": 50, "phase2": 190, "phase3": 480,
+                "render": 30, "export": 20},
+    "standard": {"masks": 4, "retrieval": 4, "phase1": 250, "phase2": 1500, "phase3": 4000,
+                 "render": 120, "export": 90},
+    "paper": {"masks": 3, "retrieval": 3, "phase1": 300, "phase2": 5000, "phase3": 15000,
+              "render": 200, "export": 200},
+}
+HISTORY_DEVICES = ("cuda", "cpu")  # where to look for measured times when the device is "auto"
+
+
+def stage_times_key(preset: str, device: str) -> str:
+    """Redis hash of measured seconds per stage for one preset on one kind of device.
+
+    ``QUEUE_LUA`` builds the same key from ``PREFIX``.
+    """
+    return f"{PREFIX}:stage_seconds:{preset}:{device}"
+
+
+def stage_table(preset: str, measured: Mapping[str, str | float]) -> dict[str, float]:
+    """Expected seconds per stage: the measured values where known, else the default table."""
+    table = dict(DEFAULT_STAGE_SECONDS.get(preset, DEFAULT_STAGE_SECONDS["standard"]))
+    for stage, seconds in measured.items():
+        if stage in table:
+            table[stage] = max(float(seconds), 1e-3)
+    return table
+
+
+def expected_job_seconds(preset: str, measured: Mapping[str, str | float]) -> float | None:
+    """Expected seconds of a whole job of ``preset``; None while no job of it was measured."""
+    if not measured:
+        return None
+    return sum(stage_table(preset, measured).values())
+
+
+def history_devices(device: str) -> tuple[str, ...]:
+    """The devices whose measured times apply to workers configured with ``device``."""
+    return HISTORY_DEVICES if device == "auto" else (device,)
+
+
+# Place of a queued job and what is ahead of it, read in one call. Entries of the queue order
+# whose job is no longer queued (a stale entry) are skipped. Returns false when the job is not in
+# the queue, else {own preset, presets of the queued jobs ahead, running jobs as flat
+# (preset, eta_s) pairs, live workers, measured stage times as flat (preset, flat hash) pairs}.
+QUEUE_LUA = """
+local rank = redis.call('zrank', KEYS[1], ARGV[1])
+if not rank then return false end
+local prefix = ARGV[2]
+local function job(id, ...) return redis.call('hmget', prefix .. ':job:' .. id, ...) end
+local own = job(ARGV[1], 'state', 'preset')
+if own[1] ~= 'queued' or not own[2] then return false end
+local presets, seen = {}, {}
+local function want(p)
+  if not seen[p] then seen[p] = true; presets[#presets + 1] = p end
+end
+want(own[2])
+local ahead = {}
+if rank > 0 then
+  for _, id in ipairs(redis.call('zrange', KEYS[1], 0, rank - 1)) do
+    local h = job(id, 'state', 'preset')
+    if h[1] == 'queued' and h[2] then ahead[#ahead + 1] = h[2]; want(h[2]) end
+  end
+end
+local running = {}
+for _, id in ipairs(redis.call('smembers', KEYS[3])) do
+  local h = job(id, 'state', 'preset', 'eta_s')
+  if h[1] == 'running' and h[2] then
+    running[#running + 1] = h[2]; running[#running + 1] = h[3] or ''; want(h[2])
+  end
+end
+local history = {}
+for _, p in ipairs(presets) do
+  local found = {}
+  for i = 3, #ARGV do
+    found = redis.call('hgetall', prefix .. ':stage_seconds:' .. p .. ':' .. ARGV[i])
+    if #found > 0 then break end
+  end
+  history[#history + 1] = p
+  history[#history + 1] = found
+end
+local t = redis.call('time')
+local workers = redis.call('zcount', KEYS[2], tonumber(t[1]) + tonumber(t[2]) / 1e6, '+inf')
+return {own[2], ahead, running, workers, history}
+"""
+
+
+def _text(value: Any) -> str:
+    return value.decode() if isinstance(value, bytes) else str(value)
+
+
+@dataclass(frozen=True)
+class QueueEstimate:
+    """Where a queued job stands.
+
+    ``position``: queued jobs ahead of it (0 = next). ``eta_s``: expected seconds until it is
+    done = (seconds left of the running jobs + expected seconds of the queued jobs ahead) /
+    live workers (at least 1) + its own expected seconds; None while a preset involved has no
+    measured job times yet.
+    """
+
+    position: int
+    eta_s: float | None
+    workers: int
+
+    @classmethod
+    def from_reply(cls, raw: Any) -> QueueEstimate | None:
+        """Parse the reply of ``QUEUE_LUA`` (None: the job is not queued)."""
+        if not raw:
+            return None
+        own, ahead, running, workers, history = raw
+        expected: dict[str, float | None] = {}
+        for i in range(0, len(history), 2):
+            flat = [_text(v) for v in history[i + 1]]
+            preset = _text(history[i])
+            expected[preset] = expected_job_seconds(preset, dict(zip(flat[::2], flat[1::2],
+                                                                     strict=True)))
+        ahead = [_text(p) for p in ahead]
+        backlog: list[float | None] = [expected.get(p) for p in ahead]
+        for i in range(0, len(running), 2):
+            left = _text(running[i + 1])
+            backlog.append(float(left) if left else expected.get(_text(running[i])))
+        own_s = expected.get(_text(own))
+        n_workers = int(workers)
+        eta = None
+        if own_s is not None and all(b is not None for b in backlog):
+            eta = round(sum(b for b in backlog if b is not None) / max(n_workers, 1) + own_s, 1)
+        return cls(position=len(ahead), eta_s=eta, workers=n_workers)
+
+
+_QUEUE_KEYS = [QUEUE_KEY, WORKERS_KEY, RUNNING_KEY]
+
+
+async def queue_estimate_async(client: aioredis.Redis, job_id: str,
+                               devices: Sequence[str] = HISTORY_DEVICES) -> QueueEstimate | None:
+    """``JobStore.queue_estimate`` on an asyncio client (the status hot path): one call."""
+    script = client.register_script(QUEUE_LUA)
+    raw = await script(keys=_QUEUE_KEYS, args=[job_id, PREFIX, *devices])
+    return QueueEstimate.from_reply(raw)
 
 
 def is_job_id(value: str) -> bool:
@@ -130,6 +286,7 @@ class JobStore:
         self.r = client
         self.data_root = Path(data_root)
         self._update = self.r.register_script(_UPDATE_LUA)
+        self._queue = self.r.register_script(QUEUE_LUA)
 
     # --- keys and paths -------------------------------------------------------------------
     @staticmethod
@@ -160,10 +317,15 @@ class JobStore:
 
     # --- records --------------------------------------------------------------------------
     def create(self, record: JobRecord) -> None:
-        """Store a new job (its folder must already exist) and mirror it to state.json."""
+        """Store a new job (its folder must already exist) and mirror it to state.json.
+
+        A queued job also joins the queue order (``QUEUE_KEY``) in the same transaction.
+        """
         pipe = self.r.pipeline()
         pipe.hset(self.job_key(record.id), mapping=_mapping(record))
         pipe.zadd(self.index_key(record.owner), {record.id: record.created_at})
+        if record.state == JobState.queued:
+            pipe.zadd(QUEUE_KEY, {record.id: record.created_at})
         pipe.execute()
         self.write_state_file(record)
 
@@ -186,6 +348,8 @@ class JobStore:
         pipe.zadd(self.index_key(record.owner), {record.id: record.created_at})
         if record.state == JobState.running:  # scanned for a dead worker (app.recovery)
             pipe.sadd(RUNNING_KEY, record.id)
+        if record.state == JobState.queued:  # its place in the queue, as near as we know
+            pipe.zadd(QUEUE_KEY, {record.id: record.created_at}, nx=True)
         pipe.execute()
         log.info("re-seeded job %s from state.json", record.id)
 
@@ -225,8 +389,40 @@ class JobStore:
         pipe.set(self.deleted_key(record.id), "1", ex=TOMBSTONE_TTL_S)
         pipe.zrem(self.index_key(record.owner), record.id)
         pipe.srem(RUNNING_KEY, record.id)
+        pipe.zrem(QUEUE_KEY, record.id)
         pipe.execute()
         shutil.rmtree(self.job_dir(record.id), ignore_errors=True)
+
+    # --- queue order ----------------------------------------------------------------------
+    def join_queue(self, job_id: str, at: float | None = None) -> None:
+        """Put a job (back) at the end of the queue order (e.g. a re-queued orphan)."""
+        self.r.zadd(QUEUE_KEY, {job_id: time.time() if at is None else at})
+
+    def leave_queue(self, job_id: str) -> None:
+        """Take a job out of the queue order (it started, or ended before starting)."""
+        self.r.zrem(QUEUE_KEY, job_id)
+
+    def queue_estimate(self, job_id: str,
+                       devices: Sequence[str] = HISTORY_DEVICES) -> QueueEstimate | None:
+        """Place and expected wait of a queued job (one Redis call); None when not queued."""
+        raw = self._queue(keys=_QUEUE_KEYS, args=[job_id, PREFIX, *devices])
+        return QueueEstimate.from_reply(raw)
+
+    def queue_estimates(self, job_ids: Sequence[str],
+                        devices: Sequence[str] = HISTORY_DEVICES
+                        ) -> dict[str, QueueEstimate]:
+        """``queue_estimate`` of several jobs in one round trip (jobs not queued are left out)."""
+        if not job_ids:
+            return {}
+        pipe = self.r.pipeline(transaction=False)
+        for job_id in job_ids:
+            self._queue(keys=_QUEUE_KEYS, args=[job_id, PREFIX, *devices], client=pipe)
+        out = {}
+        for job_id, raw in zip(job_ids, pipe.execute(), strict=True):
+            estimate = QueueEstimate.from_reply(raw)
+            if estimate is not None:
+                out[job_id] = estimate
+        return out
 
     # --- cancel flag ----------------------------------------------------------------------
     def request_cancel(self, job_id: str) -> None:
@@ -292,8 +488,6 @@ class JobStore:
 
 
 # --- worker heartbeats ----------------------------------------------------------------------
-WORKERS_KEY = f"{PREFIX}:workers"  # sorted set: worker name -> expiry (Redis server time)
-
 # Both scripts read Redis's own clock, so workers and API hosts need not agree on the time.
 _BEAT_LUA = """
 local t = redis.call('time')

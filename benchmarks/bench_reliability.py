@@ -175,6 +175,8 @@ def _section(figures: dict[str, Any], quick: bool) -> str:
         "| check | figure |", "| --- | --- |",
         f"| load: clients / requests / error answers | {load['clients']} / {load['requests']} / "
         f"{load['n_errors']} |",
+        f"| load: busy answers (503 `too_many_uploads`, retried after `Retry-After`) | "
+        f"{load['busy_answers']} |",
         f"| load: jobs submitted / lost / duplicated | {load['submitted']} / "
         f"{len(load['lost'])} / {len(load['duplicated'])} |",
         f"| load: start-order violations | {len(load['order_violations'])} |",

@@ -57,8 +57,11 @@ def serve(host: str = typer.Option("127.0.0.1", help="Address to listen on."),
             threading.Thread(target=_demo_when_ready, args=(f"http://{client_host}:{port}",
                                                             demo_preset), daemon=True).start()
         # uvicorn handles the signals while it runs, then re-raises them: our handler turns
-        # that into SystemExit, which runs the clean-up below.
-        uvicorn.run(create_app(settings), host=host, port=port, log_level="info")
+        # that into SystemExit, which runs the clean-up below. limit_concurrency is the last
+        # resort on open connections; upload time limits and the upload cap live in the app
+        # (app.multipart), since uvicorn has no request-body timeout.
+        uvicorn.run(create_app(settings), host=host, port=port, log_level="info",
+                    limit_concurrency=settings.max_connections or None)
     finally:
         _stop_backends(supervisor, embedded)
 

@@ -3,7 +3,8 @@
 The fraction done weights each stage by its expected duration; the ETA starts from a per-preset
 table of expected seconds per stage, is replaced by the durations workers measured for earlier
 jobs (kept in Redis per preset and device), and is refined by the observed rate of the stage
-being run.
+being run. The default table and the measured-times keys live in ``app.store``: the API
+estimates the wait of queued jobs from them too.
 """
 
 from __future__ import annotations
@@ -16,45 +17,24 @@ from typing import Any
 
 import redis
 
-from app.store import PREFIX, JobStore
+from app.store import DEFAULT_STAGE_SECONDS, JobStore, stage_table, stage_times_key
 
 log = logging.getLogger(__name__)
 
 STAGES = ("masks", "retrieval", "phase1", "phase2", "phase3", "render", "export")
-
-# Starting estimates in seconds on two CPU cores, before a worker has measured its own jobs
-# (its measurements replace them after the first job of a preset; the speed observed during a
-# job rescales the rest). Proportions from a measured `preview` job on 2 shared cores (load ~6):
-# masks + retrieval 10 s, phase1 155 s, phase2 583 s; the table assumes an idle machine (~1/3).
-DEFAULT_STAGE_SECONDS: dict[str, dict[str, float]] = {
-    "test": {"masks": 0.5, "retrieval": 0.5, "phase1": 0.5, "phase2": 1.0, "phase3": 1.0,
-             "render": 0.5, "export": 1.0},
-    "preview": {"masks": 3, "retrieval": 3, "phase1": 50, "phase2": 190, "phase3": 480,
-                "render": 30, "export": 20},
-    "standard": {"masks": 4, "retrieval": 4, "phase1": 250, "phase2": 1500, "phase3": 4000,
-                 "render": 120, "export": 90},
-    "paper": {"masks": 3, "retrieval": 3, "phase1": 300, "phase2": 5000, "phase3": 15000,
-              "render": 200, "export": 200},
-}
 MEASURED_WEIGHT = 0.5  # exponential moving average of measured stage durations
 
-
-def stage_times_key(preset: str, device: str) -> str:
-    """Redis hash of measured seconds per stage for one preset on one kind of device."""
-    return f"{PREFIX}:stage_seconds:{preset}:{device}"
+__all__ = ["DEFAULT_STAGE_SECONDS", "MEASURED_WEIGHT", "STAGES", "EtaModel", "JobProgress",
+           "expected_stage_seconds", "record_stage_seconds", "stage_times_key"]
 
 
 def expected_stage_seconds(client: redis.Redis, preset: str, device: str) -> dict[str, float]:
     """Expected seconds per stage: measured values where known, else the default table."""
-    table = dict(DEFAULT_STAGE_SECONDS.get(preset, DEFAULT_STAGE_SECONDS["standard"]))
     try:
         measured = client.hgetall(stage_times_key(preset, device))
     except redis.RedisError:
         measured = {}
-    for stage, seconds in measured.items():  # type: ignore[union-attr]
-        if stage in table:
-            table[stage] = max(float(seconds), 1e-3)
-    return table
+    return stage_table(preset, measured)  # type: ignore[arg-type]
 
 
 def record_stage_seconds(client: redis.Redis, preset: str, device: str,

@@ -5,18 +5,19 @@ from __future__ import annotations
 import errno
 import logging
 import os
+import re
 import socket
 import threading
 import time
 from collections.abc import Callable
 from functools import lru_cache
-from pathlib import Path
+from pathlib import Path, PurePath
 from typing import TYPE_CHECKING, Any, Protocol
 
 import redis
 
 from app import recovery
-from app.schemas import JobState
+from app.schemas import ErrorDetail, JobState
 from app.settings import Settings
 from app.store import JobRecord, JobStore
 from worker.progress import EtaModel, JobProgress, expected_stage_seconds, record_stage_seconds
@@ -28,6 +29,11 @@ if TYPE_CHECKING:
 log = logging.getLogger(__name__)
 
 FINISH_RETRY_S = 30.0  # how long the final state is retried while Redis is away
+STORED_PHOTO_RE = re.compile(r"^(\d{3})_")  # stored names are NNN_<name> (app.uploads.lay_out)
+UPLOAD_FIELDS = {"inputs": "images", "masks": "masks", "config.json": "config"}  # folder -> form
+TIME_LIMIT_HINT = "choose a faster preset, or ask the operator for a longer time limit"
+
+Outcome = tuple[JobState, str | None, ErrorDetail | None]  # final state, error, error detail
 
 
 @lru_cache(maxsize=2)
@@ -117,16 +123,19 @@ def _execute_claimed(job_id: str, settings: Settings, store: JobStore,
         return _finish(store, settings, record, JobState.cancelled, None)
     started = record.started_at or time.time()
     if not store.update(job_id, allowed_from=(JobState.queued, JobState.running),
-                        state=JobState.running, started_at=started, error=None, worker=worker):
+                        state=JobState.running, started_at=started, error=None,
+                        error_detail=None, worker=worker):
+        store.leave_queue(job_id)  # cancelled or deleted meanwhile: not waiting any more
         return {"id": job_id, "state": "skipped", "error": None}
     recovery.mark_running(store.r, job_id, True)
+    store.leave_queue(job_id)  # after joining the running set: always counted ahead of others
     store.mirror(job_id)
-    state, error = _run(record, settings, store, started, celery_update)
-    return _finish(store, settings, record, state, error)
+    state, error, detail = _run(record, settings, store, started, celery_update)
+    return _finish(store, settings, record, state, error, detail=detail)
 
 
 def _run(record: JobRecord, settings: Settings, store: JobStore, started: float,
-         celery_update: Callable[[dict[str, Any]], None] | None) -> tuple[JobState, str | None]:
+         celery_update: Callable[[dict[str, Any]], None] | None) -> Outcome:
     from cadnerf_core.errors import CadNerfError, InputError, JobCancelled, LibraryError
     from cadnerf_core.pipeline import run_job
     from cadnerf_core.progress import Progress
@@ -141,17 +150,28 @@ def _run(record: JobRecord, settings: Settings, store: JobStore, started: float,
                 Progress(adapter, adapter.cancelled), settings.device)
     except JobCancelled:
         if adapter.timed_out:
-            return JobState.failed, (f"the job ran past its time limit of "
-                                     f"{settings.job_soft_time_limit_s} s")
-        return JobState.cancelled, None
-    except (InputError, LibraryError, CadNerfError) as exc:
-        return JobState.failed, str(exc)
+            message = f"the job ran past its time limit of {settings.job_soft_time_limit_s} s"
+            return JobState.failed, message, ErrorDetail(code="time_limit", message=message,
+                                                         hint=TIME_LIMIT_HINT)
+        return JobState.cancelled, None, None
+    except InputError as exc:
+        error, detail = input_error(str(exc), exc.item, exc.hint, record,
+                                    store.job_dir(record.id))
+        return JobState.failed, error, detail
+    except LibraryError as exc:
+        return JobState.failed, str(exc), ErrorDetail(code="library_error", message=str(exc),
+                                                      hint="the operator has to check the library")
+    except CadNerfError as exc:
+        return JobState.failed, str(exc), ErrorDetail(code="job_failed", message=str(exc))
     except OSError as exc:
         log.exception("job %s: storage error", record.id)
-        return JobState.failed, _storage_message(exc, store.job_dir(record.id))
+        detail = _storage_detail(exc, store.job_dir(record.id))
+        return JobState.failed, _storage_message(exc, store.job_dir(record.id)), detail
     except Exception as exc:
         log.exception("job %s failed", record.id)
-        return JobState.failed, f"internal error ({type(exc).__name__}); see the worker log"
+        message = f"internal error ({type(exc).__name__})"
+        return JobState.failed, f"{message}; see the worker log", ErrorDetail(
+            code="internal", message=message, hint="the error was logged in the worker log")
     finally:
         watchdog.cancel()
     if eta.stage is not None:
@@ -160,11 +180,62 @@ def _run(record: JobRecord, settings: Settings, store: JobStore, started: float,
         record_stage_seconds(store.r, record.preset, device, eta.durations)
     except redis.RedisError as exc:  # only the ETA of later jobs suffers
         log.warning("could not record stage times: %s", exc)
-    return JobState.succeeded, None
+    return JobState.succeeded, None, None
 
 
-def _storage_message(exc: OSError, folder: Path) -> str:
-    """What the user reads when the job folder cannot be written (no server path beyond it)."""
+def uploaded_name(item: str, record: JobRecord) -> str | None:
+    """The name a photo was uploaded under, from its stored name ``NNN_<name>`` (or a path to
+    it); None when ``item`` names no stored photo of the job."""
+    match = STORED_PHOTO_RE.match(PurePath(item).name)
+    if match is None or int(match.group(1)) >= len(record.names):
+        return None
+    return record.names[int(match.group(1))]
+
+
+def input_error(text: str, item: str | None, hint: str | None, record: JobRecord,
+                folder: Path) -> tuple[str, ErrorDetail]:
+    """The error string and the structured detail of a core ``InputError``.
+
+    The photo is named as the user uploaded it (not by its stored name), an input of the job
+    folder by its form field (``images``, ``masks``, ``config``), and no server path is shown.
+
+    Args:
+        text: ``str(exc)``: ``"<item>: <message> (<hint>)"``.
+        item: ``exc.item``: a stored photo's name, a path, or a field.
+        hint: ``exc.hint``.
+        record: the job (its ``names`` are the uploaded photo names, in order).
+        folder: the job folder.
+    """
+    message = text
+    if item and message.startswith(f"{item}: "):
+        message = message[len(item) + 2:]
+    if hint and message.endswith(f" ({hint})"):
+        message = message[:-len(hint) - 3]
+    photo = field = label = None
+    if item:
+        photo = uploaded_name(item, record)
+        label = photo or _job_relative(item, folder)
+        if photo is None:
+            field = UPLOAD_FIELDS.get(PurePath(label).parts[0]) if label else None
+    detail = ErrorDetail(code="unusable_input", message=message, field=field, photo=photo,
+                         hint=hint)
+    error = f"{label}: {message}" if label else message
+    return (f"{error} ({hint})" if hint else error), detail
+
+
+def _job_relative(item: str, folder: Path) -> str:
+    """``item`` as a path inside the job folder, or only its name when it is elsewhere."""
+    path = PurePath(item)
+    if not path.is_absolute():
+        return item
+    try:
+        return str(path.relative_to(folder)) if path != PurePath(folder) else ""
+    except ValueError:
+        return path.name
+
+
+def _storage_parts(exc: OSError, folder: Path) -> tuple[str, str, bool]:
+    """(message, hint, disk full) when the job folder cannot be written (no server path)."""
     where = "the job folder"
     if exc.filename:
         try:
@@ -174,7 +245,20 @@ def _storage_message(exc: OSError, folder: Path) -> str:
     reason = exc.strerror or type(exc).__name__
     full = exc.errno in (errno.ENOSPC, errno.EDQUOT)
     hint = "the server's disk is full" if full else "check the storage of the job folders"
-    return f"the job folder cannot be written: {reason} ({where}); {hint}"
+    return f"the job folder cannot be written: {reason} ({where})", hint, full
+
+
+def _storage_message(exc: OSError, folder: Path) -> str:
+    """What the user reads when the job folder cannot be written (no server path beyond it)."""
+    message, hint, _ = _storage_parts(exc, folder)
+    return f"{message}; {hint}"
+
+
+def _storage_detail(exc: OSError, folder: Path) -> ErrorDetail:
+    """``_storage_message`` as an error detail (``storage_full`` or ``storage_error``)."""
+    message, hint, full = _storage_parts(exc, folder)
+    return ErrorDetail(code="storage_full" if full else "storage_error", message=message,
+                       hint=hint)
 
 
 def _hard_limit_watchdog(store: JobStore, job_id: str, limit_s: float) -> threading.Timer:
@@ -185,9 +269,11 @@ def _hard_limit_watchdog(store: JobStore, job_id: str, limit_s: float) -> thread
     """
     def expire() -> None:
         log.error("job %s passed the hard time limit (%s s); exiting", job_id, limit_s)
+        message = f"the job passed the hard time limit of {limit_s:.0f} s"
         try:
-            store.update(job_id, state=JobState.failed, finished_at=time.time(),
-                         error=f"the job passed the hard time limit of {limit_s:.0f} s")
+            store.update(job_id, state=JobState.failed, finished_at=time.time(), error=message,
+                         error_detail=ErrorDetail(code="time_limit", message=message,
+                                                  hint=TIME_LIMIT_HINT))
             store.mirror(job_id)
         finally:
             os._exit(70)
@@ -199,11 +285,13 @@ def _hard_limit_watchdog(store: JobStore, job_id: str, limit_s: float) -> thread
 
 
 def _finish(store: JobStore, settings: Settings, record: JobRecord, state: JobState,
-            error: str | None, redis_wait_s: float = FINISH_RETRY_S) -> dict[str, Any]:
+            error: str | None, redis_wait_s: float = FINISH_RETRY_S,
+            detail: ErrorDetail | None = None) -> dict[str, Any]:
     """Write the final state: state.json first (it survives Redis), then Redis, retried for
-    ``redis_wait_s`` (after that the API re-seeds it from state.json)."""
+    ``redis_wait_s`` (after that the API re-seeds it from state.json). The job leaves the queue
+    order (it may end without starting, e.g. cancelled)."""
     fields: dict[str, Any] = {"state": state, "finished_at": time.time(), "error": error,
-                              "worker": None}
+                              "error_detail": detail, "worker": None}
     if state == JobState.succeeded:
         fields.update(progress=1.0, eta_s=0.0)
     else:
@@ -214,6 +302,8 @@ def _finish(store: JobStore, settings: Settings, record: JobRecord, state: JobSt
     log.info("job %s %s%s", record.id, state.value, f": {error}" if error else "")
     if record.webhook_url and (in_redis or store.job_dir(record.id).is_dir()):
         payload = {"id": record.id, "state": state.value, "error": error,
+                   "error_detail": (None if detail is None
+                                    else detail.model_dump(mode="json", exclude_none=True)),
                    "finished_at": fields["finished_at"], "status_url": f"/v1/jobs/{record.id}",
                    "result_url": f"/v1/jobs/{record.id}/result"}
         send_webhook(record.webhook_url, payload, settings.webhook_secret,
@@ -248,6 +338,7 @@ def _update_redis(store: JobStore, final: JobRecord, fields: dict[str, Any],
                     return False
                 store.reseed(final)
             recovery.mark_running(store.r, final.id, False)
+            store.leave_queue(final.id)
             return True
         except redis.RedisError as exc:
             if time.monotonic() + delay > deadline:

@@ -2,8 +2,17 @@
 "use strict";
 
 const $ = (id) => document.getElementById(id);
-const state = { photos: [], dragFrom: null, jobId: null, timer: null, objectUrls: [] };
+const state = {
+  photos: [], dragFrom: null, jobId: null, timer: null, objectUrls: [], info: null,
+  pollSeq: 0, failures: 0, failingSince: null, stoppedForAuth: false,
+};
 const SVG_NS = "http://www.w3.org/2000/svg";
+const POLL_MS = 1000;                // normal polling interval
+const MAX_BACKOFF_S = 30;            // longest wait between retries after failures
+const GIVE_UP_MS = 5 * 60 * 1000;    // stop retrying after this long without a good answer
+const MIB = 2 ** 20;
+const PHOTO_TYPES = /^image\/(jpeg|png|webp)$/;
+const PHOTO_EXTENSIONS = /\.(jpe?g|png|webp)$/i;
 
 function apiKey() { return $("api-key").value.trim(); }
 
@@ -12,31 +21,132 @@ function authHeaders() {
   return key ? { Authorization: `Bearer ${key}` } : {};
 }
 
+function networkError(cause) {
+  // A request that got no usable answer (offline, server restarting, proxy cut the connection).
+  return Object.assign(new Error("the server cannot be reached"), { network: true, cause });
+}
+
+function retryAfterSeconds(value) {
+  // `Retry-After` is either a number of seconds or an HTTP date.
+  if (!value) return null;
+  const seconds = /^\s*\d+\s*$/.test(value) ? Number(value) : (Date.parse(value) - Date.now()) / 1000;
+  return Number.isFinite(seconds) ? Math.max(0, seconds) : null;
+}
+
+function httpError(status, statusText, body, retryAfter) {
+  // The service's JSON error body {"error": {message, field/photo, hint}} as one line.
+  const err = body?.error || { message: statusText || `HTTP ${status}` };
+  const where = err.photo || err.field;
+  const text = `${where ? where + ": " : ""}${err.message}${err.hint ? " (" + err.hint + ")" : ""}`;
+  return Object.assign(new Error(text), { status, retryAfter: retryAfterSeconds(retryAfter) });
+}
+
 async function api(path, options = {}) {
-  const response = await fetch(path, { ...options, headers: { ...authHeaders(), ...(options.headers || {}) } });
-  const body = response.headers.get("content-type")?.includes("json") ? await response.json() : null;
+  let response, body;
+  try {
+    response = await fetch(path, { ...options, headers: { ...authHeaders(), ...(options.headers || {}) } });
+    body = response.headers.get("content-type")?.includes("json") ? await response.json() : null;
+  } catch (cause) {
+    throw networkError(cause);  // fetch's TypeError, or a body cut off mid-way
+  }
   if (!response.ok) {
-    const err = body?.error || { message: response.statusText };
-    const where = err.photo || err.field;
-    const text = `${where ? where + ": " : ""}${err.message}${err.hint ? " (" + err.hint + ")" : ""}`;
-    throw Object.assign(new Error(text), { status: response.status });
+    throw httpError(response.status, response.statusText, body, response.headers.get("retry-after"));
   }
   return body;
 }
 
+function upload(path, form, onProgress) {
+  // POST a FormData like api(), but with XMLHttpRequest: fetch cannot report upload progress.
+  return new Promise((resolve, reject) => {
+    const xhr = new XMLHttpRequest();
+    xhr.open("POST", path);
+    for (const [name, value] of Object.entries(authHeaders())) xhr.setRequestHeader(name, value);
+    xhr.upload.addEventListener("progress", (event) => {
+      if (event.lengthComputable && event.total > 0) onProgress(event.loaded / event.total);
+    });
+    xhr.upload.addEventListener("load", () => onProgress(1));
+    xhr.addEventListener("load", () => {
+      onProgress(1);  // an answer means the body was sent (or refused early)
+      let body = null;
+      if (xhr.getResponseHeader("content-type")?.includes("json")) {
+        try { body = JSON.parse(xhr.responseText); } catch (cause) { reject(networkError(cause)); return; }
+      }
+      if (xhr.status >= 200 && xhr.status < 300) resolve(body);
+      else reject(httpError(xhr.status, xhr.statusText, body, xhr.getResponseHeader("retry-after")));
+    });
+    xhr.addEventListener("error", () => reject(networkError()));
+    xhr.addEventListener("timeout", () => reject(networkError()));
+    xhr.addEventListener("abort", () => reject(networkError()));
+    xhr.send(form);
+  });
+}
+
 function showError(id, text) {
   const el = $(id);
+  el.classList.remove("detailed");
   el.textContent = text || "";
   el.hidden = !text;
 }
 
 // --- photos: choose, drop, reorder ---------------------------------------------------------
+function isSupportedPhoto(file) {
+  // Some systems report no type at all: then trust the file name's extension.
+  return PHOTO_TYPES.test(file.type) || (!file.type && PHOTO_EXTENSIONS.test(file.name));
+}
+
 function addPhotos(files) {
+  const skipped = [];
   for (const file of files) {
-    if (!/^image\/(jpeg|png|webp)$/.test(file.type)) continue;
+    if (!isSupportedPhoto(file)) { skipped.push(file.name); continue; }
     state.photos.push({ file, url: URL.createObjectURL(file) });
   }
+  const note = $("skipped");
+  if (skipped.length) {
+    const what = skipped.length === 1 ? "1 file was" : `${skipped.length} files were`;
+    note.textContent = `${what} not added: ${skipped.join(", ")}. Only JPEG, PNG and WebP photos `
+      + "are accepted: save them as JPEG, PNG or WebP (e.g. iPhone HEIC photos: export or share "
+      + "them as JPEG, or set Camera \u203a Formats to \u201cMost Compatible\u201d) and add them again.";
+  }
+  note.hidden = skipped.length === 0;
   renderThumbs();
+}
+
+function photoProblem() {
+  // What is wrong with the chosen photos for this server's limits (GET /v1/info), or "".
+  const info = state.info;
+  const count = state.photos.length;
+  if (!info) return "";
+  if (count < info.min_photos) {
+    return `${count} photo${count === 1 ? "" : "s"} chosen: add ${info.min_photos - count} more `
+      + `(${info.min_photos} to ${info.max_photos} photos are needed)`;
+  }
+  if (count > info.max_photos) {
+    return `${count} photos chosen: remove ${count - info.max_photos} `
+      + `(at most ${info.max_photos} photos per job)`;
+  }
+  const tooBig = state.photos.filter((p) => p.file.size > info.max_file_mb * MIB).map((p) => p.file.name);
+  if (tooBig.length) {
+    return `${tooBig.join(", ")}: larger than ${info.max_file_mb} MiB (save a smaller JPEG)`;
+  }
+  const files = [...state.photos.map((p) => p.file), ...$("masks").files];
+  const total = files.reduce((sum, file) => sum + file.size, 0);
+  if (total > info.max_total_mb * MIB) {
+    return `the photos and masks add up to ${(total / MIB).toFixed(1)} MiB; at most `
+      + `${info.max_total_mb} MiB can be sent (save smaller JPEGs)`;
+  }
+  return "";
+}
+
+function renderCount() {
+  const info = state.info;
+  const count = state.photos.length;
+  const problem = count ? photoProblem() : "";
+  let text = "";
+  if (problem) text = problem;
+  else if (count) text = `${count} photo${count === 1 ? "" : "s"} chosen`;
+  else if (info) text = `Choose ${info.min_photos} to ${info.max_photos} photos.`;
+  $("photo-count").textContent = text;
+  $("photo-count").classList.toggle("warning", Boolean(problem));
 }
 
 function renderThumbs() {
@@ -76,6 +186,7 @@ function renderThumbs() {
     list.append(item);
   });
   $("submit").disabled = state.photos.length === 0;
+  renderCount();
 }
 
 function setUpDropZone() {
@@ -90,68 +201,198 @@ function setUpDropZone() {
 }
 
 // --- submit and follow -----------------------------------------------------------------------
+function showUploadProgress(fraction) {
+  const percent = Math.round(100 * Math.min(1, Math.max(0, fraction)));
+  $("upload-progress").hidden = false;
+  $("upload-bar").value = percent;
+  $("upload-text").textContent = percent < 100 ? `Uploading\u2026 ${percent}%`
+    : "Uploaded 100%";
+}
+
 async function submitJob(event) {
   event.preventDefault();
   showError("form-error", "");
+  const problem = photoProblem();
+  if (problem) {
+    showError("form-error", problem);
+    return;
+  }
   const form = new FormData();
   state.photos.forEach((photo) => form.append("images", photo.file, photo.file.name));
   for (const mask of $("masks").files) form.append("masks", mask, mask.name);
   form.append("config", JSON.stringify({ preset: $("preset").value }));
   $("submit").disabled = true;
+  showUploadProgress(0);
   try {
-    const job = await api("/v1/jobs", { method: "POST", body: form });
+    const job = await upload("/v1/jobs", form, showUploadProgress);
     follow(job.id);
   } catch (err) {
-    showError("form-error", err.message);
+    $("upload-progress").hidden = true;
+    showError("form-error", err.network
+      ? "The upload did not reach the server (network error): check the connection and try again."
+      : err.message);
   } finally {
     $("submit").disabled = state.photos.length === 0;
   }
 }
 
+function stopPolling() {
+  clearTimeout(state.timer);
+  state.timer = null;
+  state.pollSeq += 1;  // answers of polls still in flight are ignored
+}
+
+function schedulePoll(delayMs) {
+  const seq = state.pollSeq;
+  clearTimeout(state.timer);
+  state.timer = setTimeout(() => poll(seq), delayMs);
+}
+
+function showNotice(text) {
+  const el = $("job-notice");
+  el.textContent = text || "";
+  el.hidden = !text;
+}
+
 function follow(jobId) {
+  stopPolling();
   state.jobId = jobId;
+  state.failures = 0;
+  state.failingSince = null;
+  state.stoppedForAuth = false;
   history.replaceState(null, "", `?job=${jobId}`);
   $("status").hidden = false;
   $("result").hidden = true;
   showError("job-error", "");
-  clearInterval(state.timer);
-  state.timer = setInterval(poll, 1000);
-  poll();
+  showNotice("");
+  poll(state.pollSeq);
 }
 
 function formatEta(seconds) {
-  if (seconds === null || seconds === undefined) return "";
-  if (seconds < 90) return `about ${Math.round(seconds)} s left`;
-  return `about ${Math.round(seconds / 60)} min left`;
+  // "about 40 s left", "about 3 min left", "about 2.5 h left"; "" when there is no estimate.
+  if (seconds === null || seconds === undefined || !Number.isFinite(seconds)) return "";
+  const s = Math.max(0, seconds);
+  if (s < 90) return `about ${Math.round(s)} s left`;
+  if (s < 90 * 60) return `about ${Math.round(s / 60)} min left`;
+  const hours = Math.round(s / 360) / 10;  // one decimal: 1.5 h, 12 h
+  return `about ${hours} h left`;
 }
 
-async function poll() {
-  let job;
-  try {
-    job = await api(`/v1/jobs/${state.jobId}`);
-  } catch (err) {
-    clearInterval(state.timer);
-    showError("job-error", err.message);
+function queueText(position) {
+  // Jobs ahead of this one in the queue (0 = it is next); "" when the server does not say.
+  if (position === null || position === undefined || !Number.isFinite(position)) return "";
+  if (position <= 0) return "starts next";
+  return `${position} job${position === 1 ? "" : "s"} ahead`;
+}
+
+function isTransient(err) {
+  // Worth retrying: no answer at all, a server-side failure (503 while Redis restarts), rate limits.
+  return Boolean(err.network) || err.status >= 500 || err.status === 408 || err.status === 429;
+}
+
+function pollFailed(err) {
+  if (!isTransient(err)) {
+    stopPolling();
+    showNotice("");
+    if (err.status === 401) {
+      state.stoppedForAuth = true;
+      document.querySelector("details").open = true;
+      showError("job-error", `Stopped following the job: ${err.message}. Enter the API key under `
+        + "\u201cOptional: masks, API key\u201d; following resumes when you change it.");
+    } else if (err.status === 403) {
+      showError("job-error", `Stopped following the job: this API key may not see it (${err.message}).`);
+    } else if (err.status === 404) {
+      showError("job-error", `Stopped following the job: it does not exist (any more): ${err.message}.`);
+    } else {
+      showError("job-error", `Stopped following the job: ${err.message}`);
+    }
     return;
   }
+  state.failures += 1;
+  state.failingSince ??= Date.now();
+  const reason = err.network ? "the server cannot be reached" : `the server answered ${err.status}`;
+  if (Date.now() - state.failingSince >= GIVE_UP_MS) {
+    stopPolling();
+    showNotice("");
+    const minutes = Math.round((Date.now() - state.failingSince) / 60000);
+    showError("job-error", `Lost contact with the server for ${minutes} min (${reason}: ${err.message}). `
+      + "The job itself may still be running: reload the page to look again.");
+    return;
+  }
+  const backoff = Math.min(MAX_BACKOFF_S, 2 ** state.failures);
+  const waitS = err.retryAfter !== null && err.retryAfter !== undefined
+    ? Math.min(Math.max(err.retryAfter, 1), 2 * MAX_BACKOFF_S) : backoff;
+  showNotice(`Reconnecting\u2026 ${reason}; trying again in ${Math.round(waitS)} s.`);
+  schedulePoll(waitS * 1000);
+}
+
+async function poll(seq) {
+  if (seq !== state.pollSeq) return;  // a newer follow() or a stop took over
+  try {
+    const job = await api(`/v1/jobs/${state.jobId}`);
+    if (seq !== state.pollSeq) return;
+    renderStatus(job);
+    const terminal = ["succeeded", "failed", "cancelled"].includes(job.state);
+    if (job.state === "succeeded") await showResult(job.id);  // may fail: then retried like a poll
+    if (seq !== state.pollSeq) return;
+    state.failures = 0;
+    state.failingSince = null;
+    showNotice("");
+    if (terminal) {
+      stopPolling();
+      $("cancel").hidden = true;
+      if (job.state === "failed" && job.error_detail) showFailure(job);
+      else if (job.state !== "succeeded") showError("job-error", job.error || `the job was ${job.state}`);
+    } else {
+      $("cancel").hidden = false;
+      schedulePoll(POLL_MS);
+    }
+  } catch (err) {
+    if (seq === state.pollSeq) pollFailed(err);
+  }
+}
+
+function renderStatus(job) {
   const percent = Math.round(100 * (job.progress || 0));
   $("bar-fill").style.width = `${percent}%`;
   document.querySelector(".bar").setAttribute("aria-valuenow", String(percent));
-  const parts = [job.state, job.stage, `${percent}%`, job.state === "running" ? formatEta(job.eta_s) : ""];
+  const parts = job.state === "queued"
+    ? [job.state, queueText(job.queue_position), formatEta(job.eta_s)]  // eta_s includes the wait
+    : [job.state, job.stage, `${percent}%`, job.state === "running" ? formatEta(job.eta_s) : ""];
   $("status-text").textContent = parts.filter(Boolean).join(" \u00b7 ");
-  if (["succeeded", "failed", "cancelled"].includes(job.state)) {
-    clearInterval(state.timer);
-    $("cancel").hidden = true;
-    if (job.state === "succeeded") await showResult(job.id);
-    else showError("job-error", job.error || `the job was ${job.state}`);
-  } else {
-    $("cancel").hidden = false;
+}
+
+function showFailure(job) {
+  // A failed job's error_detail: the photo (or field) in bold, the message, "What to do: hint".
+  // Built with textContent only: every string here comes from the server (photo = upload name).
+  const detail = job.error_detail;
+  const el = $("job-error");
+  el.replaceChildren();
+  const where = detail.photo || detail.field;
+  if (where) {
+    const name = document.createElement("strong");
+    name.className = "where";
+    name.textContent = where;
+    el.append(name, ": ");
   }
+  const message = document.createElement("span");
+  message.className = "message";
+  message.textContent = detail.message || job.error || "the job failed";
+  el.append(message);
+  if (detail.hint) {
+    const hint = document.createElement("span");
+    hint.className = "what-to-do";
+    hint.textContent = `What to do: ${detail.hint}`;
+    el.append(hint);
+  }
+  el.classList.add("detailed");
+  el.hidden = false;
 }
 
 async function cancelJob() {
   if (!state.jobId) return;
-  clearInterval(state.timer);
+  stopPolling();
+  showNotice("");
   try {
     await api(`/v1/jobs/${state.jobId}`, { method: "DELETE" });
     $("status-text").textContent = "cancelled and deleted";
@@ -258,6 +499,7 @@ function plotCameras(photos) {
 async function loadInfo() {
   try {
     const info = await api("/v1/info");
+    state.info = info;
     const select = $("preset");
     select.replaceChildren();
     for (const name of info.presets) {
@@ -265,6 +507,7 @@ async function loadInfo() {
       select.append(option);
     }
     $("photos").title = `${info.min_photos} to ${info.max_photos} photos`;
+    renderCount();
   } catch (err) {
     if (err.status === 401) {
       document.querySelector("details").open = true;
@@ -278,7 +521,12 @@ function start() {
   $("job-form").addEventListener("submit", submitJob);
   $("cancel").addEventListener("click", cancelJob);
   $("api-key").value = sessionStorage.getItem("cadnerf-key") || "";
-  $("api-key").addEventListener("change", () => { sessionStorage.setItem("cadnerf-key", apiKey()); loadInfo(); });
+  $("api-key").addEventListener("change", () => {
+    sessionStorage.setItem("cadnerf-key", apiKey());
+    loadInfo();
+    if (state.stoppedForAuth && state.jobId) follow(state.jobId);  // try again with the new key
+  });
+  $("masks").addEventListener("change", renderCount);
   loadInfo();
   const jobId = new URLSearchParams(location.search).get("job");
   if (jobId && /^[0-9a-f-]{36}$/.test(jobId)) follow(jobId);

@@ -32,6 +32,7 @@ class ClientRecord:
     accepted: float = 0.0  # monotonic time the 202 arrived
     job_id: str | None = None
     requests: int = 0
+    busy: int = 0  # 503 too_many_uploads answers, retried after their Retry-After
     errors: list[str] = field(default_factory=list)
     final_state: str | None = None
 
@@ -43,6 +44,7 @@ class LoadReport:
     clients: int
     duration_s: float
     requests: int
+    busy_answers: int  # 503 too_many_uploads answers (retried; not errors)
     errors: list[str]
     submitted: int
     listed: int
@@ -93,12 +95,20 @@ def _client(url: str, record: ClientRecord, deadline: float, stagger_s: float,
             headers: dict[str, str]) -> None:
     time.sleep(record.index * stagger_s)
     with httpx.Client(base_url=url, timeout=60, headers=headers) as http:
-        record.sent = time.monotonic()
-        response = http.post("/v1/jobs", files=photo_files(3, size=(64, 64),
-                                                           prefix=f"c{record.index}"),
-                             data={"config": json.dumps(SMALL_JOB)})
-        record.accepted = time.monotonic()
-        record.requests += 1
+        while True:
+            record.sent = time.monotonic()
+            response = http.post("/v1/jobs", files=photo_files(3, size=(64, 64),
+                                                               prefix=f"c{record.index}"),
+                                 data={"config": json.dumps(SMALL_JOB)})
+            record.accepted = time.monotonic()
+            record.requests += 1
+            # A well-behaved client: the service caps uploads received at once and says
+            # when to come back (503 too_many_uploads with Retry-After).
+            if (response.status_code != 503 or "Retry-After" not in response.headers
+                    or time.monotonic() >= deadline):
+                break
+            record.busy += 1
+            time.sleep(float(response.headers["Retry-After"]))
         if response.status_code != 202:
             record.errors.append(f"POST {response.status_code} {response.text[:120]}")
             return
@@ -177,7 +187,7 @@ def run_load(url: str, api_pid: int, clients: int, duration_s: float,
     waits = sorted(r.accepted - r.sent for r in records if r.job_id)
     return LoadReport(
         clients=clients, duration_s=round(elapsed, 1),
-        requests=sum(r.requests for r in records),
+        requests=sum(r.requests for r in records), busy_answers=sum(r.busy for r in records),
         errors=[e for r in records for e in r.errors], submitted=len(ids),
         listed=len(listed_ids), lost=sorted(set(ids) - set(listed_ids)),
         duplicated=sorted({i for i in listed_ids if listed_ids.count(i) > 1}),

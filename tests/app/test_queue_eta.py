@@ -1,0 +1,191 @@
+"""Queued jobs: their place in the queue order and the expected time until they are done."""
+
+from __future__ import annotations
+
+import asyncio
+import sys
+import time
+import types
+import uuid
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+import pytest
+import redis
+from fastapi.testclient import TestClient
+
+from app import jobs
+from app.schemas import JobState
+from app.settings import Settings
+from app.store import (
+    DEFAULT_STAGE_SECONDS,
+    QUEUE_KEY,
+    JobRecord,
+    JobStore,
+    beat,
+    connect,
+    connect_async,
+    stage_times_key,
+)
+
+TEST_JOB_S = 2.0 * len(DEFAULT_STAGE_SECONDS["test"])  # the fake history: 2 s per stage
+
+
+def _store(settings: Settings) -> JobStore:
+    return JobStore(connect(settings.redis_url), settings.data_root)
+
+
+def _job(store: JobStore, created_at: float, state: JobState = JobState.queued,
+         preset: str = "test") -> JobRecord:
+    record = JobRecord(id=str(uuid.uuid4()), preset=preset, n_photos=3, state=state,
+                       names=["a.png", "b.png", "c.png"], created_at=created_at)
+    store.job_dir(record.id).mkdir(parents=True)
+    store.create(record)
+    return record
+
+
+def _history(client: redis.Redis, preset: str = "test", device: str = "cpu") -> None:
+    """What workers would have measured: 2 s for every stage of ``preset``."""
+    client.hset(stage_times_key(preset, device),
+                mapping={stage: "2.0" for stage in DEFAULT_STAGE_SECONDS[preset]})
+
+
+def _status(store: JobStore, settings: Settings, record: JobRecord) -> dict:
+    fresh = store.get(record.id)
+    assert fresh is not None
+    return jobs.to_status(fresh, jobs.queue_estimate(store, fresh, settings)).model_dump()
+
+
+def test_two_queued_jobs_show_their_position_and_eta(settings: Settings,
+                                                      clean_redis: redis.Redis) -> None:
+    store = _store(settings)
+    now = time.time()
+    first, second = _job(store, now), _job(store, now + 1)
+    _history(clean_redis)
+    beat(clean_redis, "worker-a", 30, {})
+    beat(clean_redis, "worker-b", 30, {})
+    a, b = _status(store, settings, first), _status(store, settings, second)
+    assert a["queue_position"] == 0 and a["eta_s"] == pytest.approx(TEST_JOB_S)
+    # One job ahead, shared by two workers, then its own run.
+    assert b["queue_position"] == 1 and b["eta_s"] == pytest.approx(TEST_JOB_S / 2 + TEST_JOB_S)
+    # The polling route's asyncio client gives the same answer, in one call.
+
+    async def fast() -> tuple[int, float | None]:
+        client = connect_async(settings.redis_url)
+        try:
+            estimate = await jobs.queue_estimate_fast(client, second, settings)
+        finally:
+            await client.aclose()
+        assert estimate is not None
+        return estimate.position, estimate.eta_s
+
+    assert asyncio.run(fast()) == (1, pytest.approx(TEST_JOB_S * 1.5))
+    # The list: every queued job's estimate, in one round trip.
+    listed = {s.id: s for s in jobs.statuses(store, [second, first], settings)}
+    assert listed[first.id].queue_position == 0 and listed[second.id].queue_position == 1
+    assert listed[second.id].eta_s == pytest.approx(TEST_JOB_S * 1.5)
+
+
+def test_running_jobs_count_ahead_and_no_worker_counts_as_one(settings: Settings,
+                                                             clean_redis: redis.Redis) -> None:
+    store = _store(settings)
+    now = time.time()
+    running = _job(store, now - 5, JobState.running)
+    store.update(running.id, eta_s=10.0)
+    clean_redis.sadd("cadnerf:running", running.id)
+    queued = _job(store, now)
+    _history(clean_redis)
+    status = _status(store, settings, queued)
+    assert status["queue_position"] == 0  # running jobs are not in the queue
+    assert status["eta_s"] == pytest.approx(10.0 + TEST_JOB_S)  # no live worker: divided by 1
+    assert _status(store, settings, running)["queue_position"] is None
+
+
+def test_without_measured_history_the_eta_stays_null(settings: Settings,
+                                                     clean_redis: redis.Redis) -> None:
+    store = _store(settings)
+    now = time.time()
+    _job(store, now, preset="preview")
+    second = _job(store, now + 1)
+    _history(clean_redis, "test")  # this job's preset is known, the one ahead is not
+    status = _status(store, settings, second)
+    assert status["queue_position"] == 1 and status["eta_s"] is None
+    # A worker configured for one device does not use the other device's history.
+    _history(clean_redis, "preview", "cuda")
+    assert _status(store, settings, second)["eta_s"] is not None
+    cpu_only = settings.model_copy(update={"device": "cpu"})
+    assert _status(store, cpu_only, second)["eta_s"] is None
+
+
+def test_a_job_leaves_the_queue_when_it_is_cancelled_or_deleted(settings: Settings,
+                                                               clean_redis: redis.Redis) -> None:
+    store = _store(settings)
+    now = time.time()
+    first, second = _job(store, now), _job(store, now + 1)
+    assert _status(store, settings, second)["queue_position"] == 1
+    result = jobs.delete_job(store, first, wait_s=0.5)
+    assert result.deleted and result.worker_stopped
+    assert clean_redis.zscore(QUEUE_KEY, first.id) is None
+    assert _status(store, settings, second)["queue_position"] == 0
+    # Cancelled but not yet deleted: no longer counted ahead.
+    third = _job(store, now + 2)
+    store.update(second.id, state=JobState.cancelled)
+    assert _status(store, settings, third)["queue_position"] == 0
+
+
+def test_a_job_leaves_the_queue_when_a_worker_starts_it(settings: Settings,
+                                                       clean_redis: redis.Redis,
+                                                       monkeypatch: pytest.MonkeyPatch) -> None:
+    from worker import runner
+
+    store = _store(settings)
+    now = time.time()
+    first, second = _job(store, now), _job(store, now + 1)
+    seen: dict[str, object] = {}
+
+    def run_job(job_dir: Path, library: object, progress: object, device: str) -> None:
+        seen["first_queued"] = clean_redis.zscore(QUEUE_KEY, first.id)
+        seen["second"] = _status(store, settings, second)["queue_position"]
+        seen["first"] = _status(store, settings, first)["queue_position"]
+
+    fake = types.ModuleType("cadnerf_core.pipeline")
+    fake.run_job = run_job  # type: ignore[attr-defined]
+    monkeypatch.setitem(sys.modules, "cadnerf_core.pipeline", fake)
+    monkeypatch.setattr(runner, "get_library", lambda root: None)
+    cpu = settings.model_copy(update={"device": "cpu"})
+    assert runner.execute(first.id, cpu, store)["state"] == "succeeded"
+    assert seen == {"first_queued": None, "second": 0, "first": None}
+    # Cancelled before it starts: it leaves the queue too.
+    store.request_cancel(second.id)
+    assert runner.execute(second.id, cpu, store)["state"] == "cancelled"
+    assert clean_redis.zcard(QUEUE_KEY) == 0
+
+
+def test_a_queued_job_rejoins_the_queue_when_redis_lost_it(settings: Settings,
+                                                           clean_redis: redis.Redis) -> None:
+    store = _store(settings)
+    now = time.time()
+    first, second = _job(store, now), _job(store, now + 1)
+    clean_redis.flushdb()  # Redis restarted empty; state.json is still there
+    assert _status(store, settings, first)["queue_position"] == 0  # re-seeded
+    assert _status(store, settings, second)["queue_position"] == 1
+
+
+def test_the_api_reports_queue_position_and_eta(client: TestClient, clean_redis: redis.Redis,
+                                                 photos: Callable[..., list[Any]]) -> None:
+    """Through the routes: POST, GET and the list carry the position; a delete moves up."""
+    _history(clean_redis)
+    beat(clean_redis, "worker-a", 30, {})
+    config = {"config": '{"preset": "test"}'}
+    first = client.post("/v1/jobs", files=photos(), data=config)
+    second = client.post("/v1/jobs", files=photos(), data=config)
+    assert first.status_code == 202 and second.status_code == 202, second.text
+    assert first.json()["queue_position"] == 0
+    assert second.json()["queue_position"] == 1
+    assert second.json()["eta_s"] == pytest.approx(2 * TEST_JOB_S)
+    listed = {j["id"]: j for j in client.get("/v1/jobs").json()["items"]}
+    assert listed[second.json()["id"]]["queue_position"] == 1
+    assert client.delete(f"/v1/jobs/{first.json()['id']}").status_code == 200
+    moved = client.get(f"/v1/jobs/{second.json()['id']}").json()
+    assert moved["queue_position"] == 0 and moved["eta_s"] == pytest.approx(TEST_JOB_S)
