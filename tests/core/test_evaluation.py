@@ -230,3 +230,34 @@ def test_runner_records_missing_and_failing_areas(monkeypatch: pytest.MonkeyPatc
     doc = runner.build_document(sections, False, "python -m benchmarks.run")
     assert "- Mode: full" in doc and "quick=False" in doc and "| fine | 1.5 |" in doc
     assert "- Commit: " in doc and "- CPU: " in doc and "torch " in doc
+
+
+def test_true_cameras_oracle_gives_the_job_the_ground_truth(tmp_path: Path,
+                                                            tiny_library: Any) -> None:
+    """The training benchmark's oracle: inside ``true_cameras`` a job's kept photos carry the
+    dataset's own cameras (rotation error 0, true focal length), outside it the retrieved
+    ones; the pipeline is restored afterwards."""
+    import trimesh
+
+    import cadnerf_core.pipeline as pipeline
+    from benchmarks.bench_training import true_cameras
+    from cadnerf_core.dataset import render_dataset
+    from cadnerf_core.evaluation import evaluate_dataset
+
+    mesh_path = tmp_path / "box.ply"
+    trimesh.creation.box(extents=(1.2, 0.8, 0.6)).export(mesh_path)
+    dataset = render_dataset(mesh_path, tmp_path / "ds", n_views=4, size=64, seed=0,
+                             test_views=1)
+    original = pipeline.run_intake
+    with true_cameras(dataset):
+        oracle = evaluate_dataset(dataset, 4, tiny_library, preset="test",
+                                  overrides={"optimise_poses": False}, job_dir=tmp_path / "o")
+    assert pipeline.run_intake is original
+    plain = evaluate_dataset(dataset, 4, tiny_library, preset="test",
+                             overrides={"optimise_poses": False}, job_dir=tmp_path / "p")
+    assert max(oracle.pose_retrieved.rotation_deg_per_view) < 1e-3
+    assert max(oracle.pose_refined.rotation_deg_per_view) < 0.05  # float32 in the model
+    assert oracle.focal_used == pytest.approx(oracle.focal_gt)
+    # A 3-model library's poses on a 10-degree grid are not the truth.
+    assert max(plain.pose_retrieved.rotation_deg_per_view) > 1.0
+    assert plain.focal_used != pytest.approx(plain.focal_gt, rel=1e-3)
