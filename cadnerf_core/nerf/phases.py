@@ -168,9 +168,13 @@ def phase2_step(state: TrainState, data: TrainData, optimizer: torch.optim.Optim
 
 
 def _phase2_params(state: TrainState) -> Iterator[torch.nn.Parameter]:
+    """G's parameters, and D's unless G deforms a frozen D (``phase2.train_density`` off)."""
     deformation = state.fields.deformation
-    return iter(deformation.parameters() if deformation is not None
-                else state.fields.density.parameters())
+    if deformation is None:
+        return iter(state.fields.density.parameters())
+    if state.config.phase2.train_density:
+        return iter([*deformation.parameters(), *state.fields.density.parameters()])
+    return iter(deformation.parameters())
 
 
 def run_phase2(state: TrainState, data: TrainData, progress: Progress | None = None) -> None:
@@ -179,9 +183,10 @@ def run_phase2(state: TrainState, data: TrainData, progress: Progress | None = N
     torch.manual_seed(state.config.seed + 2)
     optimizer = torch.optim.Adam(list(_phase2_params(state)), lr=cfg.lr)
     pose_optimizer = torch.optim.Adam(state.poses.parameters(), lr=cfg.pose_lr)
-    # D stays the CAD prior while G deforms it: no parameter gradients for D (saves a third of
-    # the backward pass); gradients still flow through D to the offsets.
-    frozen = state.fields.deformation is not None
+    # Without phase2.train_density, D stays the CAD prior while G deforms it: no parameter
+    # gradients for D (saves a third of the backward pass); gradients still flow through D to
+    # the offsets.
+    frozen = state.fields.deformation is not None and not cfg.train_density
     state.fields.density.requires_grad_(not frozen)
     for step in range(cfg.steps):
         active = state.config.optimise_poses and in_window(step, cfg.steps, cfg.pose_window)

@@ -162,3 +162,25 @@ def test_a_grid_update_that_finds_nothing_keeps_the_previous_grid() -> None:
     values[0] = 1.0
     grid.set_from_values(values, threshold=0.5, dilation=0)
     assert int(grid.occupied.sum()) == 1
+
+
+@pytest.mark.parametrize("train_density", [True, False])
+def test_phase_two_trains_d_only_when_asked(train_density: bool) -> None:
+    """``phase2.train_density``: D learns beside G (ours), or G deforms a frozen D (the
+    paper's phase two); G learns either way, and D is trainable again for phase three."""
+    mesh = _box()
+    data, c2w = _scene(mesh)
+    cfg = _config(**{"phase2.steps": 5, "phase2.rays": 128,
+                     "phase2.train_density": train_density})
+    state = TrainState.create(cfg, c2w, DEVICE)
+    assert state.fields.deformation is not None
+    d_before = [p.detach().clone() for p in state.fields.density.parameters()]
+    g_before = [p.detach().clone() for p in state.fields.deformation.parameters()]
+    phases.run_phase2(state, data)
+    d_moved = any(not torch.equal(a, b) for a, b in
+                  zip(d_before, state.fields.density.parameters(), strict=True))
+    g_moved = any(not torch.equal(a, b) for a, b in
+                  zip(g_before, state.fields.deformation.parameters(), strict=True))
+    assert g_moved
+    assert d_moved == train_density
+    assert all(p.requires_grad for p in state.fields.density.parameters())
