@@ -37,8 +37,10 @@ def _errors() -> Iterator[None]:
 
 @library_app.command("build")
 def build(out: Path = typer.Option(None, help=_ROOT_HELP),
-          poses: int = typer.Option(180, help="Library poses: 36 azimuths per 5 elevations "
-                                    "by default; must be a multiple of the 5 elevations."),
+          poses: int = typer.Option(None, help="Library poses (default: 36 azimuths per "
+                                    "elevation, 180); a multiple of the number of elevations."),
+          elevations: str = typer.Option(None, help="Camera elevations in degrees, comma-"
+                                         "separated (default: 0,15,30,45,60)."),
           if_stale: bool = typer.Option(False, "--if-stale",
                                         help="Do nothing when the library is current."),
           jobs: int = typer.Option(None, help="Worker processes (default: CPU count).")) -> None:
@@ -47,11 +49,23 @@ def build(out: Path = typer.Option(None, help=_ROOT_HELP),
     from library_data.build import build_library
 
     default = LibrarySpec()
-    if poses <= 0 or poses % len(default.elevations):
-        typer.echo(f"error: --poses must be a positive multiple of {len(default.elevations)}",
-                   err=True)
+    levels = default.elevations
+    if elevations is not None:
+        try:
+            levels = tuple(float(x) for x in elevations.split(","))
+        except ValueError:
+            levels = ()
+        if not levels or not all(-89.0 <= e <= 89.0 for e in levels) \
+                or len(set(levels)) != len(levels):
+            typer.echo(f"error: --elevations {elevations!r} must be distinct degrees between "
+                       "-89 and 89, comma-separated (e.g. 0,15,30,45,60)", err=True)
+            raise typer.Exit(2)
+    n_poses = default.n_azimuths * len(levels) if poses is None else poses
+    if n_poses <= 0 or n_poses % len(levels):
+        typer.echo(f"error: --poses must be a positive multiple of the {len(levels)} "
+                   "elevations", err=True)
         raise typer.Exit(2)
-    spec = LibrarySpec(n_azimuths=poses // len(default.elevations))
+    spec = LibrarySpec(n_azimuths=n_poses // len(levels), elevations=levels)
     with _errors():
         result = build_library(out or _default_root(), spec, jobs=jobs, if_stale=if_stale)
     verb = "built" if result.built else "up to date:"

@@ -141,3 +141,40 @@ def test_add_a_real_glb(library_copy: Path) -> None:
     lib = load_library(library_copy)
     assert lib.mesh(entry.id).is_watertight
     assert lib.silhouettes[lib.index("duck")].mean() > 0.1
+
+
+@pytest.mark.parametrize(("args", "n_azimuths", "elevations"), [
+    ([], 36, (0.0, 15.0, 30.0, 45.0, 60.0)),
+    (["--elevations", "0,7.5,15"], 36, (0.0, 7.5, 15.0)),
+    (["--elevations", "0,30", "--poses", "40"], 20, (0.0, 30.0)),
+])
+def test_cli_build_passes_the_pose_set(monkeypatch: pytest.MonkeyPatch, tmp_path: Path,
+                                       args: list[str], n_azimuths: int,
+                                       elevations: tuple[float, ...]) -> None:
+    import library_data.build as build_module
+    from cadnerf_cli.main import app
+    from cadnerf_core.library import LibrarySpec
+
+    seen: dict[str, LibrarySpec] = {}
+
+    def fake_build(out: Path, spec: LibrarySpec, **kwargs: object) -> object:
+        seen["spec"] = spec
+        return build_module.BuildResult(root=out, built=True, n_models=0, seconds=0.0)
+
+    monkeypatch.setattr(build_module, "build_library", fake_build)
+    result = CliRunner().invoke(app, ["library", "build", "--out", str(tmp_path / "l"), *args])
+    assert result.exit_code == 0, result.output
+    spec = seen["spec"]
+    assert spec.n_azimuths == n_azimuths
+    assert spec.elevations == elevations
+
+
+@pytest.mark.parametrize("args", [["--elevations", "0,x"], ["--elevations", "0,0"],
+                                  ["--elevations", "95"], ["--poses", "7"]])
+def test_cli_build_rejects_a_bad_pose_set(tmp_path: Path, args: list[str]) -> None:
+    from cadnerf_cli.main import app
+
+    result = CliRunner().invoke(app, ["library", "build", "--out", str(tmp_path / "l"), *args])
+    assert result.exit_code == 2
+    assert "error: --" in result.output
+    assert not (tmp_path / "l").exists()
