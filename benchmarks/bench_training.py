@@ -23,7 +23,13 @@ and scored. On top of that report this benchmark adds:
   preset's schedule reach with perfect cameras, and so how much of the gap to a PSNR target
   comes from the cameras and how much from the NeRF.
 
-Usage: ``python -m benchmarks.bench_training [--quick] [--threads N] [--meshes NAME ...]``.
+With ``--seeds N`` every run is repeated with training seeds 0 to N-1 on the same datasets, and
+the summary gives the mean over meshes and seeds and each seed's mean: training is
+deterministic for a seed, but two seeds differ by a few tenths of a dB, which is the noise a
+difference between ablations has to beat.
+
+Usage: ``python -m benchmarks.bench_training [--quick] [--threads N] [--meshes NAME ...]
+[--seeds N]``.
 """
 
 from __future__ import annotations
@@ -232,24 +238,30 @@ def run_one(mesh: Path, work: Path, library: Library, name: str, overrides: dict
 
 
 def _table(rows: list[tuple[str, str, dict[str, Any]]]) -> list[str]:
-    lines = ["| mesh | run | retrieved | kept | job s | train PSNR | test PSNR | "
+    lines = ["| mesh | run | seed | retrieved | kept | job s | train PSNR | test PSNR | "
              "+ test-time pose | rot err retrieval (median deg) | rot err refined |",
-             "|---|---|---|---|---|---|---|---|---|---|"]
+             "|---|---|---|---|---|---|---|---|---|---|---|"]
     for mesh, name, r in rows:
-        lines.append(f"| {mesh} | {name} | {r['model_id']} | {r['kept']} | {r['seconds']:.0f} | "
+        lines.append(f"| {mesh} | {name} | {r['seed']} | {r['model_id']} | {r['kept']} | "
+                     f"{r['seconds']:.0f} | "
                      f"{r['train_psnr']:.2f} | {r['psnr']:.2f} | {r['psnr_tta']:.2f} | "
                      f"{r['rot_before']:.1f} | {r['rot_after']:.1f} |")
     return lines
 
 
 def _summary(rows: list[tuple[str, str, dict[str, Any]]]) -> list[str]:
-    lines = ["", "| run | mean test PSNR | (+ test-time pose) | mean job s |",
-             "|---|---|---|---|"]
+    """Means over meshes and seeds; the per-seed means show how far a seed moves them."""
+    lines = ["", "| run | mean test PSNR | per seed | (+ test-time pose) | "
+             "mean rot err refined | mean job s |", "|---|---|---|---|---|---|"]
     for name in (*ABLATIONS, ORACLE):
         rs = [r for _, n, r in rows if n == name]
         if rs:
-            lines.append(f"| {name} | {np.mean([r['psnr'] for r in rs]):.2f} | "
+            seeds = sorted({r["seed"] for r in rs})
+            per_seed = " / ".join(f"{np.mean([r['psnr'] for r in rs if r['seed'] == s]):.2f}"
+                                  for s in seeds)
+            lines.append(f"| {name} | {np.mean([r['psnr'] for r in rs]):.2f} | {per_seed} | "
                          f"{np.mean([r['psnr_tta'] for r in rs]):.2f} | "
+                         f"{np.mean([r['rot_after'] for r in rs]):.1f} | "
                          f"{np.mean([r['seconds'] for r in rs]):.0f} |")
     return lines
 
@@ -268,8 +280,10 @@ def save_orbit_frame(job: Path) -> None:
     Image.fromarray(frame).save(ORBIT_FRAME)
 
 
-def run(quick: bool, threads: int | None = None, names: list[str] | None = None) -> str:
-    """The markdown section (see the module docstring)."""
+def run(quick: bool, threads: int | None = None, names: list[str] | None = None,
+        seeds: int = 1) -> str:
+    """The markdown section (see the module docstring); every run repeated with training
+    seeds 0 to ``seeds - 1`` (the datasets stay the same)."""
     import torch
 
     from cadnerf_core.library import load_library
@@ -284,20 +298,22 @@ def run(quick: bool, threads: int | None = None, names: list[str] | None = None)
     with tempfile.TemporaryDirectory() as tmp:
         work = Path(tmp)
         for i, mesh in enumerate(meshes):
-            for name, overrides in ABLATIONS.items():
-                extra = {} if name == "full" else LIGHT_EXPORT
-                rows.append((mesh.parent.name, name, run_one(
-                    mesh, work, library, name, {**overrides, **extra}, tta=True)))
-                log.info("%s %s: %s", mesh.parent.name, name, rows[-1][2])
-            rows.append((mesh.parent.name, ORACLE, run_one(
-                mesh, work, library, ORACLE, {**ORACLE_OVERRIDES, **LIGHT_EXPORT}, tta=True,
-                oracle=True)))
-            log.info("%s %s: %s", mesh.parent.name, ORACLE, rows[-1][2])
+            for seed in range(seeds):
+                runs = [(name, overrides, False) for name, overrides in ABLATIONS.items()]
+                for name, overrides, oracle in [*runs, (ORACLE, ORACLE_OVERRIDES, True)]:
+                    extra = {} if name == "full" and seed == 0 else LIGHT_EXPORT
+                    label = name if seed == 0 else f"{name} seed {seed}"
+                    result = run_one(mesh, work, library, label,
+                                     {**overrides, **extra, "seed": seed}, tta=True,
+                                     oracle=oracle)
+                    rows.append((mesh.parent.name, name, {**result, "seed": seed}))
+                    log.info("%s %s: %s", mesh.parent.name, label, result)
             if i == 0:
                 save_orbit_frame(work / mesh.parent.name / "full")
     flags = " --quick" if quick else ""
     flags += f" --threads {threads}" if threads else ""
     flags += f" --meshes {' '.join(names)}" if names else ""
+    flags += f" --seeds {seeds}" if seeds > 1 else ""
     lines = [f"## Training (preset `{PRESET}`, CPU)", "",
              f"Command: `.venv/bin/python -m benchmarks.bench_training{flags}` "
              f"(torch threads: {torch.get_num_threads()}). Datasets: `render_dataset` "
@@ -309,7 +325,8 @@ def run(quick: bool, threads: int | None = None, names: list[str] | None = None)
              "cameras' centres), rendered at the NeRF's estimated focal length and scored "
              "(mean PSNR over views). + test-time pose: the same cameras and intrinsics, then "
              f"{TTA_STEPS} steps of per-view pose refinement with the NeRF frozen (BARF's "
-             "protocol). Rotation errors are medians over the kept photos after similarity "
+             f"protocol). Training seeds: 0 to {seeds - 1} (same datasets). Rotation errors "
+             "are medians over the kept photos after similarity "
              "(Umeyama) alignment of camera centres. Job s: the evaluation's wall time less "
              "the held-out renders (the whole job and loading its model). "
              f"{ORACLE} (an oracle, not the method): the full run with each kept photo's "
@@ -327,9 +344,12 @@ def main() -> None:
     parser.add_argument("--quick", action="store_true", help="two meshes only")
     parser.add_argument("--threads", type=int, default=None, help="torch CPU threads")
     parser.add_argument("--meshes", nargs="*", default=None, help="mesh folder names")
+    parser.add_argument("--seeds", type=int, default=1,
+                        help="repeat every run with training seeds 0..N-1 (the spread between "
+                             "seeds is the noise an ablation's difference must beat)")
     args = parser.parse_args()
     logging.basicConfig(level=logging.INFO)
-    print(run(args.quick, args.threads, args.meshes))  # noqa: T201 (the section is the command's output)
+    print(run(args.quick, args.threads, args.meshes, max(1, args.seeds)))  # noqa: T201 (the section is the command's output)
 
 
 if __name__ == "__main__":
