@@ -12,7 +12,7 @@ import trimesh
 from typer.testing import CliRunner
 
 from cadnerf_core.errors import InputError, MeshError
-from cadnerf_core.library import MANIFEST, load_library
+from cadnerf_core.library import MANIFEST, LibrarySpec, load_library
 from cadnerf_core.meshio import Z_UP_TO_Y_UP
 from library_data.build import build_library
 from library_data.importer import add_model, prepare_mesh, remove_model, resolve_source
@@ -144,7 +144,8 @@ def test_add_a_real_glb(library_copy: Path) -> None:
 
 
 @pytest.mark.parametrize(("args", "n_azimuths", "elevations"), [
-    ([], 36, (0.0, 15.0, 30.0, 45.0, 60.0)),
+    ([], 36, (0.0, 7.5, 15.0, 22.5, 30.0, 37.5, 45.0, 52.5, 60.0)),
+    (["--poses", "180"], 20, LibrarySpec().elevations),
     (["--elevations", "0,7.5,15"], 36, (0.0, 7.5, 15.0)),
     (["--elevations", "0,30", "--poses", "40"], 20, (0.0, 30.0)),
 ])
@@ -153,7 +154,6 @@ def test_cli_build_passes_the_pose_set(monkeypatch: pytest.MonkeyPatch, tmp_path
                                        elevations: tuple[float, ...]) -> None:
     import library_data.build as build_module
     from cadnerf_cli.main import app
-    from cadnerf_core.library import LibrarySpec
 
     seen: dict[str, LibrarySpec] = {}
 
