@@ -123,7 +123,13 @@ def read_result(record: JobRecord, job_dir: Path) -> JobResult:
     pose_model = poses.get("model_id") if isinstance(poses, dict) else None
     model_id = retrieval.get("model_id") or pose_model or "unknown"
     model = ModelRef(id=str(model_id), category=retrieval.get("category"))
+    from cadnerf_core.config import AMBIGUOUS_HINT  # torch-free by contract
+
+    warnings = []
+    if retrieval.get("direction_ambiguous"):
+        warnings.append(f"{AMBIGUOUS_HINT}: resubmit with the config field "
+                        '{"overrides": {"retrieval": {"walk": "ccw"}}} (or "cw")')
     return JobResult(id=record.id, model=model, photos=photos,
                      discarded=[p.name for p in photos if p.discarded],
                      metrics=metrics if isinstance(metrics, dict) else {},
-                     artifacts=list_artifacts(job_dir, record.id))
+                     artifacts=list_artifacts(job_dir, record.id), warnings=warnings)

@@ -125,6 +125,9 @@ class JobResult(BaseModel):
     discarded: list[str]
     metrics: dict[str, Any]
     artifacts: dict[str, str] = Field(description="Artifact name -> download URL.")
+    warnings: list[str] = Field(default_factory=list, description="What may be wrong with "
+                                "the result and what to do about it (e.g. a walking "
+                                "direction that the photos could not tell).")
 
 
 class ErrorBody(BaseModel):

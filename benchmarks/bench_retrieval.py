@@ -57,6 +57,10 @@ VARIANTS: dict[str, tuple[str, dict[str, Any]]] = {
     "votes": ("DP, model by votes", {"model_choice": "votes"}),
     "nospread": ("DP, no spread prior", {"spread_weight": 0.0}),
     "notexture": ("DP, no texture cue", {"appearance_weight": 0.0}),
+    # The photographer gives the walking direction (``RetrievalConfig.walk``; "given" is
+    # replaced by the walk's true direction).
+    "walk": ("DP, walk given", {"walk": "given"}),
+    "paper_walk": ("Algorithm 1, walk given", {"solver": "paper", "walk": "given"}),
 }
 
 
@@ -72,6 +76,10 @@ class SetResult:
     errors: dict[str, float]  # variant -> median rotation error (degrees) of kept photos
     dropped: dict[str, int]  # variant -> photos discarded
     directions: dict[str, int]  # variant -> walking direction found
+    lead: float = float("nan")
+    """Ours: the best walk's objective less the best walk's the other way."""
+    ambiguous: bool = False
+    """Ours flagged the walking direction as a guess."""
     dp_on_paper_kept: float = float("nan")
     """Ours, median rotation error over the photos Algorithm 1 kept (like for like: Algorithm
     1 discards 1-2 photos on many walks, and its median is over the rest)."""
@@ -89,12 +97,15 @@ def rotation_error(result: Any, c2w_gt: np.ndarray, only: set[int] | None = None
 
 
 def retrieve_all(masks: list[np.ndarray], names: list[str], library: Any,
-                 images: list[np.ndarray]) -> dict[str, Any]:
-    """Retrieval with every variant of ``VARIANTS``. Returns variant -> RetrievalResult."""
+                 images: list[np.ndarray], direction: int) -> dict[str, Any]:
+    """Retrieval with every variant of ``VARIANTS`` (``direction``: the walk's true one, for
+    the variants that are given it). Returns variant -> RetrievalResult."""
     from cadnerf_core.retrieval import RetrievalConfig, retrieve
 
-    return {key: retrieve(masks, names, library, RetrievalConfig(**options), images=images)
-            for key, (_, options) in VARIANTS.items()}
+    walk = "ccw" if direction > 0 else "cw"
+    return {key: retrieve(masks, names, library, RetrievalConfig(**{
+        **options, **({"walk": walk} if options.get("walk") == "given" else {})}),
+        images=images) for key, (_, options) in VARIANTS.items()}
 
 
 def synthetic_set(name: str, views: int, direction: int, library: Any, work: Path) -> SetResult:
@@ -105,7 +116,7 @@ def synthetic_set(name: str, views: int, direction: int, library: Any, work: Pat
                             f"{direction}", views, SIZE, SEED + views, up="z" if name in Z_UP
                             else "y", direction=direction)
     data = load_dataset(folder)
-    results = retrieve_all(list(data.masks), data.names, library, list(data.images))
+    results = retrieve_all(list(data.masks), data.names, library, list(data.images), direction)
     dp, paper = results["dp"], results["paper"]
     model = dp.model_id if paper.model_id == dp.model_id else \
         f"{dp.model_id}; votes: {paper.model_id}"
@@ -114,18 +125,21 @@ def synthetic_set(name: str, views: int, direction: int, library: Any, work: Pat
                      {s: rotation_error(r, data.c2w) for s, r in results.items()},
                      {s: sum(m.discarded for m in r.matches) for s, r in results.items()},
                      {s: r.direction for s, r in results.items()},
+                     dp.direction_lead if dp.direction_lead is not None else float("nan"),
+                     dp.direction_ambiguous,
                      rotation_error(dp, data.c2w, {m.index for m in paper.kept}))
 
 
 def synthetic_table(results: list[SetResult]) -> list[str]:
     """Markdown table rows of the synthetic walks, with a summary line."""
     keys = list(VARIANTS)
-    lines = ["| mesh | views | dir | model, ours (votes) | mean IoU | dir found | "
+    lines = ["| mesh | views | dir | model, ours (votes) | mean IoU | dir found | lead | "
              + " | ".join(f"rot. err. {VARIANTS[k][0]}" for k in keys)
-             + " | discarded ours / Alg. 1 |", "|---" * (7 + len(keys)) + "|"]
+             + " | discarded ours / Alg. 1 |", "|---" * (8 + len(keys)) + "|"]
     for r in results:
+        found = f"{r.directions['dp']:+d}{' (guess)' if r.ambiguous else ''}"
         lines.append(f"| {r.mesh} | {r.views} | {r.direction:+d} | {r.model} | "
-                     f"{r.mean_iou:.2f} | {r.directions['dp']:+d} | "
+                     f"{r.mean_iou:.2f} | {found} | {r.lead:.3f} | "
                      + " | ".join(f"{r.errors[k]:.1f}" for k in keys)
                      + f" | {r.dropped['dp']} / {r.dropped['paper']} |")
     errors = {k: [r.errors[k] for r in results] for k in keys}
@@ -138,12 +152,23 @@ def synthetic_table(results: list[SetResult]) -> list[str]:
             f"{r.errors['paper']:.1f})" for r in results
             if r.dp_on_paper_kept > r.errors["paper"] + 1e-6]
     right = sum(r.directions["dp"] == r.direction for r in results)
+    guessed = [r for r in results if r.ambiguous]
+    wrong_guess = sum(r.directions["dp"] != r.direction for r in guessed)
+    wrong_sure = sum(r.directions["dp"] != r.direction for r in results if not r.ambiguous)
+    worse_given = [f"{r.mesh} {r.views} {r.direction:+d} ({r.errors['walk']:.1f} vs "
+                   f"{r.errors['paper_walk']:.1f})" for r in results
+                   if r.errors["walk"] > r.errors["paper_walk"] + 1e-6]
     lines += ["", f"Median over the {len(results)} sets of the per-set median rotation error: "
               f"{summary}. Walking direction right (ours): {right} of {len(results)}. Sets "
               f"where ours is worse than Algorithm 1: {len(worse)}"
               f"{': ' + ', '.join(worse) if worse else ''}. Like for like (ours over the "
               f"photos Algorithm 1 kept, where it discarded some): worse on {len(like)}"
-              f"{': ' + ', '.join(like) if like else ''}.", "", *mesh_table(results)]
+              f"{': ' + ', '.join(like) if like else ''}. Direction flagged as a guess "
+              f"(``direction_ambiguous``): {len(guessed)} sets, wrong on {wrong_guess}; "
+              f"wrong on {wrong_sure} of the {len(results) - len(guessed)} not flagged. With "
+              f"the walking direction given to both solvers, ours is worse than Algorithm 1 "
+              f"on {len(worse_given)}{': ' + ', '.join(worse_given) if worse_given else ''}.",
+              "", *mesh_table(results)]
     return lines
 
 

@@ -10,6 +10,8 @@ from pathlib import Path
 
 import typer
 
+from cadnerf_cli.retrieve_cmd import Walk
+
 STAGES = ("masks", "retrieval", "phase1", "phase2", "phase3", "render", "export")
 DEFAULT_LIBRARY = Path("library_data/build")
 
@@ -46,6 +48,9 @@ def reconstruct(
     preset: str = typer.Option("standard", "--preset", help="paper, standard, preview, test."),
     device: str = typer.Option("auto", "--device", help="auto, cpu, cuda, cuda:N."),
     library_dir: Path = typer.Option(DEFAULT_LIBRARY, "--library", help="CAD library folder."),
+    walk: Walk = typer.Option(Walk.auto, "--walk", help="Which way round the photos were "
+                              "taken: ccw (counter-clockwise seen from above, the object on "
+                              "your left), cw, or auto (found from the photos)."),
 ) -> None:
     """Poses, novel views, an orbit video and a mesh from ordered photos of an object."""
     from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
@@ -57,10 +62,12 @@ def reconstruct(
     from cadnerf_core.progress import Progress as CoreProgress
 
     try:
-        resolve_config(preset, {})
+        overrides = {} if walk == Walk.auto else {"retrieval": {"walk": walk.value}}
+        resolve_config(preset, overrides)
         library = load_library(library_dir)
         stage_inputs(photos, masks, out)
-        (out / "config.json").write_text(json.dumps({"preset": preset, "overrides": {}}))
+        (out / "config.json").write_text(json.dumps({"preset": preset,
+                                                     "overrides": overrides}))
         columns = (TextColumn("{task.description:<10}"), BarColumn(),
                    TextColumn("{task.percentage:>3.0f}%"), TimeElapsedColumn())
         with Progress(*columns) as bar:
@@ -79,6 +86,11 @@ def reconstruct(
     logging.getLogger(__name__).debug("summary: %s", summary)
     typer.echo(f"model: {summary['model_id']} ({summary['category']}); "
                f"mean training PSNR {metrics['mean_psnr']:.2f} dB")
+    retrieval = json.loads((out / "retrieval.json").read_text())
+    if retrieval.get("direction_ambiguous"):
+        from cadnerf_core.config import AMBIGUOUS_HINT
+
+        typer.echo(f"warning: {AMBIGUOUS_HINT} (--walk)")
     typer.echo(f"results in {out.resolve()}: orbit.mp4, mesh.glb, poses.json, views/")
 
 

@@ -23,6 +23,14 @@ class Solver(StrEnum):
     paper = "paper"
 
 
+class Walk(StrEnum):
+    """Which way round the photos were taken."""
+
+    auto = "auto"
+    ccw = "ccw"
+    cw = "cw"
+
+
 TILE = 128  # pixels per tile in the match pictures
 MASK_EXTENSIONS = (".png", ".jpg", ".jpeg", ".webp", ".bmp")
 
@@ -112,6 +120,10 @@ def summary_lines(result: RetrievalResult) -> list[str]:
     """Human-readable lines: the model, the top models, and a line per photo."""
     lines = [f"model: {result.model_id} ({result.category})  solver: {result.solver}  "
              f"direction: {result.direction:+d}", "top models:"]
+    if result.direction_ambiguous:
+        from cadnerf_core.config import AMBIGUOUS_HINT
+
+        lines.insert(1, f"warning: {AMBIGUOUS_HINT}")
     lines += [f"  {t['model_id']:<24} {t['category']:<12} votes {t['votes']}  "
               f"summed IoU {t['score']:.2f}" for t in result.top_models]
     lines.append("photos:")
@@ -131,6 +143,9 @@ def retrieve_command(
                                  help="Library folder."),
     solver: Solver = typer.Option(Solver.dp, "--solver", help="Pose solver: dp (ours, exact "
                                   "cyclic order) or paper (Algorithm 1)."),
+    walk: Walk = typer.Option(Walk.auto, "--walk", help="Which way round the photos were "
+                              "taken: ccw (counter-clockwise seen from above, the object on "
+                              "your left), cw, or auto (found from the photos)."),
     as_json: bool = typer.Option(False, "--json", help="Print the result as JSON."),
     out: Path | None = typer.Option(None, "--out", help="Folder for match pictures."),
 ) -> None:
@@ -145,7 +160,8 @@ def retrieve_command(
         loaded = load_photos(photos, resolve_mask_paths(photos, masks))
         found = photo_masks(loaded)
         lib = load_library(library)
-        config = RetrievalConfig(solver="paper" if solver == Solver.paper else "dp")
+        config = RetrievalConfig(solver="paper" if solver == Solver.paper else "dp",
+                                 walk=walk.value)
         result = retrieve(found, [p.name for p in loaded], lib, config,
                           images=[p.rgb for p in loaded])
     except (CadNerfError, FileNotFoundError) as exc:

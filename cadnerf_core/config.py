@@ -187,6 +187,13 @@ class ExportConfig(_Frozen):
         return self
 
 
+AMBIGUOUS_HINT = ("the walking direction is a guess: these photos look alike walked either way "
+                  "round, so the poses may be those of the mirrored walk; to be sure, give the "
+                  "direction (walk: ccw if the object was on your left as you walked, cw if on "
+                  "your right)")
+"""What a user is told when ``RetrievalResult.direction_ambiguous``."""
+
+
 class RetrievalOptions(_Frozen):
     """Options handed to retrieval (its own module owns the search itself)."""
 
@@ -196,6 +203,11 @@ class RetrievalOptions(_Frozen):
     """Candidate library views per photo (the paper: 10)."""
     max_discard: int = Field(default=2, ge=0, le=5)
     """Photos that may be discarded as inconsistent (the paper: 1-2)."""
+    walk: Literal["auto", "ccw", "cw"] = "auto"
+    """Which way round the photos were taken: "ccw" (counter-clockwise seen from above, the
+    object on your left as you walk), "cw", or "auto" (found from the photos). Give it for
+    objects that look alike from mirrored sides (mugs, bottles, lamps): there the silhouettes
+    cannot tell, and the job warns that the direction is a guess."""
 
 
 class PipelineConfig(_Frozen):

@@ -54,12 +54,16 @@ class PoseSearchResult:
 
     ``views [P]``: chosen view per photo, ``-1`` for a discarded photo; ``score``: the value of
     the solver's objective; ``direction``: +1 when the azimuth grows along the photos, -1 when
-    it shrinks.
+    it shrinks; ``direction_lead``: the DP's objective of its best walk in the chosen direction
+    less that of its best walk the other way (None when one direction was searched). Near 0,
+    the silhouettes cannot tell which way round the photos were taken; below 0, a
+    ``backward_cost`` chose the direction against them.
     """
 
     views: np.ndarray
     score: float
     direction: int
+    direction_lead: float | None = None
 
 
 def paper_algorithm1(iou: np.ndarray, az_index: np.ndarray, top_k: int = 10,
@@ -229,4 +233,8 @@ def cyclic_dp(iou: np.ndarray, az_index: np.ndarray, n_az: int, discard_penalty:
                             charged[:, d, :].shape)
     bins = _backtrack(pointers, int(c), d, int(j))
     views = np.array([arg_bin[p, order[c, b]] if b >= 0 else -1 for p, b in enumerate(bins)])
-    return PoseSearchResult(views, float(ends[c, d, j]), signs[c])
+    lead = None
+    if both_directions:
+        sign = np.array(signs)
+        lead = float(ends[sign == signs[c]].max() - ends[sign != signs[c]].max())
+    return PoseSearchResult(views, float(ends[c, d, j]), signs[c], lead)

@@ -9,6 +9,7 @@ gets the camera ``c2w = library.poses[v]``, intrinsics ``K_canon`` in the canoni
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 from collections.abc import Sequence
 from dataclasses import dataclass
@@ -17,6 +18,7 @@ from typing import TYPE_CHECKING, Any, Literal
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 
+from cadnerf_core.config import AMBIGUOUS_HINT
 from cadnerf_core.crop import CropBox, apply_crop, uncrop_intrinsics
 from cadnerf_core.photos import canonical_masks
 from cadnerf_core.posesearch import PoseSearchResult, cyclic_dp, paper_algorithm1
@@ -26,6 +28,7 @@ if TYPE_CHECKING:
     from cadnerf_core.library import Library
 
 log = logging.getLogger(__name__)
+
 
 TOP_MODELS = 5  # models listed in a result, best first
 APPEARANCE_SIZE = 128  # side of the crops the texture direction cue looks at
@@ -81,6 +84,19 @@ class RetrievalConfig(BaseModel):
     synthetic walks, evidence between 0.25 and 0.5 pointed the right way on 4 of 5 walks (the
     fifth, a textured cow walked backwards, the silhouettes had flipped already), evidence
     between 0.1 and 0.25 on 2 of 5."""
+    walk: Literal["auto", "ccw", "cw"] = "auto"
+    """Which way round the photos were taken, when the photographer knows: "ccw"
+    (counter-clockwise seen from above: the object on your left as you walk; the library's
+    increasing azimuth), "cw" (clockwise), or "auto" (the DP tries both; the paper's solver
+    assumes "ccw", its photo order following the library's). A given direction removes the
+    one ambiguity silhouettes cannot resolve on objects that look alike from mirrored sides
+    (mugs, lamps, bottles); both solvers honour it."""
+    ambiguity_margin: float = Field(default=0.05, ge=0.0)
+    """DP, "auto" only: when the best walk beats the best walk the other way by less than this
+    (summed IoU) and the texture cue is below ``appearance_threshold``, the result is flagged
+    ``direction_ambiguous`` and the job warns that the direction is a guess. Measured on the
+    52 synthetic walks of ``benchmarks/bench_retrieval.py``; see ``docs/bench_retrieval_full.md``
+    (the "lead" column)."""
     size: int | None = Field(default=None, ge=8)
     """Side in pixels of the canonical crop that ``K_canon`` and ``box`` refer to; None =
     the library's silhouette size. (IoU is always computed at the library's size.)"""
@@ -129,6 +145,12 @@ class RetrievalResult:
     score: float
     direction_evidence: float = 0.0
     """Texture evidence for the walking direction (> 0: increasing azimuth; 0: none used)."""
+    direction_lead: float | None = None
+    """The DP's objective of its best walk less that of the best walk the other way (None
+    when the direction was given or the paper's solver ran)."""
+    direction_ambiguous: bool = False
+    """Neither the silhouettes (lead under ``RetrievalConfig.ambiguity_margin``) nor the texture
+    told the walking direction: the poses may be the mirrored walk's."""
 
     @property
     def kept(self) -> list[PhotoMatch]:
@@ -141,6 +163,8 @@ class RetrievalResult:
                 "top_models": self.top_models, "solver": self.solver,
                 "direction": self.direction, "score": self.score,
                 "direction_evidence": self.direction_evidence,
+                "direction_lead": self.direction_lead,
+                "direction_ambiguous": self.direction_ambiguous,
                 "discarded": [m.index for m in self.matches if m.discarded],
                 "matches": [m.to_json() for m in self.matches]}
 
@@ -223,6 +247,14 @@ def solve_poses(iou: np.ndarray, az_index: np.ndarray, n_azimuths: int,
     Returns:
         chosen views (-1 = discarded), score and direction.
     """
+    given = {"ccw": 1, "cw": -1}.get(config.walk, 0)
+    if given:
+        # A clockwise walk is a counter-clockwise one over mirrored azimuth bins; the chosen
+        # view indices do not depend on the bins' numbering.
+        bins = az_index if given > 0 else (-np.asarray(az_index)) % n_azimuths
+        forward = config.model_copy(update={"walk": "auto", "both_directions": False})
+        found = solve_poses(iou, bins, n_azimuths, forward)
+        return dataclasses.replace(found, direction=given, direction_lead=None)
     if config.solver == "paper":
         found = paper_algorithm1(iou, az_index, config.top_k, config.max_discard)
         if np.isfinite(found.score):
@@ -313,5 +345,12 @@ def retrieve(masks: Sequence[np.ndarray], names: Sequence[str], library: Library
              config.solver, sum(not x.discarded for x in matches), len(matches))
     if progress is not None:
         progress.step("retrieval", 2, 2)
+    ambiguous = (found.direction_lead is not None
+                 and found.direction_lead < config.ambiguity_margin
+                 and abs(evidence) < config.appearance_threshold)
+    if ambiguous:
+        log.warning("%s (lead %.3f IoU, texture evidence %+.2f)", AMBIGUOUS_HINT,
+                    found.direction_lead, evidence)
     return RetrievalResult(entry.id, entry.category, top, matches, config.solver,
-                           found.direction, found.score, evidence)
+                           found.direction, found.score, evidence, found.direction_lead,
+                           ambiguous)

@@ -220,7 +220,10 @@ async function submitJob(event) {
   const form = new FormData();
   state.photos.forEach((photo) => form.append("images", photo.file, photo.file.name));
   for (const mask of $("masks").files) form.append("masks", mask, mask.name);
-  form.append("config", JSON.stringify({ preset: $("preset").value }));
+  const config = { preset: $("preset").value };
+  const walk = $("walk").value;
+  if (walk !== "auto") config.overrides = { retrieval: { walk } };
+  form.append("config", JSON.stringify(config));
   $("submit").disabled = true;
   showUploadProgress(0);
   try {
@@ -421,6 +424,13 @@ async function showResult(jobId) {
   }
   const category = result.model.category ? ` (${result.model.category})` : "";
   $("model").textContent = `Retrieved CAD model: ${result.model.id}${category}`;
+  const warnings = $("warnings");
+  warnings.replaceChildren(...(result.warnings || []).map((text) => {
+    const item = document.createElement("li");
+    item.textContent = text;
+    return item;
+  }));
+  warnings.hidden = !warnings.children.length;
   renderMatches(result.photos);
   plotCameras(result.photos);
   const list = $("downloads");

@@ -118,6 +118,14 @@ def test_result_is_409_until_succeeded_then_complete(client: TestClient, setting
     assert result["metrics"] == {"mask_iou": 0.91}
     assert result["artifacts"]["orbit.mp4"] == f"/v1/jobs/{job['id']}/artifacts/orbit.mp4"
     assert "views/000.png" in result["artifacts"] and "orbit.gif" not in result["artifacts"]
+    assert result["warnings"] == []
+    # A walking direction the photos could not tell: the result says so and what to send.
+    retrieval_path = settings.data_root / job["id"] / "retrieval.json"
+    retrieval = json.loads(retrieval_path.read_text())
+    retrieval_path.write_text(json.dumps({**retrieval, "direction_ambiguous": True}))
+    warnings = client.get(f"/v1/jobs/{job['id']}/result").json()["warnings"]
+    assert len(warnings) == 1 and "walking direction is a guess" in warnings[0]
+    assert '"walk": "ccw"' in warnings[0]
 
 
 def test_artifacts_stream_with_ranges_and_stay_inside_the_job(client: TestClient,

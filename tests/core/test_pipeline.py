@@ -150,9 +150,33 @@ def test_cli_reconstructs_into_the_output_folder(tmp_path: Path, tiny_library: A
     out = tmp_path / "job"
     result = CliRunner().invoke(app, ["reconstruct", *photos, "--out", str(out), "--preset",
                                       "test", "--device", "cpu", "--library",
-                                      str(tiny_library_dir)])
+                                      str(tiny_library_dir), "--walk", "ccw"])
     assert result.exit_code == 0, result.output
     assert "results in" in result.output
+    # The walk write_job rendered is counter-clockwise (increasing azimuth), as told.
+    assert json.loads((out / "config.json").read_text())["retrieval"]["walk"] == "ccw"
+    retrieval = json.loads((out / "retrieval.json").read_text())
+    assert retrieval["direction"] == 1 and retrieval["direction_lead"] is None
     assert sorted(p.name for p in (out / "inputs").iterdir()) == \
         ["000_000_p.png", "001_001_p.png", "002_002_p.png"]
     assert (out / "mesh.glb").is_file() and (out / "orbit.mp4").is_file()
+
+
+def test_cli_retrieve_warns_of_a_guessed_direction_unless_given(tmp_path: Path,
+                                                                tiny_library: Any,
+                                                                tiny_library_dir: Path) -> None:
+    from typer.testing import CliRunner
+
+    from cadnerf_cli.main import app
+
+    # A slab looks alike walked either way round: the direction is a guess unless given.
+    write_job(tmp_path / "src", tiny_library, model_id="cuboid_slab", n=4)
+    photos = sorted(str(p) for p in (tmp_path / "src" / "inputs").iterdir())
+    common = ["retrieve", *photos, "--library", str(tiny_library_dir)]
+    guessed = CliRunner().invoke(app, common)
+    assert guessed.exit_code == 0, guessed.output
+    assert "warning: the walking direction is a guess" in guessed.output
+    told = CliRunner().invoke(app, [*common, "--walk", "cw", "--json"])
+    assert told.exit_code == 0, told.output
+    data = json.loads(told.output)
+    assert data["direction"] == -1 and data["direction_ambiguous"] is False

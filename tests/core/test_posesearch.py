@@ -5,6 +5,7 @@ from __future__ import annotations
 import itertools
 
 import numpy as np
+import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
@@ -141,6 +142,9 @@ def test_dp_finds_a_decreasing_walk() -> None:
     assert one_way.score < found.score
     # A backward cost larger than the gain makes the increasing walk win after all.
     gain = found.score - one_way.score
+    # The lead over the best walk the other way is that gain; one direction has none.
+    assert found.direction_lead == pytest.approx(gain) and gain > 0.1
+    assert one_way.direction_lead is None
     assert cyclic_dp(iou, np.arange(n_az), n_az, backward_cost=gain + 0.01).direction == 1
     assert cyclic_dp(iou, np.arange(n_az), n_az, backward_cost=gain - 0.01).direction == -1
 

@@ -114,3 +114,48 @@ def test_retrieval_finds_the_exact_views_of_an_asymmetric_model(tiny_library: An
             assert result.model_id == library.models[model].id
             assert [m.view for m in result.matches] == true_views, options
             assert all(m.iou > 0.8 for m in result.matches)
+
+
+def _walk(library: Any, category: str, azimuths: tuple[int, ...]
+          ) -> tuple[list[int], list[np.ndarray]]:
+    """The library views of a walk round the model of ``category`` (azimuth bins, elevation
+    alternating) and its masks."""
+    model = next(i for i, m in enumerate(library.models) if m.category == category)
+    n_el = len(library.spec.elevations)
+    views = [a * n_el + (a % n_el) for a in azimuths]
+    return views, _render_views(library, model, views, (0, 0))
+
+
+def test_a_given_walking_direction_is_honoured_by_both_solvers(tiny_library: Any) -> None:
+    library = tiny_library
+    # A clockwise walk (decreasing azimuth) around the asymmetric chair.
+    true_views, masks = _walk(library, "chair", (7, 5, 3, 1))
+    names = ["a", "b", "c", "d"]
+    found = retrieve(masks, names, library, RetrievalConfig())
+    assert [m.view for m in found.matches] == true_views and found.direction == -1
+    # The chair's silhouettes tell the direction: a clear lead, no warning.
+    assert found.direction_lead is not None and found.direction_lead > 0.1
+    assert not found.direction_ambiguous
+    # The paper's order is counter-clockwise: it misses this walk unless told.
+    paper = retrieve(masks, names, library, RetrievalConfig(solver="paper"))
+    assert [m.view for m in paper.matches] != true_views
+    for solver in ("dp", "paper"):
+        given = retrieve(masks, names, library, RetrievalConfig(solver=solver, walk="cw"))
+        assert [m.view for m in given.matches] == true_views, solver
+        assert given.direction == -1 and given.direction_lead is None
+    # Told the wrong way, the DP obeys (and fits the walk worse).
+    wrong = retrieve(masks, names, library, RetrievalConfig(walk="ccw"))
+    assert wrong.direction == 1 and wrong.score < found.score
+    assert json.loads(json.dumps(wrong.to_json()))["direction_lead"] is None
+
+
+def test_a_walk_that_looks_alike_both_ways_is_flagged_as_a_guess(tiny_library: Any) -> None:
+    library = tiny_library
+    # A box looks the same from azimuth a and -a: walked either way, the masks are alike.
+    _, masks = _walk(library, "cuboid", (1, 3, 5, 7))
+    found = retrieve(masks, ["a", "b", "c", "d"], library, RetrievalConfig())
+    assert found.direction_lead is not None and abs(found.direction_lead) < 1e-9
+    assert found.direction_ambiguous and found.to_json()["direction_ambiguous"] is True
+    # Given the direction, there is nothing to guess.
+    given = retrieve(masks, ["a", "b", "c", "d"], library, RetrievalConfig(walk="ccw"))
+    assert not given.direction_ambiguous and given.direction == 1

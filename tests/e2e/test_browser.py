@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 import shutil
 from pathlib import Path
 
@@ -31,6 +32,8 @@ def test_upload_progress_video_and_screenshot(live_service, photo_set: list[Path
             assert page.locator("#thumbs li .order").all_inner_texts() == [
                 str(i + 1) for i in range(len(photo_set))]
             page.select_option("#preset", "test")
+            # A box looks alike walked either way round: the photographer says which way.
+            page.select_option("#walk", "cw")
             page.click("#submit")
             page.wait_for_selector("#status", state="visible", timeout=30_000)
             widths = _progress_samples(page)
@@ -46,6 +49,12 @@ def test_upload_progress_video_and_screenshot(live_service, photo_set: list[Path
             assert page.locator("#downloads a", has_text="mesh.glb").count() == 1
             assert "Retrieved CAD model" in page.inner_text("#model")
             assert "succeeded" in page.inner_text("#status-text")
+            # The worker was given the direction (the DP alone reports a lead over the other
+            # way, None only when told): nothing was guessed, so nothing is warned.
+            retrieval = json.loads(max(live_service.settings.data_root.rglob("retrieval.json"),
+                                       key=lambda p: p.stat().st_mtime).read_text())
+            assert retrieval["direction"] == -1 and retrieval["direction_lead"] is None
+            assert page.locator("#warnings").is_hidden()
             page.wait_for_timeout(500)
             (ROOT / "docs").mkdir(exist_ok=True)
             page.screenshot(path=str(ROOT / "docs" / "web_page.png"), full_page=True)
