@@ -150,6 +150,9 @@ class Phase3Config(_Frozen):
     against 15.33 and 16.78 frozen (preview, CesiumMilkTruck and Duck)."""
     pose_lr: float = Field(default=5e-4, gt=0.0)
     """Adam learning rate of the pose corrections inside phase three's window."""
+    blur_sigma: float = Field(default=0.0, ge=0.0)
+    """EXPERIMENT: Gaussian blur (pixels) of the colour targets at the start of the pose window,
+    halved at each third of it, none after."""
     scene_steps: int = Field(default=0, ge=0)
     """Scene mode only: steps after the object's, training object and background together on
     the photos with their own background (ignored without scene mode)."""

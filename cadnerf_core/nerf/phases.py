@@ -198,8 +198,23 @@ def run_phase2(state: TrainState, data: TrainData, progress: Progress | None = N
     state.fields.set_anneal(1.0)
 
 
+def blur_images(images: torch.Tensor, sigma: float) -> torch.Tensor:
+    """Gaussian blur of [N, H, W, 3] images (reflected borders)."""
+    if sigma <= 0:
+        return images
+    radius = max(1, int(3 * sigma))
+    t = torch.arange(-radius, radius + 1, dtype=images.dtype, device=images.device)
+    k = torch.exp(-0.5 * (t / sigma) ** 2)
+    k = k / k.sum()
+    x = images.permute(0, 3, 1, 2).reshape(-1, 1, images.shape[1], images.shape[2])
+    x = F.conv2d(F.pad(x, (radius, radius, 0, 0), mode="reflect"), k.view(1, 1, 1, -1))
+    x = F.conv2d(F.pad(x, (0, 0, radius, radius), mode="reflect"), k.view(1, 1, -1, 1))
+    return x.reshape(images.shape[0], 3, images.shape[1], images.shape[2]).permute(0, 2, 3, 1)
+
+
 def phase3_step(state: TrainState, data: TrainData, optimizer: torch.optim.Optimizer,
-                pose_optimizer: torch.optim.Optimizer | None = None, scene: bool = False) -> float:
+                pose_optimizer: torch.optim.Optimizer | None = None, scene: bool = False,
+                targets: torch.Tensor | None = None) -> float:
     """One colour step (D, G and colour; the background too in scene mode; the poses inside
     phase three's window). Returns the loss."""
     cfg = state.config.phase3
@@ -208,6 +223,8 @@ def phase3_step(state: TrainState, data: TrainData, optimizer: torch.optim.Optim
                        None if scene else torch.ones(3, device=state.device))
     assert out.rgb is not None
     target = data.scene_images if scene and data.scene_images is not None else data.images
+    if targets is not None:
+        target = targets
     loss = F.mse_loss(out.rgb, target[img, y, x])
     if cfg.mask_weight > 0:
         loss = loss + cfg.mask_weight * F.mse_loss(out.acc, data.masks[img, y, x])
@@ -228,10 +245,19 @@ def run_phase3(state: TrainState, data: TrainData, progress: Progress | None = N
         else 0
     total = cfg.steps + scene_steps
     pose_optimizer = torch.optim.Adam(state.poses.parameters(), lr=cfg.pose_lr)
+    blurred: dict[int, torch.Tensor] = {}
     for step in range(cfg.steps):
         active = state.config.optimise_poses and in_window(step, cfg.steps, cfg.pose_window)
+        targets = None
+        start, end = cfg.pose_window
+        if cfg.blur_sigma > 0 and end > start and step < end * cfg.steps:
+            level = min(2, int(3 * (step / cfg.steps - start) / (end - start)))
+            if level not in blurred:
+                blurred[level] = blur_images(data.images, cfg.blur_sigma / 2 ** level)
+            targets = blurred[level]
         state.log("phase3/loss", phase3_step(state, data, optimizer,
-                                             pose_optimizer if active else None))
+                                             pose_optimizer if active else None,
+                                             targets=targets))
         _maybe_update_grid(state, step)
         _report(progress, "phase3", step, total)
     if scene_steps and background is not None:
