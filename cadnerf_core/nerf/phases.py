@@ -198,18 +198,32 @@ def run_phase2(state: TrainState, data: TrainData, progress: Progress | None = N
     state.fields.set_anneal(1.0)
 
 
+def target_blur(step: int, total: int, window: tuple[float, float], blur: float) -> float:
+    """Phase three's target blur at ``step`` of ``total``: ``blur`` in the first third of the
+    pose ``window``, half of it in the second, a quarter in the last, 0 outside the window
+    (``Phase3Config.pose_blur``; same units as ``blur``)."""
+    start, end = window
+    if blur <= 0 or not in_window(step, total, window):
+        return 0.0
+    level = min(2, int(3 * (step / total - start) / (end - start)))
+    return blur / 2**level
+
+
 def blur_images(images: torch.Tensor, sigma: float) -> torch.Tensor:
-    """Gaussian blur of [N, H, W, 3] images (reflected borders)."""
+    """Gaussian blur (standard deviation ``sigma`` pixels, reflected borders) of [N, H, W, C]
+    images, separably. Returns a new [N, H, W, C] tensor (``images`` itself for sigma <= 0)."""
     if sigma <= 0:
         return images
-    radius = max(1, int(3 * sigma))
+    n, height, width, channels = images.shape
+    # Three standard deviations, within what reflect padding allows.
+    radius = max(1, min(int(3 * sigma), height - 1, width - 1))
     t = torch.arange(-radius, radius + 1, dtype=images.dtype, device=images.device)
     k = torch.exp(-0.5 * (t / sigma) ** 2)
     k = k / k.sum()
-    x = images.permute(0, 3, 1, 2).reshape(-1, 1, images.shape[1], images.shape[2])
+    x = images.permute(0, 3, 1, 2).reshape(-1, 1, height, width)
     x = F.conv2d(F.pad(x, (radius, radius, 0, 0), mode="reflect"), k.view(1, 1, 1, -1))
     x = F.conv2d(F.pad(x, (0, 0, radius, radius), mode="reflect"), k.view(1, 1, -1, 1))
-    return x.reshape(images.shape[0], 3, images.shape[1], images.shape[2]).permute(0, 2, 3, 1)
+    return x.reshape(n, channels, height, width).permute(0, 2, 3, 1).contiguous()
 
 
 def phase3_step(state: TrainState, data: TrainData, optimizer: torch.optim.Optimizer,
@@ -245,16 +259,13 @@ def run_phase3(state: TrainState, data: TrainData, progress: Progress | None = N
         else 0
     total = cfg.steps + scene_steps
     pose_optimizer = torch.optim.Adam(state.poses.parameters(), lr=cfg.pose_lr)
-    blurred: dict[int, torch.Tensor] = {}
+    blurred: dict[float, torch.Tensor] = {}
     for step in range(cfg.steps):
         active = state.config.optimise_poses and in_window(step, cfg.steps, cfg.pose_window)
-        targets = None
-        start, end = cfg.pose_window
-        if cfg.blur_sigma > 0 and end > start and step < end * cfg.steps:
-            level = min(2, int(3 * (step / cfg.steps - start) / (end - start)))
-            if level not in blurred:
-                blurred[level] = blur_images(data.images, cfg.blur_sigma / 2 ** level)
-            targets = blurred[level]
+        sigma = target_blur(step, cfg.steps, cfg.pose_window, cfg.pose_blur) * data.width
+        if active and sigma > 0 and sigma not in blurred:
+            blurred[sigma] = blur_images(data.images, sigma)
+        targets = blurred[sigma] if active and sigma > 0 else None
         state.log("phase3/loss", phase3_step(state, data, optimizer,
                                              pose_optimizer if active else None,
                                              targets=targets))

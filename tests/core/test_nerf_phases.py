@@ -184,3 +184,25 @@ def test_phase_two_trains_d_only_when_asked(train_density: bool) -> None:
     assert g_moved
     assert d_moved == train_density
     assert all(p.requires_grad for p in state.fields.density.parameters())
+
+
+def test_target_blur_halves_at_each_third_of_the_pose_window() -> None:
+    window = (0.0, 0.75)
+    blurs = [phases.target_blur(step, 120, window, 0.0625) for step in (0, 29, 30, 60, 89, 90)]
+    assert blurs == [0.0625, 0.0625, 0.03125, 0.015625, 0.015625, 0.0]
+    assert phases.target_blur(0, 120, (0.0, 0.0), 0.0625) == 0.0  # frozen poses: sharp
+    assert phases.target_blur(0, 120, window, 0.0) == 0.0
+
+
+def test_blur_images_is_a_normalised_gaussian_of_the_given_width() -> None:
+    images = torch.zeros(1, 41, 41, 3)
+    images[0, 20, 20] = 1.0
+    blurred = phases.blur_images(images, 2.0)
+    assert blurred.shape == images.shape
+    assert float(blurred.sum()) == pytest.approx(3.0, rel=1e-5)  # mass kept, per channel
+    profile = blurred[0, 20, :, 0] / blurred[0, 20, :, 0].sum()
+    offsets = torch.arange(41.0) - 20
+    assert math.sqrt(float((profile * offsets**2).sum())) == pytest.approx(2.0, rel=0.02)
+    flat = torch.full((2, 8, 8, 3), 0.7)
+    assert torch.allclose(phases.blur_images(flat, 20.0), flat)  # radius clipped to the image
+    assert phases.blur_images(images, 0.0) is images
