@@ -10,7 +10,12 @@ is discarded) and the objective's value.
 highest-IoU views, the kept photos' azimuth bins are non-decreasing in photo order (no wrap),
 and at most ``max_skip`` photos are skipped (skipping costs nothing). It is a depth-first
 backtracking search that prunes a branch once its score plus the best remaining candidates
-cannot beat the best complete assignment found so far.
+cannot beat the best complete assignment found so far. Here the same search solves each
+sub-search (next photo, azimuth bin of the last kept photo, skips used) once (memoised), which
+gives the same optimum and the same choice among equal ones (the first in the backtracking's
+visiting order) in polynomial time: the pruned backtracking took up to 3 minutes on 9-photo
+walks of the 9-elevation library where a photo had to be skipped (many candidates share an
+azimuth bin, and the bound prunes little).
 
 ``cyclic_dp`` is ours. Its objective: maximise
 
@@ -41,6 +46,7 @@ discards, win.
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 
 import numpy as np
@@ -84,31 +90,38 @@ def paper_algorithm1(iou: np.ndarray, az_index: np.ndarray, top_k: int = 10,
     k = min(top_k, iou.shape[1])
     cands = np.argsort(-iou, axis=1, kind="stable")[:, :k]  # [P, k], best first
     cand_iou = np.take_along_axis(iou, cands, axis=1)
-    # Bound: the best any suffix of photos can still add.
-    suffix_best = np.concatenate([np.cumsum(cand_iou[::-1, 0])[::-1], [0.0]])
-    best_score = NEG_INF
-    best_views = np.full(n_photos, -1)
-    chosen = np.full(n_photos, -1)
+    cand_az = np.asarray(az_index)[cands]
 
-    def search(p: int, last_az: int, skips: int, score: float) -> None:
-        nonlocal best_score, best_views
+    @functools.cache
+    def best(p: int, last_az: int, skips: int) -> float:
+        """The most photos p.. can add after a kept photo at bin ``last_az``."""
         if p == n_photos:
-            if score > best_score:
-                best_score, best_views = score, chosen.copy()
-            return
-        if score + suffix_best[p] <= best_score:
-            return
-        for view, value in zip(cands[p], cand_iou[p], strict=True):
-            if az_index[view] >= last_az:
-                chosen[p] = view
-                search(p + 1, int(az_index[view]), skips, score + float(value))
+            return 0.0
+        out = NEG_INF
+        for i in range(k):
+            if cand_az[p, i] >= last_az:
+                out = max(out, float(cand_iou[p, i]) + best(p + 1, int(cand_az[p, i]), skips))
         if skips < max_skip:
-            chosen[p] = -1
-            search(p + 1, last_az, skips + 1, score)
-        chosen[p] = -1
+            out = max(out, best(p + 1, last_az, skips + 1))
+        return out
 
-    search(0, -1, 0, 0.0)
-    return PoseSearchResult(best_views, float(best_score), 1)
+    total = best(0, -1, 0)
+    views = np.full(n_photos, -1)
+    if not np.isfinite(total):
+        return PoseSearchResult(views, NEG_INF, 1)
+    # Walk down in the backtracking's visiting order (candidates best first, then the skip),
+    # taking the first branch that reaches the optimum: the assignment it finds first.
+    last_az, skips, score = -1, 0, 0.0
+    for p in range(n_photos):
+        for i in range(k):
+            if cand_az[p, i] >= last_az and score + float(cand_iou[p, i]) + best(
+                    p + 1, int(cand_az[p, i]), skips) >= total - 1e-9:
+                views[p], last_az = cands[p, i], int(cand_az[p, i])
+                score += float(cand_iou[p, i])
+                break
+        else:
+            skips += 1
+    return PoseSearchResult(views, float(total), 1)
 
 
 def _bin_table(iou: np.ndarray, az_index: np.ndarray,
