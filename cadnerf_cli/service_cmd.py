@@ -182,6 +182,8 @@ def run_demo(url: str, preset: str = "preview", views: int = 6, size: int = 160,
         if final["state"] != "succeeded":
             typer.echo(f"demo job {final['state']}: {final.get('error')}", err=True)
             return final
+        for warning in client.result(job["id"]).get("warnings", []):
+            typer.echo(f"warning: {warning}")
         orbit = client.download(job["id"], "orbit.mp4", out / "orbit.mp4")
         typer.echo(f"orbit video: {url}/v1/jobs/{job['id']}/artifacts/orbit.mp4")
         typer.echo(f"downloaded to {orbit}")
