@@ -317,6 +317,7 @@ def run(quick: bool, threads: int | None = None, names: list[str] | None = None,
     flags += f" --threads {threads}" if threads else ""
     flags += f" --meshes {' '.join(names)}" if names else ""
     flags += f" --seeds {seeds}" if seeds > 1 else ""
+    seed_text = f"0 to {seeds - 1}" if seeds > 1 else "0"
     lines = [f"## Training (preset `{PRESET}`, CPU)", "",
              f"Command: `.venv/bin/python -m benchmarks.bench_training{flags}` "
              f"(torch threads: {torch.get_num_threads()}). Datasets: `render_dataset` "
@@ -328,7 +329,7 @@ def run(quick: bool, threads: int | None = None, names: list[str] | None = None,
              "cameras' centres), rendered at the NeRF's estimated focal length and scored "
              "(mean PSNR over views). + test-time pose: the same cameras and intrinsics, then "
              f"{TTA_STEPS} steps of per-view pose refinement with the NeRF frozen (BARF's "
-             f"protocol). Training seeds: 0 to {seeds - 1} (same datasets). Rotation errors "
+             f"protocol). Training seeds: {seed_text} (same datasets). Rotation errors "
              "are medians over the kept photos after similarity "
              "(Umeyama) alignment of camera centres. Job s: the evaluation's wall time less "
              "the held-out renders (the whole job and loading its model). "
