@@ -32,7 +32,8 @@ deterministic for a seed, but two seeds differ by a few tenths of a dB, which is
 difference between ablations has to beat.
 
 Usage: ``python -m benchmarks.bench_training [--quick] [--threads N] [--meshes NAME ...]
-[--seeds N]``.
+[--seeds N] [--runs NAME ...]``; ``--runs`` keeps only the named runs (of "full", the
+ablations and the oracle), as when one ablation is checked on more meshes.
 """
 
 from __future__ import annotations
@@ -284,13 +285,17 @@ def save_orbit_frame(job: Path) -> None:
 
 
 def run(quick: bool, threads: int | None = None, names: list[str] | None = None,
-        seeds: int = 1) -> str:
+        seeds: int = 1, only: list[str] | None = None) -> str:
     """The markdown section (see the module docstring); every run repeated with training
-    seeds 0 to ``seeds - 1`` (the datasets stay the same)."""
+    seeds 0 to ``seeds - 1`` (the datasets stay the same); ``only``: the runs to keep (names
+    of ``ABLATIONS`` or ``ORACLE``; all when None)."""
     import torch
 
     from cadnerf_core.library import load_library
 
+    unknown = set(only or ()) - {*ABLATIONS, ORACLE}
+    if unknown:
+        raise ValueError(f"unknown runs {sorted(unknown)}; choose from {[*ABLATIONS, ORACLE]}")
     meshes = mesh_files(quick, names)
     if not meshes or not LIBRARY.is_dir():
         return "## Training\n\nSkipped: no ../shared/eval/meshes or no built library.\n"
@@ -304,6 +309,8 @@ def run(quick: bool, threads: int | None = None, names: list[str] | None = None,
             for seed in range(seeds):
                 runs = [(name, overrides, False) for name, overrides in ABLATIONS.items()]
                 for name, overrides, oracle in [*runs, (ORACLE, ORACLE_OVERRIDES, True)]:
+                    if only is not None and name not in only:
+                        continue
                     extra = {} if name == "full" and seed == 0 else LIGHT_EXPORT
                     label = name if seed == 0 else f"{name} seed {seed}"
                     result = run_one(mesh, work, library, label,
@@ -311,12 +318,14 @@ def run(quick: bool, threads: int | None = None, names: list[str] | None = None,
                                      oracle=oracle)
                     rows.append((mesh.parent.name, name, {**result, "seed": seed}))
                     log.info("%s %s: %s", mesh.parent.name, label, result)
-            if i == 0:
+            if i == 0 and names is None and (only is None or "full" in only):
                 save_orbit_frame(work / mesh.parent.name / "full")
     flags = " --quick" if quick else ""
     flags += f" --threads {threads}" if threads else ""
     flags += f" --meshes {' '.join(names)}" if names else ""
     flags += f" --seeds {seeds}" if seeds > 1 else ""
+    if only:
+        flags += " --runs " + " ".join(f'"{name}"' if " " in name else name for name in only)
     seed_text = f"0 to {seeds - 1}" if seeds > 1 else "0"
     lines = [f"## Training (preset `{PRESET}`, CPU)", "",
              f"Command: `.venv/bin/python -m benchmarks.bench_training{flags}` "
@@ -351,9 +360,11 @@ def main() -> None:
     parser.add_argument("--seeds", type=int, default=1,
                         help="repeat every run with training seeds 0..N-1 (the spread between "
                              "seeds is the noise an ablation's difference must beat)")
+    parser.add_argument("--runs", nargs="*", default=None,
+                        help=f"only these runs, of {[*ABLATIONS, ORACLE]}")
     args = parser.parse_args()
     logging.basicConfig(level=logging.INFO)
-    print(run(args.quick, args.threads, args.meshes, max(1, args.seeds)))  # noqa: T201 (the section is the command's output)
+    print(run(args.quick, args.threads, args.meshes, max(1, args.seeds), args.runs))  # noqa: T201 (the section is the command's output)
 
 
 if __name__ == "__main__":

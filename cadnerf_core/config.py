@@ -38,6 +38,15 @@ class FieldConfig(_Frozen):
     20.76 / 22.66 at 0; with the retrieved cameras (the method) 15.27 / 16.89 against
     16.28 / 18.01 (training PSNR falls from 22.0 / 23.4 to 20.9 / 22.5: less is memorised).
     NeRF's 4 stays in `paper`, which says nothing of its own."""
+    deform_freqs: int | None = Field(default=None, ge=0, le=16)
+    """Positional-encoding frequencies of the deformation network G's input (None: the same
+    as ``pos_freqs``). Fewer bands make G a smooth warp of the CAD shape that cannot carve
+    detail, which is D's job. Measured in session 8 with ``benchmarks.bench_training.run_one``
+    (preview, CesiumMilkTruck / Duck, test PSNR): seed 0, 2 bands 20.07 / 20.21, 0 bands
+    19.83 / 20.09, against 19.68 / 20.17 with None and 20.26 / 19.97 without G; seed 1, 2 bands
+    19.43 / 19.22, None 19.33 / 19.64, without G 19.49 / 19.69. Two-seed means: 2 bands 19.73,
+    None 19.71, without G 19.85: no gain, so None stays. 2 bands over a frozen D in phase two
+    (the paper's phase two): 20.01 / 18.81 (seed 0)."""
     deform_hidden: int = Field(default=64, ge=8, le=1024)
     """Width of the deformation network G."""
     deform_layers: int = Field(default=3, ge=1, le=12)

@@ -261,3 +261,12 @@ def test_true_cameras_oracle_gives_the_job_the_ground_truth(tmp_path: Path,
     # A 3-model library's poses on a 10-degree grid are not the truth.
     assert max(plain.pose_retrieved.rotation_deg_per_view) > 1.0
     assert plain.focal_used != pytest.approx(plain.focal_gt, rel=1e-3)
+
+
+def test_training_benchmark_rejects_an_unknown_run_name() -> None:
+    """``bench_training --runs`` names runs; a misspelt one fails before any work, naming the
+    choices, instead of silently running nothing."""
+    from benchmarks.bench_training import run
+
+    with pytest.raises(ValueError, match="no deformation"):
+        run(quick=True, only=["full", "no deformations"])
