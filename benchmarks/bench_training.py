@@ -51,6 +51,8 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from benchmarks.bench_eval import Z_UP
+
 if TYPE_CHECKING:
     from cadnerf_core.evaluation import EvalReport
     from cadnerf_core.library import Library
@@ -232,7 +234,7 @@ def run_one(mesh: Path, work: Path, library: Library, name: str, overrides: dict
     dataset_dir = work / mesh.parent.name / "dataset"
     if not dataset_dir.exists():
         render_dataset(mesh, dataset_dir, TRAIN_VIEWS, IMAGE_SIZE, seed=SEED,
-                       test_views=TEST_VIEWS)
+                       test_views=TEST_VIEWS, up="z" if mesh.parent.name in Z_UP else "y")
     job = work / mesh.parent.name / name.replace(" ", "_")
     with true_cameras(dataset_dir) if oracle else contextlib.nullcontext():
         report = evaluate_dataset(dataset_dir, TRAIN_VIEWS, library, preset=PRESET,

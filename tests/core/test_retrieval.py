@@ -159,3 +159,70 @@ def test_a_walk_that_looks_alike_both_ways_is_flagged_as_a_guess(tiny_library: A
     # Given the direction, there is nothing to guess.
     given = retrieve(masks, ["a", "b", "c", "d"], library, RetrievalConfig(walk="ccw"))
     assert not given.direction_ambiguous and given.direction == 1
+
+
+def _match(index: int, focal: float, discarded: bool = False) -> Any:
+    from cadnerf_core.cameras import orbit_pose
+    from cadnerf_core.crop import CropBox, crop_intrinsics
+    from cadnerf_core.retrieval import PhotoMatch
+
+    K_photo = np.array([[focal, 0.0, 140.0], [0.0, focal, 95.0], [0.0, 0.0, 1.0]])
+    box = CropBox(40.0, 10.0, 150.0, 64)
+    return PhotoMatch(index, f"p{index}", 0, 30.0 * index, 15.0, 0.9, discarded,
+                      orbit_pose(30.0 * index, 15.0, 4.0), crop_intrinsics(K_photo, box), box,
+                      K_photo)
+
+
+def test_shared_focal_keeps_every_object_its_size() -> None:
+    from cadnerf_core.cameras import project
+    from cadnerf_core.crop import crop_intrinsics
+    from cadnerf_core.retrieval import share_focal
+
+    # Focal lengths per pixel of the longer side: 1/3, 0.4, 0.25 (a photo of twice the
+    # resolution); the discarded photo's wild estimate has no say in the median, 1/3, and
+    # is moved by half at most (FOCAL_SCALE_LIMITS), 900 -> 450 instead of 100.
+    matches = [_match(0, 100.0), _match(1, 120.0), _match(2, 150.0), _match(3, 900.0, True)]
+    sizes = [(200, 300), (200, 300), (400, 600), (200, 300)]
+    shared = share_focal(matches, sizes)
+    assert [m.K_photo[0, 0] for m in shared] == pytest.approx([100.0, 100.0, 200.0, 450.0])
+    for before, after in zip(matches, shared, strict=True):
+        scale = after.K_photo[0, 0] / before.K_photo[0, 0]
+        assert after.K_photo[1, 1] == pytest.approx(after.K_photo[0, 0])
+        assert np.allclose(after.K_photo[:2, 2], before.K_photo[:2, 2])  # principal point
+        assert np.allclose(after.c2w[:3, :3], before.c2w[:3, :3])  # rotation
+        # Moved along its ray to the centre by the focal length's factor.
+        assert np.linalg.norm(after.c2w[:3, 3]) == pytest.approx(4.0 * scale)
+        assert np.allclose(after.K_canon, crop_intrinsics(after.K_photo, after.box))
+        if not before.discarded:
+            # Points on the plane through the object's centre facing the camera keep their
+            # pixels: the object keeps its size and place in the photo.
+            right, down = before.c2w[:3, 0], before.c2w[:3, 1]
+            points = np.stack([0.3 * right, -0.5 * down, 0.2 * right + 0.4 * down])
+            assert np.allclose(project(points, after.K_photo, after.c2w),
+                               project(points, before.K_photo, before.c2w), atol=1e-6)
+    assert share_focal(matches[:1], sizes[:1])[0] is matches[0]  # one photo: nothing to share
+
+
+def test_a_photo_taken_from_farther_away_gets_a_farther_camera(tiny_library: Any) -> None:
+    import cv2
+
+    library = tiny_library
+    views, masks = _walk(library, "chair", (1, 3, 5, 7))
+    # Photo 2 from twice as far with the same camera: the chair at half its size.
+    size = masks[2].shape[0]
+    small = cv2.resize(masks[2].astype(np.uint8), (size // 2, size // 2),
+                       interpolation=cv2.INTER_AREA) > 0
+    masks[2] = np.zeros_like(masks[2])
+    masks[2][size // 4:size // 4 + size // 2, size // 4:size // 4 + size // 2] = small
+    names = ["a", "b", "c", "d"]
+    shared = retrieve(masks, names, library, RetrievalConfig())
+    own = retrieve(masks, names, library, RetrievalConfig(shared_focal=False))
+    assert [m.view for m in shared.matches] == [m.view for m in own.matches] == views
+    distances = [float(np.linalg.norm(m.c2w[:3, 3])) for m in shared.matches]
+    focals = [m.K_photo[0, 0] for m in shared.matches]
+    assert max(focals) == pytest.approx(min(focals))
+    assert distances[2] / np.median(distances) == pytest.approx(2.0, rel=0.1)
+    # Without it, the photo gets the library distance and half the focal length (a zoom).
+    assert {round(float(np.linalg.norm(m.c2w[:3, 3])), 6) for m in own.matches} == {4.0}
+    assert own.matches[2].K_photo[0, 0] / own.matches[0].K_photo[0, 0] == \
+        pytest.approx(0.5, rel=0.1)
