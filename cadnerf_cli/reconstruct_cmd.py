@@ -7,6 +7,7 @@ import logging
 import re
 import shutil
 from pathlib import Path
+from typing import Any
 
 import typer
 
@@ -51,6 +52,9 @@ def reconstruct(
     walk: Walk = typer.Option(Walk.auto, "--walk", help="Which way round the photos were "
                               "taken: ccw (counter-clockwise seen from above, the object on "
                               "your left), cw, or auto (found from the photos)."),
+    own_focal: bool = typer.Option(False, "--own-focal", help="Each photo keeps a focal "
+                                   "length of its own (photos taken at different zooms); by "
+                                   "default they share one."),
 ) -> None:
     """Poses, novel views, an orbit video and a mesh from ordered photos of an object."""
     from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
@@ -62,7 +66,10 @@ def reconstruct(
     from cadnerf_core.progress import Progress as CoreProgress
 
     try:
-        overrides = {} if walk == Walk.auto else {"retrieval": {"walk": walk.value}}
+        retrieval: dict[str, Any] = {} if walk == Walk.auto else {"walk": walk.value}
+        if own_focal:
+            retrieval["shared_focal"] = False
+        overrides = {"retrieval": retrieval} if retrieval else {}
         resolve_config(preset, overrides)
         library = load_library(library_dir)
         stage_inputs(photos, masks, out)

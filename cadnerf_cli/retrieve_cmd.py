@@ -146,6 +146,9 @@ def retrieve_command(
     walk: Walk = typer.Option(Walk.auto, "--walk", help="Which way round the photos were "
                               "taken: ccw (counter-clockwise seen from above, the object on "
                               "your left), cw, or auto (found from the photos)."),
+    own_focal: bool = typer.Option(False, "--own-focal", help="Each photo keeps a focal "
+                                   "length of its own (photos taken at different zooms); by "
+                                   "default they share one."),
     as_json: bool = typer.Option(False, "--json", help="Print the result as JSON."),
     out: Path | None = typer.Option(None, "--out", help="Folder for match pictures."),
 ) -> None:
@@ -161,7 +164,7 @@ def retrieve_command(
         found = photo_masks(loaded)
         lib = load_library(library)
         config = RetrievalConfig(solver="paper" if solver == Solver.paper else "dp",
-                                 walk=walk.value)
+                                 walk=walk.value, shared_focal=not own_focal)
         result = retrieve(found, [p.name for p in loaded], lib, config,
                           images=[p.rgb for p in loaded])
     except (CadNerfError, FileNotFoundError) as exc:
