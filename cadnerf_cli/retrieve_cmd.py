@@ -166,7 +166,8 @@ def retrieve_command(
         config = RetrievalConfig(solver="paper" if solver == Solver.paper else "dp",
                                  walk=walk.value, shared_focal=not own_focal)
         result = retrieve(found, [p.name for p in loaded], lib, config,
-                          images=[p.rgb for p in loaded])
+                          images=[p.rgb for p in loaded],
+                          focals=[p.focal_pixels for p in loaded])
     except (CadNerfError, FileNotFoundError) as exc:
         typer.echo(f"error: {exc}", err=True)
         raise typer.Exit(code=2) from None

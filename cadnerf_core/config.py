@@ -242,9 +242,10 @@ class RetrievalOptions(_Frozen):
     objects that look alike from mirrored sides (mugs, bottles, lamps): there the silhouettes
     cannot tell, and the job warns that the direction is a guess."""
     shared_focal: bool = True
-    """The photos were taken with one camera at one zoom: they share a focal length, and each
-    photo's retrieved scale becomes its distance (off: each photo keeps the focal length of
-    its own library match; for photos taken at different zooms)."""
+    """The photos were taken with one camera at one zoom: they share a focal length (their
+    EXIF one where they carry it), and each photo's retrieved scale becomes its distance (off:
+    each photo keeps the focal length of its own library match; for photos taken at different
+    zooms)."""
 
 
 class PipelineConfig(_Frozen):

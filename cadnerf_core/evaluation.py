@@ -163,13 +163,26 @@ def first_views(dataset: Dataset, n_views: int) -> Dataset:
                    test=dataset.test)
 
 
-def write_job(job_dir: Path, train: Dataset, preset: str, overrides: dict[str, Any]) -> None:
+def exif_with_focal(K: np.ndarray, width: int, height: int) -> bytes:
+    """EXIF bytes whose ``FocalLengthIn35mmFilm`` is the focal length of ``K`` [3, 3] for a
+    photo of ``width`` x ``height`` pixels (rounded to whole mm, as the tag stores it)."""
+    from cadnerf_core.photos import FULL_FRAME_DIAGONAL_MM
+
+    exif = Image.Exif()
+    focal_35mm = float(K[0, 0]) * FULL_FRAME_DIAGONAL_MM / float(np.hypot(width, height))
+    exif.get_ifd(0x8769)[0xA405] = round(focal_35mm)
+    return exif.tobytes()
+
+
+def write_job(job_dir: Path, train: Dataset, preset: str, overrides: dict[str, Any],
+              exif_focal: bool = False) -> None:
     """Create a job folder: ``inputs/NNN_<name>.png`` (RGBA, alpha = mask) and ``config.json``.
 
     Args:
         job_dir: the folder (created; must not hold an earlier job).
         train: the views to use as photos, in order.
         preset, overrides: the job's configuration.
+        exif_focal: write each view's true focal length into its EXIF, as a phone does.
     """
     inputs = job_dir / "inputs"
     inputs.mkdir(parents=True, exist_ok=False)
@@ -177,7 +190,9 @@ def write_job(job_dir: Path, train: Dataset, preset: str, overrides: dict[str, A
                                               strict=True)):
         rgba = np.dstack([np.round(np.clip(rgb, 0, 1) * 255).astype(np.uint8),
                           mask.astype(np.uint8) * 255])
-        Image.fromarray(rgba, "RGBA").save(inputs / f"{i:03d}_{name}.png")
+        height, width = mask.shape
+        exif = exif_with_focal(train.K[i], width, height) if exif_focal else b""
+        Image.fromarray(rgba, "RGBA").save(inputs / f"{i:03d}_{name}.png", exif=exif)
     config = {"preset": preset, "overrides": overrides}
     (job_dir / "config.json").write_text(json.dumps(config, indent=2))
 
@@ -325,7 +340,8 @@ def evaluate_dataset(dataset_dir: Path, n_views: int, library: Library, preset: 
                      lpips_net: LpipsNet | None = None, device: str = "auto",
                      intrinsics: Literal["estimated", "gt"] = "estimated",
                      align: Literal["centred", "umeyama"] = "centred",
-                     eval_size: int | None = None, progress: Progress | None = None) -> EvalReport:
+                     eval_size: int | None = None, progress: Progress | None = None,
+                     exif_focal: bool = False) -> EvalReport:
     """Run the method on the first ``n_views`` views of a dataset and score it.
 
     Args:
@@ -345,6 +361,7 @@ def evaluate_dataset(dataset_dir: Path, n_views: int, library: Library, preset: 
         eval_size: side in pixels at which held-out views are rendered and scored (ground
             truth area-averaged to it); None = the dataset's own size.
         progress: forwarded to the pipeline.
+        exif_focal: the photos carry their true focal length in EXIF, as a phone's do.
     Returns:
         EvalReport.
     Raises:
@@ -360,7 +377,7 @@ def evaluate_dataset(dataset_dir: Path, n_views: int, library: Library, preset: 
     job = Path(job_dir) if job_dir is not None else Path(tempfile.mkdtemp(prefix="cadnerf-eval-"))
     if job.exists() and any(job.iterdir()):
         raise ValueError(f"job folder {job} is not empty")
-    write_job(job, data, preset, overrides)
+    write_job(job, data, preset, overrides, exif_focal)
     run_job(job, library, progress, device)
     model = TrainedModel.load(job, device)
     cams = read_job_cameras(job, model)

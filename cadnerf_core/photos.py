@@ -3,12 +3,15 @@
 Photos are JPEG, PNG or WebP (read with Pillow). The EXIF orientation is applied, so a photo
 comes out the way a viewer shows it. A photo with real transparency (an alpha channel not fully
 opaque) gives its mask (alpha > one half) and is composited on white. The size is checked from
-the header before any pixel is decoded, so a huge photo costs nothing to refuse.
+the header before any pixel is decoded, so a huge photo costs nothing to refuse. A phone's
+EXIF focal length (35 mm equivalent) is kept: it tells the camera's field of view, which the
+silhouettes alone cannot.
 """
 
 from __future__ import annotations
 
 import io
+import math
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -38,6 +41,17 @@ class Photo:
     name: str
     rgb: np.ndarray
     mask: np.ndarray | None = None
+    focal_35mm: float | None = None
+    """The EXIF focal length in 35 mm film terms (``FocalLengthIn35mmFilm``), None if absent."""
+
+    @property
+    def focal_pixels(self) -> float | None:
+        """Focal length in this photo's pixels from ``focal_35mm`` (35 mm equivalent focal
+        lengths are defined on the 43.27 mm diagonal of a 36 x 24 mm frame), None without it."""
+        if self.focal_35mm is None:
+            return None
+        height, width = self.rgb.shape[:2]
+        return self.focal_35mm * math.hypot(width, height) / FULL_FRAME_DIAGONAL_MM
 
 
 def _read_source(source: PhotoSource, index: int) -> tuple[str, bytes]:
@@ -87,6 +101,23 @@ _ORIENTATION = {2: Image.Transpose.FLIP_LEFT_RIGHT, 3: Image.Transpose.ROTATE_18
                 6: Image.Transpose.ROTATE_270, 7: Image.Transpose.TRANSVERSE,
                 8: Image.Transpose.ROTATE_90}
 _EXIF_ORIENTATION_TAG = 0x0112
+_EXIF_IFD = 0x8769
+_EXIF_FOCAL_35MM_TAG = 0xA405  # FocalLengthIn35mmFilm
+FULL_FRAME_DIAGONAL_MM = math.hypot(36.0, 24.0)
+FOCAL_35MM_RANGE = (8.0, 1200.0)  # mm: outside it the tag is taken to be wrong
+
+
+def exif_focal_35mm(image: Image.Image) -> float | None:
+    """The photo's ``FocalLengthIn35mmFilm`` in mm, None when absent, zero (unknown, in the
+    EXIF standard) or outside ``FOCAL_35MM_RANGE``."""
+    try:
+        value = image.getexif().get_ifd(_EXIF_IFD).get(_EXIF_FOCAL_35MM_TAG)
+        focal = float(value) if value is not None else None
+    except (TypeError, ValueError, OSError, SyntaxError):
+        return None
+    if focal is None or not FOCAL_35MM_RANGE[0] <= focal <= FOCAL_35MM_RANGE[1]:
+        return None
+    return focal
 
 
 def _decode(image: Image.Image, name: str, what: str) -> Image.Image:
@@ -134,10 +165,11 @@ def load_photo(source: PhotoSource, index: int = 0, mask: PhotoSource | None = N
     name, data = _read_source(source, index)
     raw = _open_image(name, data, "photo", PHOTO_FORMATS)
     orientation = raw.getexif().get(_EXIF_ORIENTATION_TAG, 1)
+    focal = exif_focal_35mm(raw)
     raw_size = raw.size
     rgb, alpha_mask = _to_array(_decode(raw, name, "photo"))
     if mask is None:
-        return Photo(name, rgb, alpha_mask)
+        return Photo(name, rgb, alpha_mask, focal)
     mask_name, mask_data = _read_source(mask, index)
     mask_image = _decode(_open_image(name, mask_data, f"mask ({mask_name})", None), name, "mask")
     if mask_image.size == raw_size != (rgb.shape[1], rgb.shape[0]) and orientation in _ORIENTATION:
@@ -148,7 +180,7 @@ def load_photo(source: PhotoSource, index: int = 0, mask: PhotoSource | None = N
         (h, w), (mh, mw) = rgb.shape[:2], user_mask.shape
         raise InputError(f"the mask is {mw}x{mh} pixels but the photo is {w}x{h}", item=name,
                          hint="give a mask of the same size as its photo, in the same order")
-    return Photo(name, rgb, user_mask)
+    return Photo(name, rgb, user_mask, focal)
 
 
 def load_photos(paths: Sequence[PhotoSource],

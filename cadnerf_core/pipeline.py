@@ -98,7 +98,8 @@ def run_intake(job_dir: Path, library: Library, config: PipelineConfig,
     rcfg = RetrievalConfig(solver=opts.solver, top_k=opts.top_k, max_discard=opts.max_discard,
                            walk=opts.walk, shared_focal=opts.shared_focal,
                            size=config.image_size)
-    retrieval = retrieve(masks, names, library, rcfg, progress, [p.rgb for p in photos])
+    retrieval = retrieve(masks, names, library, rcfg, progress, [p.rgb for p in photos],
+                         [p.focal_pixels for p in photos])
     write_json(job_dir / "retrieval.json", retrieval.to_json())
     if len(retrieval.kept) < 2:
         raise InputError("fewer than two photos could be matched to the retrieved model",

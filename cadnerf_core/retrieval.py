@@ -106,7 +106,9 @@ class RetrievalConfig(BaseModel):
     library camera zoomed to the photo's crop), and these disagree by the ratio of the CAD
     model's silhouette to the object's, view by view (on the benchmark's 6-view walks, 6% on
     a close match to 73% on a drill matched to a loose one, against one true focal length);
-    the NeRF's poses cannot absorb a focal length error, its scene bends instead. Off: each
+    the NeRF's poses cannot absorb a focal length error, its scene bends instead. Where the
+    photos bring their focal length (a phone's EXIF), the median of those is used instead:
+    the silhouettes cannot tell a wide lens near the object from a long one far away. Off: each
     photo keeps its match's focal length at the library's distance (the paper's retrieval,
     whose photos are taken at equal distances)."""
     size: int | None = Field(default=None, ge=8)
@@ -295,23 +297,27 @@ def _match(library: Library, m: int, p: int, name: str, view: int, discarded: bo
 FOCAL_SCALE_LIMITS = (0.5, 2.0)  # most a shared focal length moves a camera in or out
 
 
-def share_focal(matches: Sequence[PhotoMatch], sizes: Sequence[tuple[int, int]]
-                ) -> list[PhotoMatch]:
+def share_focal(matches: Sequence[PhotoMatch], sizes: Sequence[tuple[int, int]],
+                known: Sequence[float | None] | None = None) -> list[PhotoMatch]:
     """One focal length for every photo (``RetrievalConfig.shared_focal``).
 
     Args:
         matches: every photo's match, its focal length its own.
         sizes: (height, width) of every photo, in the matches' order.
+        known: focal lengths in pixels the photos bring (their EXIF), None where unknown.
     Returns:
-        The matches with the kept photos' median focal length (per pixel of the photo's longer
-        side) and the camera moved along its ray to the object's centre by the factor the
-        focal length changed, so the object keeps its size in the photo (principal point and
-        rotation unchanged; the factor limited to ``FOCAL_SCALE_LIMITS``).
+        The matches with one focal length per pixel of the photo's longer side: the median of
+        the kept photos' known focal lengths where any is known, else of their matches'. Each
+        camera is moved along its ray to the object's centre by the factor its focal length
+        changed, so the object keeps its size in the photo (principal point and rotation
+        unchanged; the factor limited to ``FOCAL_SCALE_LIMITS``).
     """
     kept = [m for m in matches if not m.discarded]
-    if len(kept) < 2:
+    given = [f / max(sizes[m.index]) for m in kept
+             if known is not None and (f := known[m.index]) is not None]
+    if len(kept) < 2 and not given:
         return list(matches)
-    focal = float(np.median([m.K_photo[0, 0] / max(sizes[m.index]) for m in kept]))
+    focal = float(np.median(given or [m.K_photo[0, 0] / max(sizes[m.index]) for m in kept]))
     out = []
     for m in matches:
         scale = float(np.clip(focal * max(sizes[m.index]) / m.K_photo[0, 0],
@@ -345,7 +351,8 @@ def direction_evidence(images: Sequence[np.ndarray], masks: Sequence[np.ndarray]
 
 def retrieve(masks: Sequence[np.ndarray], names: Sequence[str], library: Library,
              config: RetrievalConfig | None = None, progress: Progress | None = None,
-             images: Sequence[np.ndarray] | None = None) -> RetrievalResult:
+             images: Sequence[np.ndarray] | None = None,
+             focals: Sequence[float | None] | None = None) -> RetrievalResult:
     """Retrieve the CAD model and a library pose for every photo.
 
     Args:
@@ -356,6 +363,8 @@ def retrieve(masks: Sequence[np.ndarray], names: Sequence[str], library: Library
         progress: reports stage "retrieval" (2 steps) and checks for cancellation.
         images: the P photos [H_i, W_i, 3] float in [0, 1], optional: their texture helps
             the DP choose the walking direction (``RetrievalConfig.appearance_weight``).
+        focals: the P photos' focal lengths in pixels where known (EXIF), else None; with
+            ``shared_focal`` the known ones set the shared focal length.
     Returns:
         The RetrievalResult.
     """
@@ -385,7 +394,7 @@ def retrieve(masks: Sequence[np.ndarray], names: Sequence[str], library: Library
         box = CropBox(boxes[p].x0, boxes[p].y0, boxes[p].side, size)
         matches.append(_match(library, m, p, names[p], v, discarded, float(iou[p, m, v]), box))
     if config.shared_focal:
-        matches = share_focal(matches, [mask.shape[:2] for mask in masks])
+        matches = share_focal(matches, [mask.shape[:2] for mask in masks], focals)
     top = [{"model_id": library.models[i].id, "category": library.models[i].category,
             "votes": votes, "score": score} for i, votes, score in ranking[:TOP_MODELS]]
     entry = library.models[m]

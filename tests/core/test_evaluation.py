@@ -270,3 +270,24 @@ def test_training_benchmark_rejects_an_unknown_run_name() -> None:
 
     with pytest.raises(ValueError, match="no deformation"):
         run(quick=True, only=["full", "no deformations"])
+
+
+def test_a_job_written_with_exif_focal_gives_its_photos_the_true_focal(tmp_path: Path) -> None:
+    import trimesh
+
+    from cadnerf_core.dataset import load_dataset, render_dataset
+    from cadnerf_core.evaluation import write_job
+    from cadnerf_core.photos import load_photos
+
+    mesh_path = tmp_path / "box.ply"
+    trimesh.creation.box(extents=(1.2, 0.8, 0.6)).export(mesh_path)
+    data = load_dataset(render_dataset(mesh_path, tmp_path / "ds", n_views=3, size=64, seed=0,
+                                       fov_deg=55.0))
+    write_job(tmp_path / "with", data, "test", {}, exif_focal=True)
+    write_job(tmp_path / "without", data, "test", {})
+    told = load_photos(sorted((tmp_path / "with" / "inputs").iterdir()))
+    plain = load_photos(sorted((tmp_path / "without" / "inputs").iterdir()))
+    for photo, K in zip(told, data.K, strict=True):
+        # The tag holds whole millimetres: within half a mm of 35 mm-equivalent.
+        assert photo.focal_pixels == pytest.approx(K[0, 0], rel=0.5 / photo.focal_35mm)
+    assert all(p.focal_35mm is None for p in plain)

@@ -150,3 +150,30 @@ def test_canonical_views_frame_the_object_like_the_library(tmp_path: Path) -> No
     assert boxes[0].side == pytest.approx(50.0)
     again, _ = canonical_masks([mask], 50, margin=0.1)
     assert np.array_equal(again, crops)
+
+
+def test_a_phones_exif_focal_length_is_kept_in_pixels(tmp_path: Path) -> None:
+    exif = Image.Exif()
+    exif[0x0112] = 6  # rotated: the focal length does not care
+    exif.get_ifd(0x8769)[0xA405] = 27  # FocalLengthIn35mmFilm, as a Pixel phone writes it
+    phone = tmp_path / "phone.jpg"
+    Image.fromarray(_gradient(400, 300)).save(phone, format="JPEG", exif=exif.tobytes())
+    zero = Image.Exif()
+    zero.get_ifd(0x8769)[0xA405] = 0  # "unknown" in the EXIF standard
+    unknown = _save(tmp_path / "unknown.jpg", _gradient(400, 300), "JPEG", exif=zero.tobytes())
+    plain = _save(tmp_path / "plain.png", _gradient(400, 300))
+    photos = load_photos([phone, unknown, plain])
+    assert photos[0].focal_35mm == 27.0
+    # 27 mm on the 43.27 mm full-frame diagonal, over a 500 px diagonal.
+    assert photos[0].focal_pixels == pytest.approx(27.0 * 500.0 / np.hypot(36.0, 24.0))
+    assert [p.focal_35mm for p in photos[1:]] == [None, None]
+    assert [p.focal_pixels for p in photos[1:]] == [None, None]
+
+
+def test_shipped_phone_photos_carry_their_focal_length() -> None:
+    folder = Path(__file__).resolve().parents[2] / ".." / "shared" / "eval" / "photos" / \
+        "ners_espresso" / "images"
+    if not folder.is_dir():
+        pytest.skip("../shared/eval is absent")
+    photos = load_photos(sorted(folder.glob("*.jpg"))[:2])
+    assert all(p.focal_35mm is not None and 10.0 < p.focal_35mm < 100.0 for p in photos)

@@ -226,3 +226,18 @@ def test_a_photo_taken_from_farther_away_gets_a_farther_camera(tiny_library: Any
     assert {round(float(np.linalg.norm(m.c2w[:3, 3])), 6) for m in own.matches} == {4.0}
     assert own.matches[2].K_photo[0, 0] / own.matches[0].K_photo[0, 0] == \
         pytest.approx(0.5, rel=0.1)
+
+
+def test_a_known_focal_length_wins_over_the_matches(tiny_library: Any) -> None:
+    library = tiny_library
+    _, masks = _walk(library, "chair", (1, 3, 5, 7))
+    names = ["a", "b", "c", "d"]
+    estimated = retrieve(masks, names, library, RetrievalConfig())
+    # One photo knows its focal length (EXIF): 1.5 times the estimate; the others do not.
+    known = 1.5 * estimated.matches[0].K_photo[0, 0]
+    told = retrieve(masks, names, library, RetrievalConfig(), focals=[None, known, None, None])
+    assert [m.K_photo[0, 0] for m in told.matches] == pytest.approx([known] * 4)
+    for before, after in zip(estimated.matches, told.matches, strict=True):
+        # A longer lens sees the object at the same size from farther away.
+        assert np.linalg.norm(after.c2w[:3, 3]) == pytest.approx(
+            1.5 * np.linalg.norm(before.c2w[:3, 3]), rel=1e-6)
