@@ -32,8 +32,9 @@ deterministic for a seed, but two seeds differ by a few tenths of a dB, which is
 difference between ablations has to beat.
 
 Usage: ``python -m benchmarks.bench_training [--quick] [--threads N] [--meshes NAME ...]
-[--seeds N] [--runs NAME ...]``; ``--runs`` keeps only the named runs (of "full", the
-ablations and the oracle), as when one ablation is checked on more meshes.
+[--seeds N] [--runs NAME ...] [--exif-focal]``; ``--runs`` keeps only the named runs (of
+"full", the ablations and the oracle), as when one ablation is checked on more meshes;
+``--exif-focal`` gives the photos their true focal length in EXIF, as a phone's photos have.
 """
 
 from __future__ import annotations
@@ -224,10 +225,11 @@ def score_report(report: EvalReport, tta: bool) -> dict[str, Any]:
 
 
 def run_one(mesh: Path, work: Path, library: Library, name: str, overrides: dict[str, Any],
-            tta: bool, oracle: bool = False) -> dict[str, Any]:
+            tta: bool, oracle: bool = False, exif_focal: bool = False) -> dict[str, Any]:
     """Render the dataset (once per mesh), run and score a job with ``overrides`` through
-    ``evaluate_dataset`` (with the true cameras for ``oracle``), and add this benchmark's
-    numbers."""
+    ``evaluate_dataset`` (with the true cameras for ``oracle``; the photos carrying their
+    true focal length in EXIF, as a phone's do, with ``exif_focal``), and add this
+    benchmark's numbers."""
     from cadnerf_core.dataset import render_dataset
     from cadnerf_core.evaluation import evaluate_dataset
 
@@ -239,7 +241,8 @@ def run_one(mesh: Path, work: Path, library: Library, name: str, overrides: dict
     with true_cameras(dataset_dir) if oracle else contextlib.nullcontext():
         report = evaluate_dataset(dataset_dir, TRAIN_VIEWS, library, preset=PRESET,
                                   overrides=overrides, job_dir=job, device=DEVICE,
-                                  intrinsics="estimated", align="centred")
+                                  intrinsics="estimated", align="centred",
+                                  exif_focal=exif_focal)
     return score_report(report, tta)
 
 
@@ -287,10 +290,11 @@ def save_orbit_frame(job: Path) -> None:
 
 
 def run(quick: bool, threads: int | None = None, names: list[str] | None = None,
-        seeds: int = 1, only: list[str] | None = None) -> str:
+        seeds: int = 1, only: list[str] | None = None, exif_focal: bool = False) -> str:
     """The markdown section (see the module docstring); every run repeated with training
     seeds 0 to ``seeds - 1`` (the datasets stay the same); ``only``: the runs to keep (names
-    of ``ABLATIONS`` or ``ORACLE``; all when None)."""
+    of ``ABLATIONS`` or ``ORACLE``; all when None); ``exif_focal``: the photos carry their
+    true focal length in EXIF."""
     import torch
 
     from cadnerf_core.library import load_library
@@ -317,7 +321,7 @@ def run(quick: bool, threads: int | None = None, names: list[str] | None = None,
                     label = name if seed == 0 else f"{name} seed {seed}"
                     result = run_one(mesh, work, library, label,
                                      {**overrides, **extra, "seed": seed}, tta=True,
-                                     oracle=oracle)
+                                     oracle=oracle, exif_focal=exif_focal)
                     rows.append((mesh.parent.name, name, {**result, "seed": seed}))
                     log.info("%s %s: %s", mesh.parent.name, label, result)
             if i == 0 and names is None and (only is None or "full" in only):
@@ -326,6 +330,7 @@ def run(quick: bool, threads: int | None = None, names: list[str] | None = None,
     flags += f" --threads {threads}" if threads else ""
     flags += f" --meshes {' '.join(names)}" if names else ""
     flags += f" --seeds {seeds}" if seeds > 1 else ""
+    flags += " --exif-focal" if exif_focal else ""
     if only:
         flags += " --runs " + " ".join(f'"{name}"' if " " in name else name for name in only)
     seed_text = f"0 to {seeds - 1}" if seeds > 1 else "0"
@@ -364,9 +369,12 @@ def main() -> None:
                              "seeds is the noise an ablation's difference must beat)")
     parser.add_argument("--runs", nargs="*", default=None,
                         help=f"only these runs, of {[*ABLATIONS, ORACLE]}")
+    parser.add_argument("--exif-focal", action="store_true",
+                        help="the photos carry their true focal length in EXIF (a phone's do)")
     args = parser.parse_args()
     logging.basicConfig(level=logging.INFO)
-    print(run(args.quick, args.threads, args.meshes, max(1, args.seeds), args.runs))  # noqa: T201 (the section is the command's output)
+    print(run(args.quick, args.threads, args.meshes, max(1, args.seeds), args.runs,
+              args.exif_focal))  # noqa: T201 (the section is the command's output)
 
 
 if __name__ == "__main__":
