@@ -34,7 +34,8 @@ difference between ablations has to beat.
 Usage: ``python -m benchmarks.bench_training [--quick] [--threads N] [--meshes NAME ...]
 [--seeds N] [--runs NAME ...] [--exif-focal]``; ``--runs`` keeps only the named runs (of
 "full", the ablations and the oracle), as when one ablation is checked on more meshes;
-``--exif-focal`` gives the photos their true focal length in EXIF, as a phone's photos have.
+``--exif-focal`` gives the photos their true focal length in EXIF, as a phone's photos have;
+``--overrides JSON`` sets configuration values in every run (``'{"field.deform_freqs": 2}'``).
 """
 
 from __future__ import annotations
@@ -290,11 +291,13 @@ def save_orbit_frame(job: Path) -> None:
 
 
 def run(quick: bool, threads: int | None = None, names: list[str] | None = None,
-        seeds: int = 1, only: list[str] | None = None, exif_focal: bool = False) -> str:
+        seeds: int = 1, only: list[str] | None = None, exif_focal: bool = False,
+        overrides: dict[str, Any] | None = None) -> str:
     """The markdown section (see the module docstring); every run repeated with training
     seeds 0 to ``seeds - 1`` (the datasets stay the same); ``only``: the runs to keep (names
     of ``ABLATIONS`` or ``ORACLE``; all when None); ``exif_focal``: the photos carry their
-    true focal length in EXIF."""
+    true focal length in EXIF; ``overrides``: configuration values applied to every run, under
+    each run's own (dotted keys, as a job's config takes them)."""
     import torch
 
     from cadnerf_core.library import load_library
@@ -314,13 +317,14 @@ def run(quick: bool, threads: int | None = None, names: list[str] | None = None,
         for i, mesh in enumerate(meshes):
             for seed in range(seeds):
                 runs = [(name, overrides, False) for name, overrides in ABLATIONS.items()]
-                for name, overrides, oracle in [*runs, (ORACLE, ORACLE_OVERRIDES, True)]:
+                for name, own, oracle in [*runs, (ORACLE, ORACLE_OVERRIDES, True)]:
                     if only is not None and name not in only:
                         continue
                     extra = {} if name == "full" and seed == 0 else LIGHT_EXPORT
                     label = name if seed == 0 else f"{name} seed {seed}"
                     result = run_one(mesh, work, library, label,
-                                     {**overrides, **extra, "seed": seed}, tta=True,
+                                     {**(overrides or {}), **own, **extra, "seed": seed},
+                                     tta=True,
                                      oracle=oracle, exif_focal=exif_focal)
                     rows.append((mesh.parent.name, name, {**result, "seed": seed}))
                     log.info("%s %s: %s", mesh.parent.name, label, result)
@@ -331,6 +335,7 @@ def run(quick: bool, threads: int | None = None, names: list[str] | None = None,
     flags += f" --meshes {' '.join(names)}" if names else ""
     flags += f" --seeds {seeds}" if seeds > 1 else ""
     flags += " --exif-focal" if exif_focal else ""
+    flags += f" --overrides '{json.dumps(overrides)}'" if overrides else ""
     if only:
         flags += " --runs " + " ".join(f'"{name}"' if " " in name else name for name in only)
     seed_text = f"0 to {seeds - 1}" if seeds > 1 else "0"
@@ -371,10 +376,13 @@ def main() -> None:
                         help=f"only these runs, of {[*ABLATIONS, ORACLE]}")
     parser.add_argument("--exif-focal", action="store_true",
                         help="the photos carry their true focal length in EXIF (a phone's do)")
+    parser.add_argument("--overrides", type=json.loads, default=None,
+                        help='JSON object of configuration values for every run, e.g. '
+                             '\'{"retrieval.shared_focal": false}\'')
     args = parser.parse_args()
     logging.basicConfig(level=logging.INFO)
     print(run(args.quick, args.threads, args.meshes, max(1, args.seeds), args.runs,
-              args.exif_focal))  # noqa: T201 (the section is the command's output)
+              args.exif_focal, args.overrides))  # noqa: T201 (the section is the command's output)
 
 
 if __name__ == "__main__":
