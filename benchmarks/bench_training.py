@@ -312,6 +312,7 @@ def run(quick: bool, threads: int | None = None, names: list[str] | None = None,
         torch.set_num_threads(threads)
     library = load_library(LIBRARY)
     rows: list[tuple[str, str, dict[str, Any]]] = []
+    orbit_note = ""
     with tempfile.TemporaryDirectory() as tmp:
         work = Path(tmp)
         for i, mesh in enumerate(meshes):
@@ -330,6 +331,8 @@ def run(quick: bool, threads: int | None = None, names: list[str] | None = None,
                     log.info("%s %s: %s", mesh.parent.name, label, result)
             if i == 0 and names is None and (only is None or "full" in only):
                 save_orbit_frame(work / mesh.parent.name / "full")
+                orbit_note = ("An orbit frame of the first mesh's full run: "
+                              "`docs/orbit_frame.png`.")
     flags = " --quick" if quick else ""
     flags += f" --threads {threads}" if threads else ""
     flags += f" --meshes {' '.join(names)}" if names else ""
@@ -359,7 +362,7 @@ def run(quick: bool, threads: int | None = None, names: list[str] | None = None,
              "frame, true intrinsics), poses fixed; its retrieval column reads 0 since the "
              "true cameras are written back as the job's.", "",
              *_table(rows), *_summary(rows), "",
-             "An orbit frame of the first mesh's full run: `docs/orbit_frame.png`.", ""]
+             orbit_note, ""]
     return "\n".join(lines)
 
 
