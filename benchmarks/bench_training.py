@@ -81,6 +81,7 @@ TEST_VIEWS = 12
 SEED = 0
 PRESET = "preview"
 DEVICE = "cpu"
+FOV_DEG = 40.0  # the photos' horizontal field of view: the library's own
 
 log = logging.getLogger(__name__)
 
@@ -226,18 +227,20 @@ def score_report(report: EvalReport, tta: bool) -> dict[str, Any]:
 
 
 def run_one(mesh: Path, work: Path, library: Library, name: str, overrides: dict[str, Any],
-            tta: bool, oracle: bool = False, exif_focal: bool = False) -> dict[str, Any]:
+            tta: bool, oracle: bool = False, exif_focal: bool = False,
+            fov_deg: float = FOV_DEG) -> dict[str, Any]:
     """Render the dataset (once per mesh), run and score a job with ``overrides`` through
     ``evaluate_dataset`` (with the true cameras for ``oracle``; the photos carrying their
-    true focal length in EXIF, as a phone's do, with ``exif_focal``), and add this
-    benchmark's numbers."""
+    true focal length in EXIF, as a phone's do, with ``exif_focal``; the photos' field of view
+    ``fov_deg``), and add this benchmark's numbers."""
     from cadnerf_core.dataset import render_dataset
     from cadnerf_core.evaluation import evaluate_dataset
 
     dataset_dir = work / mesh.parent.name / "dataset"
     if not dataset_dir.exists():
         render_dataset(mesh, dataset_dir, TRAIN_VIEWS, IMAGE_SIZE, seed=SEED,
-                       test_views=TEST_VIEWS, up="z" if mesh.parent.name in Z_UP else "y")
+                       test_views=TEST_VIEWS, up="z" if mesh.parent.name in Z_UP else "y",
+                       fov_deg=fov_deg)
     job = work / mesh.parent.name / name.replace(" ", "_")
     with true_cameras(dataset_dir) if oracle else contextlib.nullcontext():
         report = evaluate_dataset(dataset_dir, TRAIN_VIEWS, library, preset=PRESET,
@@ -292,12 +295,13 @@ def save_orbit_frame(job: Path) -> None:
 
 def run(quick: bool, threads: int | None = None, names: list[str] | None = None,
         seeds: int = 1, only: list[str] | None = None, exif_focal: bool = False,
-        overrides: dict[str, Any] | None = None) -> str:
+        overrides: dict[str, Any] | None = None, fov_deg: float = FOV_DEG) -> str:
     """The markdown section (see the module docstring); every run repeated with training
     seeds 0 to ``seeds - 1`` (the datasets stay the same); ``only``: the runs to keep (names
     of ``ABLATIONS`` or ``ORACLE``; all when None); ``exif_focal``: the photos carry their
     true focal length in EXIF; ``overrides``: configuration values applied to every run, under
-    each run's own (dotted keys, as a job's config takes them)."""
+    each run's own (dotted keys, as a job's config takes them); ``fov_deg``: the photos'
+    horizontal field of view."""
     import torch
 
     from cadnerf_core.library import load_library
@@ -326,7 +330,7 @@ def run(quick: bool, threads: int | None = None, names: list[str] | None = None,
                     result = run_one(mesh, work, library, label,
                                      {**(overrides or {}), **own, **extra, "seed": seed},
                                      tta=True,
-                                     oracle=oracle, exif_focal=exif_focal)
+                                     oracle=oracle, exif_focal=exif_focal, fov_deg=fov_deg)
                     rows.append((mesh.parent.name, name, {**result, "seed": seed}))
                     log.info("%s %s: %s", mesh.parent.name, label, result)
             if i == 0 and names is None and (only is None or "full" in only):
@@ -338,6 +342,7 @@ def run(quick: bool, threads: int | None = None, names: list[str] | None = None,
     flags += f" --meshes {' '.join(names)}" if names else ""
     flags += f" --seeds {seeds}" if seeds > 1 else ""
     flags += " --exif-focal" if exif_focal else ""
+    flags += f" --fov {fov_deg:g}" if fov_deg != FOV_DEG else ""
     flags += f" --overrides '{json.dumps(overrides)}'" if overrides else ""
     if only:
         flags += " --runs " + " ".join(f'"{name}"' if " " in name else name for name in only)
@@ -345,7 +350,7 @@ def run(quick: bool, threads: int | None = None, names: list[str] | None = None,
     lines = [f"## Training (preset `{PRESET}`, CPU)", "",
              f"Command: `.venv/bin/python -m benchmarks.bench_training{flags}` "
              f"(torch threads: {torch.get_num_threads()}). Datasets: `render_dataset` "
-             f"{IMAGE_SIZE} px, {TRAIN_VIEWS} training views in walking order, {TEST_VIEWS} "
+             f"{IMAGE_SIZE} px, field of view {fov_deg:g} deg, {TRAIN_VIEWS} training views in walking order, {TEST_VIEWS} "
              f"held-out test views, seed {SEED}. Each run is executed and scored by "
              "`cadnerf_core.evaluation.evaluate_dataset`, the evaluation benchmark's protocol: "
              "the held-out ground-truth cameras are mapped into the NeRF frame by the centred "
@@ -382,10 +387,13 @@ def main() -> None:
     parser.add_argument("--overrides", type=json.loads, default=None,
                         help='JSON object of configuration values for every run, e.g. '
                              '\'{"retrieval.shared_focal": false}\'')
+    parser.add_argument("--fov", type=float, default=FOV_DEG,
+                        help="the photos' horizontal field of view in degrees (a phone's main "
+                             "lens: about 65)")
     args = parser.parse_args()
     logging.basicConfig(level=logging.INFO)
     print(run(args.quick, args.threads, args.meshes, max(1, args.seeds), args.runs,
-              args.exif_focal, args.overrides))  # noqa: T201 (the section is the command's output)
+              args.exif_focal, args.overrides, args.fov))  # noqa: T201 (the section is the command's output)
 
 
 if __name__ == "__main__":
