@@ -350,8 +350,8 @@ def run(quick: bool, threads: int | None = None, names: list[str] | None = None,
     lines = [f"## Training (preset `{PRESET}`, CPU)", "",
              f"Command: `.venv/bin/python -m benchmarks.bench_training{flags}` "
              f"(torch threads: {torch.get_num_threads()}). Datasets: `render_dataset` "
-             f"{IMAGE_SIZE} px, field of view {fov_deg:g} deg, {TRAIN_VIEWS} training views in walking order, {TEST_VIEWS} "
-             f"held-out test views, seed {SEED}. Each run is executed and scored by "
+             f"{IMAGE_SIZE} px, field of view {fov_deg:g} deg, {TRAIN_VIEWS} training views "
+             f"in walking order, {TEST_VIEWS} held-out test views, seed {SEED}. Each run is executed and scored by "
              "`cadnerf_core.evaluation.evaluate_dataset`, the evaluation benchmark's protocol: "
              "the held-out ground-truth cameras are mapped into the NeRF frame by the centred "
              "similarity (rotation and scale about the object's centre, fitted on the training "
