@@ -128,6 +128,13 @@ class Phase2Config(_Frozen):
     phase three only; 10 on a mean pins G at zero and the shape cannot move)."""
     lambda_correction: float = Field(default=0.01, ge=0.0)
     """Weight of the mean |c| (logit units) in phase two (ours, as above)."""
+    prior_weight: float = Field(default=0.0, ge=0.0)
+    """Weight of the CAD prior on D while G deforms it: binary cross entropy of D, at points of
+    its own (undeformed) frame, against the retrieved model's occupancy, as in phase one. D
+    then stays the CAD template and the photos are explained by G's warp and correction (0 =
+    off; ignored without G or without CAD initialisation, where there is no template)."""
+    prior_points: int = Field(default=1024, ge=16)
+    """CAD occupancy points per step for ``prior_weight``."""
 
     @model_validator(mode="after")
     def _check_windows(self) -> Phase2Config:
@@ -155,6 +162,10 @@ class Phase3Config(_Frozen):
     """Weight of the mean |c| (the paper's lambda_b: 0.1 in `paper`, 0.01 in ours)."""
     mask_weight: float = Field(default=0.1, ge=0.0)
     """Weight of the silhouette loss kept during phase three (ours; the paper uses none)."""
+    prior_weight: float = Field(default=0.0, ge=0.0)
+    """Weight of the CAD prior on D in phase three (as ``Phase2Config.prior_weight``)."""
+    prior_points: int = Field(default=1024, ge=16)
+    """CAD occupancy points per step for ``prior_weight``."""
     pose_window: tuple[float, float] = (0.0, 0.75)
     """Fractions of phase three's steps in which poses keep being refined, now by the colour
     loss ((0, 0) = frozen, the paper). Ours: the first three quarters, with ``pose_blur``.

@@ -13,6 +13,7 @@ import logging
 import resource
 import time
 from dataclasses import dataclass
+from functools import partial
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -172,16 +173,19 @@ def _run_phase(phase: int, state: TrainState, library: Library, model_id: str,
     from cadnerf_core.occupancy import sample_occupancy
 
     cfg = state.config
+    sampler: phases.OccupancySampler | None = None
+    if cfg.use_cad_init:
+        grid = library.occupancy(model_id)
+        # Its own generator per phase: a resumed phase draws what an uninterrupted run drew.
+        rng = np.random.default_rng(cfg.seed if phase == 1 else [cfg.seed, phase])
+        sampler = partial(sample_occupancy, grid, near_surface=cfg.phase1.near_surface, rng=rng)
     if phase == 1:
-        if cfg.use_cad_init:
-            grid = library.occupancy(model_id)
-            rng = np.random.default_rng(cfg.seed)
-            phases.run_phase1(state, lambda n: sample_occupancy(grid, n, cfg.phase1.near_surface,
-                                                                rng), progress)
+        if sampler is not None:
+            phases.run_phase1(state, sampler, progress)
     elif phase == 2:
-        phases.run_phase2(state, data, progress)
+        phases.run_phase2(state, data, progress, sampler)
     else:
-        phases.run_phase3(state, data, progress)
+        phases.run_phase3(state, data, progress, sampler)
 
 
 def train(job_dir: Path, library: Library, retrieval: RetrievalResult, data: TrainData,

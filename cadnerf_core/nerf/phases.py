@@ -83,6 +83,32 @@ def run_phase1(state: TrainState, sampler: OccupancySampler,
         _report(progress, "phase1", step, cfg.steps)
 
 
+class CadPrior:
+    """CAD occupancy points drawn once, for anchoring D to the template in phases two and three
+    (``prior_weight``): a batch's BCE of D at its own, undeformed points."""
+
+    def __init__(self, state: TrainState, sampler: OccupancySampler, pool: int = 1 << 16) -> None:
+        pts, occ = sampler(pool)
+        self.points = torch.from_numpy(np.asarray(pts, np.float32)).to(state.device)
+        self.occupancy = torch.from_numpy(np.asarray(occ, np.float32)).to(state.device)
+
+    def loss(self, state: TrainState, n: int) -> torch.Tensor:
+        """BCE of D's logit against the CAD occupancy at ``n`` pool points (CPU draws)."""
+        idx = torch.randint(0, self.points.shape[0], (n,)).to(state.device)
+        with autocast(state):
+            logit, _ = state.fields.density(self.points[idx])
+        return F.binary_cross_entropy_with_logits(logit.float(), self.occupancy[idx])
+
+
+def make_prior(state: TrainState, sampler: OccupancySampler | None,
+               weight: float) -> CadPrior | None:
+    """The CAD prior when it applies: a weight, a template (CAD init) and a deformation G."""
+    if weight <= 0 or sampler is None or state.fields.deformation is None \
+            or not state.config.use_cad_init:
+        return None
+    return CadPrior(state, sampler)
+
+
 def sample_pixels(data: TrainData, n: int) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
     """Random pixels over all photos (CPU generator: same draws on every device).
 
@@ -155,7 +181,8 @@ def _apply_step(loss: torch.Tensor, optimizer: torch.optim.Optimizer,
 
 
 def phase2_step(state: TrainState, data: TrainData, optimizer: torch.optim.Optimizer,
-                pose_optimizer: torch.optim.Optimizer | None, step: int) -> float:
+                pose_optimizer: torch.optim.Optimizer | None, step: int,
+                prior: CadPrior | None = None) -> float:
     """One silhouette step: G (or D) and, inside the window, the poses. Returns the loss."""
     cfg = state.config.phase2
     state.fields.set_anneal((step / max(cfg.steps, 1) - cfg.anneal[0])
@@ -164,6 +191,8 @@ def phase2_step(state: TrainState, data: TrainData, optimizer: torch.optim.Optim
     out = render_batch(state, data, img, x, y, False, pose_optimizer is not None)
     loss = F.mse_loss(out.acc, data.masks[img, y, x])
     loss = loss + cfg.lambda_offset * out.offset_norm + cfg.lambda_correction * out.correction_abs
+    if prior is not None:
+        loss = loss + cfg.prior_weight * prior.loss(state, cfg.prior_points)
     return _apply_step(loss, optimizer, pose_optimizer)
 
 
@@ -177,10 +206,13 @@ def _phase2_params(state: TrainState) -> Iterator[torch.nn.Parameter]:
     return iter(deformation.parameters())
 
 
-def run_phase2(state: TrainState, data: TrainData, progress: Progress | None = None) -> None:
-    """Phase two: deformation and poses from the silhouettes."""
+def run_phase2(state: TrainState, data: TrainData, progress: Progress | None = None,
+               sampler: OccupancySampler | None = None) -> None:
+    """Phase two: deformation and poses from the silhouettes (``sampler``: the CAD occupancy,
+    for ``prior_weight``)."""
     cfg = state.config.phase2
     torch.manual_seed(state.config.seed + 2)
+    prior = make_prior(state, sampler, cfg.prior_weight)
     optimizer = torch.optim.Adam(list(_phase2_params(state)), lr=cfg.lr)
     pose_optimizer = torch.optim.Adam(state.poses.parameters(), lr=cfg.pose_lr)
     # Without phase2.train_density, D stays the CAD prior while G deforms it: no parameter
@@ -190,7 +222,8 @@ def run_phase2(state: TrainState, data: TrainData, progress: Progress | None = N
     state.fields.density.requires_grad_(not frozen)
     for step in range(cfg.steps):
         active = state.config.optimise_poses and in_window(step, cfg.steps, cfg.pose_window)
-        loss = phase2_step(state, data, optimizer, pose_optimizer if active else None, step)
+        loss = phase2_step(state, data, optimizer, pose_optimizer if active else None, step,
+                           prior)
         state.log("phase2/loss", loss)
         _maybe_update_grid(state, step)
         _report(progress, "phase2", step, cfg.steps)
@@ -228,7 +261,7 @@ def blur_images(images: torch.Tensor, sigma: float) -> torch.Tensor:
 
 def phase3_step(state: TrainState, data: TrainData, optimizer: torch.optim.Optimizer,
                 pose_optimizer: torch.optim.Optimizer | None = None, scene: bool = False,
-                targets: torch.Tensor | None = None) -> float:
+                targets: torch.Tensor | None = None, prior: CadPrior | None = None) -> float:
     """One colour step (D, G and colour; the background too in scene mode; the poses inside
     phase three's window). Returns the loss."""
     cfg = state.config.phase3
@@ -243,13 +276,18 @@ def phase3_step(state: TrainState, data: TrainData, optimizer: torch.optim.Optim
     if cfg.mask_weight > 0:
         loss = loss + cfg.mask_weight * F.mse_loss(out.acc, data.masks[img, y, x])
     loss = loss + cfg.lambda_offset * out.offset_norm + cfg.lambda_correction * out.correction_abs
+    if prior is not None:
+        loss = loss + cfg.prior_weight * prior.loss(state, cfg.prior_points)
     return _apply_step(loss, optimizer, pose_optimizer)
 
 
-def run_phase3(state: TrainState, data: TrainData, progress: Progress | None = None) -> None:
-    """Phase three: colour re-rendering on white; then, in scene mode, with the background."""
+def run_phase3(state: TrainState, data: TrainData, progress: Progress | None = None,
+               sampler: OccupancySampler | None = None) -> None:
+    """Phase three: colour re-rendering on white; then, in scene mode, with the background
+    (``sampler``: the CAD occupancy, for ``prior_weight``)."""
     cfg = state.config.phase3
     torch.manual_seed(state.config.seed + 3)
+    prior = make_prior(state, sampler, cfg.prior_weight)
     state.fields.set_anneal(1.0)
     background = state.fields.background
     params = [p for name, p in state.fields.named_parameters()
@@ -268,7 +306,7 @@ def run_phase3(state: TrainState, data: TrainData, progress: Progress | None = N
         targets = blurred[sigma] if active and sigma > 0 else None
         state.log("phase3/loss", phase3_step(state, data, optimizer,
                                              pose_optimizer if active else None,
-                                             targets=targets))
+                                             targets=targets, prior=prior))
         _maybe_update_grid(state, step)
         _report(progress, "phase3", step, total)
     if scene_steps and background is not None:
