@@ -128,7 +128,7 @@ def read_result(record: JobRecord, job_dir: Path) -> JobResult:
     warnings = []
     if retrieval.get("direction_ambiguous"):
         warnings.append(f"{AMBIGUOUS_HINT}: resubmit with the config field "
-                        '{"overrides": {"retrieval": {"walk": "ccw"}}} (or "cw")')
+                        '{"overrides": {"retrieval": {"walk": "cw"}}}')
     return JobResult(id=record.id, model=model, photos=photos,
                      discarded=[p.name for p in photos if p.discarded],
                      metrics=metrics if isinstance(metrics, dict) else {},

@@ -238,9 +238,9 @@ class ExportConfig(_Frozen):
 
 
 AMBIGUOUS_HINT = ("the walking direction is a guess: these photos look alike walked either way "
-                  "round, so the poses may be those of the mirrored walk; to be sure, give the "
-                  "direction (walk: ccw if the object was on your left as you walked, cw if on "
-                  "your right)")
+                  "round, so counter-clockwise was assumed (the object on your left as you "
+                  "walked); if you walked with it on your right, the poses are those of the "
+                  "mirrored walk: give the direction (walk: cw)")
 """What a user is told when ``RetrievalResult.direction_ambiguous``."""
 
 
@@ -257,7 +257,7 @@ class RetrievalOptions(_Frozen):
     """Which way round the photos were taken: "ccw" (counter-clockwise seen from above, the
     object on your left as you walk), "cw", or "auto" (found from the photos). Give it for
     objects that look alike from mirrored sides (mugs, bottles, lamps): there the silhouettes
-    cannot tell, and the job warns that the direction is a guess."""
+    cannot tell: the job then assumes "ccw" and warns that the direction is a guess."""
     shared_focal: bool = True
     """The photos were taken with one camera at one zoom: they share a focal length (their
     EXIF one where they carry it), and each photo's retrieved scale becomes its distance (off:

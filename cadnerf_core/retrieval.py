@@ -99,6 +99,15 @@ class RetrievalConfig(BaseModel):
     ``direction_ambiguous`` and the job warns that the direction is a guess. Measured on the
     52 synthetic walks of ``benchmarks/bench_retrieval.py``; see ``docs/bench_retrieval_full.md``
     (the "lead" column)."""
+    ambiguous_walk: Literal["ccw", "best"] = "ccw"
+    """DP, "auto" only: the walk taken when the direction is ambiguous (above). "ccw": the
+    counter-clockwise one, the library's increasing azimuth and the paper's assumed order, so
+    that a photographer who walks with the object on the left gets the right poses from
+    photos that cannot tell the direction, and the result never depends on a lead of a few
+    hundredths of IoU; "best": the walk with the higher objective, however slight (a coin
+    toss on such photos). Measured on the 52 synthetic walks of
+    ``benchmarks/bench_retrieval.py`` (walked each way equally often); see
+    ``docs/bench_retrieval_full.md``."""
     shared_focal: bool = True
     """One camera for the whole walk: every photo gets the median of the photos' focal lengths
     (in units of the photo's longer side), and the distance to the object that keeps the
@@ -164,7 +173,9 @@ class RetrievalResult:
     when the direction was given or the paper's solver ran)."""
     direction_ambiguous: bool = False
     """Neither the silhouettes (lead under ``RetrievalConfig.ambiguity_margin``) nor the texture
-    told the walking direction: the poses may be the mirrored walk's."""
+    told the walking direction: the walk is the one ``RetrievalConfig.ambiguous_walk`` assumes
+    (counter-clockwise by default), and the poses are the mirrored walk's if the photographer
+    went the other way."""
 
     @property
     def kept(self) -> list[PhotoMatch]:
@@ -349,6 +360,20 @@ def direction_evidence(images: Sequence[np.ndarray], masks: Sequence[np.ndarray]
     return walk_direction_evidence(np.stack(rgbs), np.stack(crops))
 
 
+def _choose_walk(iou: np.ndarray, m: int, ranking: Sequence[tuple[int, int, float]],
+                 az_index: np.ndarray, n_azimuths: int, config: RetrievalConfig,
+                 evidence: float) -> tuple[int, PoseSearchResult]:
+    """The model and its walk: the voted model ``m``'s, or (``model_choice`` "walk", DP) the
+    best walk of the ``TOP_MODELS`` most voted. Returns (model index, its walk)."""
+    found = solve_poses(iou[:, m, :], az_index, n_azimuths, config, evidence)
+    if config.model_choice == "walk" and config.solver == "dp":
+        for other, _, _ in ranking[1:TOP_MODELS]:
+            walk = solve_poses(iou[:, other, :], az_index, n_azimuths, config, evidence)
+            if walk.score > found.score:
+                m, found = other, walk
+    return m, found
+
+
 def retrieve(masks: Sequence[np.ndarray], names: Sequence[str], library: Library,
              config: RetrievalConfig | None = None, progress: Progress | None = None,
              images: Sequence[np.ndarray] | None = None,
@@ -372,20 +397,22 @@ def retrieve(masks: Sequence[np.ndarray], names: Sequence[str], library: Library
     spec = library.spec
     crops, boxes = canonical_masks(masks, spec.silhouette_size, spec.margin)
     iou = iou_table(crops, library.silhouettes)
-    m, ranking = vote_models(iou)
+    voted, ranking = vote_models(iou)
     if progress is not None:
         progress.step("retrieval", 1, 2)
     az_index = azimuth_bins(library.az_el, spec.n_azimuths)
     evidence = 0.0
     if images is not None and config.solver == "dp" and config.appearance_weight > 0:
         evidence = direction_evidence(images, masks, boxes)
-    found = solve_poses(iou[:, m, :], az_index, spec.n_azimuths, config, evidence)
-    if config.model_choice == "walk" and config.solver == "dp":
-        for other, _, _ in ranking[1:TOP_MODELS]:
-            walk = solve_poses(iou[:, other, :], az_index, spec.n_azimuths, config,
-                               evidence)
-            if walk.score > found.score:
-                m, found = other, walk
+    m, found = _choose_walk(iou, voted, ranking, az_index, spec.n_azimuths, config, evidence)
+    ambiguous = (found.direction_lead is not None
+                 and found.direction_lead < config.ambiguity_margin
+                 and abs(evidence) < config.appearance_threshold)
+    if ambiguous and found.direction < 0 and config.ambiguous_walk == "ccw":
+        ccw = config.model_copy(update={"walk": "ccw"})
+        lead = found.direction_lead
+        m, found = _choose_walk(iou, voted, ranking, az_index, spec.n_azimuths, ccw, evidence)
+        found = dataclasses.replace(found, direction_lead=lead)
     size = config.size or spec.silhouette_size
     matches = []
     for p, view in enumerate(found.views):
@@ -402,9 +429,6 @@ def retrieve(masks: Sequence[np.ndarray], names: Sequence[str], library: Library
              config.solver, sum(not x.discarded for x in matches), len(matches))
     if progress is not None:
         progress.step("retrieval", 2, 2)
-    ambiguous = (found.direction_lead is not None
-                 and found.direction_lead < config.ambiguity_margin
-                 and abs(evidence) < config.appearance_threshold)
     if ambiguous:
         log.warning("%s (lead %.3f IoU, texture evidence %+.2f)", AMBIGUOUS_HINT,
                     found.direction_lead, evidence)

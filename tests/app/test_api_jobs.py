@@ -125,7 +125,7 @@ def test_result_is_409_until_succeeded_then_complete(client: TestClient, setting
     retrieval_path.write_text(json.dumps({**retrieval, "direction_ambiguous": True}))
     warnings = client.get(f"/v1/jobs/{job['id']}/result").json()["warnings"]
     assert len(warnings) == 1 and "walking direction is a guess" in warnings[0]
-    assert '"walk": "ccw"' in warnings[0]
+    assert '"walk": "cw"' in warnings[0]
 
 
 def test_artifacts_stream_with_ranges_and_stay_inside_the_job(client: TestClient,

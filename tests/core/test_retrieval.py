@@ -161,6 +161,29 @@ def test_a_walk_that_looks_alike_both_ways_is_flagged_as_a_guess(tiny_library: A
     assert not given.direction_ambiguous and given.direction == 1
 
 
+def test_an_ambiguous_walk_is_taken_counter_clockwise_unless_asked_for_the_best(
+        tiny_library: Any) -> None:
+    """Below the ambiguity margin the DP's lead is no evidence: the counter-clockwise walk
+    (``ambiguous_walk`` "ccw") is assumed, the lead still reported; "best" keeps the lead's."""
+    library = tiny_library
+    # A clockwise walk round the asymmetric chair, with a margin no lead reaches.
+    _, masks = _walk(library, "chair", (7, 5, 3, 1))
+    names = ["a", "b", "c", "d"]
+    sure = retrieve(masks, names, library, RetrievalConfig())
+    assert sure.direction == -1 and not sure.direction_ambiguous
+    assert sure.direction_lead is not None and sure.direction_lead > 0
+    best = retrieve(masks, names, library,
+                    RetrievalConfig(ambiguity_margin=100.0, ambiguous_walk="best"))
+    assert best.direction_ambiguous and best.direction == -1
+    assert [m.view for m in best.matches] == [m.view for m in sure.matches]
+    assumed = retrieve(masks, names, library, RetrievalConfig(ambiguity_margin=100.0))
+    ccw = retrieve(masks, names, library, RetrievalConfig(walk="ccw"))
+    assert assumed.direction_ambiguous and assumed.direction == 1
+    assert [m.view for m in assumed.matches] == [m.view for m in ccw.matches]
+    assert assumed.model_id == ccw.model_id
+    assert assumed.direction_lead == pytest.approx(sure.direction_lead)
+
+
 def _match(index: int, focal: float, discarded: bool = False) -> Any:
     from cadnerf_core.cameras import orbit_pose
     from cadnerf_core.crop import CropBox, crop_intrinsics
