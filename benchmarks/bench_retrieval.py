@@ -53,10 +53,13 @@ VARIANTS: dict[str, tuple[str, dict[str, Any]]] = {
     "dp": ("**DP (ours)**", {}),
     "paper": ("Algorithm 1", {"solver": "paper"}),
     "old": ("DP, old", {"model_choice": "votes", "spread_weight": 0.0, "appearance_weight": 0.0,
-                        "direction_margin": 0.005}),
+                        "direction_margin": 0.005, "ambiguous_walk": "best"}),
     "votes": ("DP, model by votes", {"model_choice": "votes"}),
     "nospread": ("DP, no spread prior", {"spread_weight": 0.0}),
     "notexture": ("DP, no texture cue", {"appearance_weight": 0.0}),
+    # Where the direction is ambiguous, the walk with the higher objective (session 8's
+    # default) rather than the counter-clockwise one.
+    "best": ("DP, ambiguous: best walk", {"ambiguous_walk": "best"}),
     # The photographer gives the walking direction (``RetrievalConfig.walk``; "given" is
     # replaced by the walk's true direction).
     "walk": ("DP, walk given", {"walk": "given"}),
@@ -146,7 +149,7 @@ def synthetic_table(results: list[SetResult]) -> list[str]:
     summary = "; ".join(f"{VARIANTS[k][0]} {statistics.median(errors[k]):.1f} deg "
                         f"({sum(e < 15 for e in errors[k])} sets under 15 deg)" for k in keys)
     worse = [f"{r.mesh} {r.views} {r.direction:+d} ({r.errors['dp']:.1f} vs "
-             f"{r.errors['paper']:.1f})" for r in results
+             f"{r.errors['paper']:.1f}{', a guess' if r.ambiguous else ''})" for r in results
              if r.errors["dp"] > r.errors["paper"] + 1e-6]
     like = [f"{r.mesh} {r.views} {r.direction:+d} ({r.dp_on_paper_kept:.1f} vs "
             f"{r.errors['paper']:.1f})" for r in results
