@@ -31,9 +31,9 @@ def test_paper_preset_keeps_the_papers_values() -> None:
 
 def test_overrides_nested_and_dotted() -> None:
     cfg = resolve_config("preview", {"phase2": {"steps": 7}, "export.orbit_frames": 12,
-                                     "use_deformation": False})
+                                     "use_deformation": True})
     assert cfg.phase2.steps == 7 and cfg.export.orbit_frames == 12
-    assert cfg.use_deformation is False
+    assert PRESETS["preview"].use_deformation is False and cfg.use_deformation is True
     assert cfg.phase2.rays == PRESETS["preview"].phase2.rays  # untouched values stay
 
 
