@@ -116,8 +116,10 @@ def _mapping(record: JobRecord) -> dict[Any, Any]:
 DEFAULT_STAGE_SECONDS: dict[str, dict[str, float]] = {
     "test": {"masks": 0.5, "retrieval": 0.5, "phase1": 0.5, "phase2": 1.0, "phase3": 1.0,
              "render": 0.5, "export": 1.0},
-    "preview": {"masks": 3, "retrieval": 3, "phase1": 50, "phase2": 190, "phase3": 480,
-                "render": 30, "export": 20},
+    # `make run`'s demo job on 2 CPU cores (session 9, AMD EPYC: phase one 4 s, two 14 s,
+    # three 111 s, views, orbit and mesh 11 s), rounded up for slower cores.
+    "preview": {"masks": 3, "retrieval": 3, "phase1": 6, "phase2": 20, "phase3": 150,
+                "render": 10, "export": 10},
     "standard": {"masks": 4, "retrieval": 4, "phase1": 250, "phase2": 1500, "phase3": 4000,
                  "render": 120, "export": 90},
     "paper": {"masks": 3, "retrieval": 3, "phase1": 300, "phase2": 5000, "phase3": 15000,

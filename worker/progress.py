@@ -76,7 +76,11 @@ class EtaModel:
         return self.fraction, self._eta(order, position, part, now)
 
     def _eta(self, order: list[str], position: int, part: float, now: float) -> float:
-        expected_now = self.expected.get(order[position], 1.0)
+        measured = [(self.durations[s], self.expected.get(s, 1.0)) for s in order[:position]
+                    if s in self.durations]
+        # The finished stages tell how fast this machine is against the table: the current
+        # stage's planned time is scaled by that before its own rate is known.
+        expected_now = self.expected.get(order[position], 1.0) * _speed(measured)
         elapsed = now - self.stage_started
         observed_total = elapsed / part if part > 0 and elapsed > 0.2 else None
         # The observed rate of this stage is trusted more as the stage advances.
@@ -85,15 +89,16 @@ class EtaModel:
         else:
             current_left = (part * observed_total * (1 - part)
                             + (1 - part) * expected_now * (1 - part))
-        measured = [(self.durations[s], self.expected.get(s, 1.0)) for s in order[:position]
-                    if s in self.durations]
-        if observed_total is not None:
-            measured.append((observed_total, expected_now))
-        spent = sum(m for m, _ in measured)
-        planned = sum(e for _, e in measured)
-        speed = min(max(spent / planned, 0.05), 50.0) if planned > 0 and spent > 0 else 1.0
-        future = sum(self.expected.get(s, 1.0) for s in order[position + 1:]) * speed
+            measured.append((observed_total, self.expected.get(order[position], 1.0)))
+        future = sum(self.expected.get(s, 1.0) for s in order[position + 1:]) * _speed(measured)
         return max(current_left + future, 0.0)
+
+
+def _speed(measured: list[tuple[float, float]]) -> float:
+    """Measured over planned seconds of (measured, planned) pairs (1 without any), bounded."""
+    spent = sum(m for m, _ in measured)
+    planned = sum(e for _, e in measured)
+    return min(max(spent / planned, 0.05), 50.0) if planned > 0 and spent > 0 else 1.0
 
 
 class JobProgress:

@@ -41,6 +41,21 @@ def test_eta_follows_the_observed_speed() -> None:
     assert left > 8  # slower than the table's 4 + 4 s
 
 
+def test_finished_stages_scale_the_plan_of_the_next_one() -> None:
+    """A machine that ran the first stages four times faster than the table is expected to
+    run the next one four times faster too, before that stage's own rate is known."""
+    eta = EtaModel(dict(EXPECTED))
+    eta.update("masks", 0, 1, now=0.0)
+    eta.update("retrieval", 0, 1, now=0.25)
+    eta.update("phase1", 0, 2, now=0.5)
+    eta.update("phase2", 0, 4, now=1.0)  # masks, retrieval, phase1: 1 s against 4 planned
+    _, left = eta.update("phase3", 0, 10, now=2.0)  # phase2: 1 s against 4
+    assert left == pytest.approx((8 + 2 + 2) / 4)
+    # Its own rate then takes over: half done in 4 s (the plan at the old speed) is slower.
+    _, later = eta.update("phase3", 5, 10, now=6.0)
+    assert later > (8 / 4) * 0.5 + (2 + 2) / 4
+
+
 def test_measured_stage_times_replace_the_defaults(clean_redis) -> None:
     defaults = DEFAULT_STAGE_SECONDS["test"]
     assert expected_stage_seconds(clean_redis, "test", "cpu") == defaults
