@@ -297,13 +297,14 @@ def save_orbit_frame(job: Path) -> None:
 
 def run(quick: bool, threads: int | None = None, names: list[str] | None = None,
         seeds: int = 1, only: list[str] | None = None, exif_focal: bool = False,
-        overrides: dict[str, Any] | None = None, fov_deg: float = FOV_DEG) -> str:
+        overrides: dict[str, Any] | None = None, fov_deg: float = FOV_DEG,
+        first_seed: int = 0) -> str:
     """The markdown section (see the module docstring); every run repeated with training
-    seeds 0 to ``seeds - 1`` (the datasets stay the same); ``only``: the runs to keep (names
-    of ``ABLATIONS`` or ``ORACLE``; all when None); ``exif_focal``: the photos carry their
-    true focal length in EXIF; ``overrides``: configuration values applied to every run, under
-    each run's own (dotted keys, as a job's config takes them); ``fov_deg``: the photos'
-    horizontal field of view."""
+    seeds ``first_seed`` to ``first_seed + seeds - 1`` (the datasets stay the same);
+    ``only``: the runs to keep (names of ``ABLATIONS`` or ``ORACLE``; all when None);
+    ``exif_focal``: the photos carry their true focal length in EXIF; ``overrides``:
+    configuration values applied to every run, under each run's own (dotted keys, as a job's
+    config takes them); ``fov_deg``: the photos' horizontal field of view."""
     import torch
 
     from cadnerf_core.library import load_library
@@ -322,7 +323,7 @@ def run(quick: bool, threads: int | None = None, names: list[str] | None = None,
     with tempfile.TemporaryDirectory() as tmp:
         work = Path(tmp)
         for i, mesh in enumerate(meshes):
-            for seed in range(seeds):
+            for seed in range(first_seed, first_seed + seeds):
                 runs = [(name, overrides, False) for name, overrides in ABLATIONS.items()]
                 for name, own, oracle in [*runs, (ORACLE, ORACLE_OVERRIDES, True)]:
                     if only is not None and name not in only:
@@ -335,7 +336,8 @@ def run(quick: bool, threads: int | None = None, names: list[str] | None = None,
                                      oracle=oracle, exif_focal=exif_focal, fov_deg=fov_deg)
                     rows.append((mesh.parent.name, name, {**result, "seed": seed}))
                     log.info("%s %s: %s", mesh.parent.name, label, result)
-            if i == 0 and names is None and (only is None or "full" in only):
+            if i == 0 and names is None and first_seed == 0 \
+                    and (only is None or "full" in only):
                 save_orbit_frame(work / mesh.parent.name / "full")
                 orbit_note = ("An orbit frame of the first mesh's full run: "
                               "`docs/orbit_frame.png`.")
@@ -343,12 +345,14 @@ def run(quick: bool, threads: int | None = None, names: list[str] | None = None,
     flags += f" --threads {threads}" if threads else ""
     flags += f" --meshes {' '.join(names)}" if names else ""
     flags += f" --seeds {seeds}" if seeds > 1 else ""
+    flags += f" --first-seed {first_seed}" if first_seed else ""
     flags += " --exif-focal" if exif_focal else ""
     flags += f" --fov {fov_deg:g}" if fov_deg != FOV_DEG else ""
     flags += f" --overrides '{json.dumps(overrides)}'" if overrides else ""
     if only:
         flags += " --runs " + " ".join(f'"{name}"' if " " in name else name for name in only)
-    seed_text = f"0 to {seeds - 1}" if seeds > 1 else "0"
+    last = first_seed + seeds - 1
+    seed_text = f"{first_seed} to {last}" if seeds > 1 else f"{first_seed}"
     lines = [f"## Training (preset `{PRESET}`, CPU)", "",
              f"Command: `.venv/bin/python -m benchmarks.bench_training{flags}` "
              f"(torch threads: {torch.get_num_threads()}). Datasets: `render_dataset` "
@@ -383,6 +387,8 @@ def main() -> None:
     parser.add_argument("--seeds", type=int, default=1,
                         help="repeat every run with training seeds 0..N-1 (the spread between "
                              "seeds is the noise an ablation's difference must beat)")
+    parser.add_argument("--first-seed", type=int, default=0,
+                        help="the first training seed (seeds N..N+seeds-1)")
     parser.add_argument("--runs", nargs="*", default=None,
                         help=f"only these runs, of {[*ABLATIONS, ORACLE]}")
     parser.add_argument("--exif-focal", action="store_true",
@@ -396,7 +402,7 @@ def main() -> None:
     args = parser.parse_args()
     logging.basicConfig(level=logging.INFO)
     print(run(args.quick, args.threads, args.meshes, max(1, args.seeds), args.runs,
-              args.exif_focal, args.overrides, args.fov))  # noqa: T201 (the section is the command's output)
+              args.exif_focal, args.overrides, args.fov, max(0, args.first_seed)))  # noqa: T201 (the section is the command's output)
 
 
 if __name__ == "__main__":
