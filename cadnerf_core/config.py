@@ -345,8 +345,8 @@ PRESETS: dict[str, PipelineConfig] = {
     # trained directly, as in the paper's "w/o deformation"): at this scale G is measured to add
     # a fifth to a third of the job time and no quality. `docs/bench_training_preview.md`
     # (session 9, seed 0): mean test PSNR 20.06 dB without G against 19.95 with it (23.15 /
-    # 23.01 with test-time pose), jobs 181 s against 223 s; seed 1 (session 8, before the
-    # shared focal length): 19.49 / 19.69 against 19.33 / 19.64; on the drill and the cow,
+    # 23.01 with test-time pose), jobs 181 s against 223 s; seed 1: 19.54 against 19.32
+    # (23.30 / 23.10), 201 s against 245 s; on the drill and the cow,
     # 14.18 / 16.85 against 13.95 / 16.87, 191 s against 284 s (`docs/bench_training_focal.md`).
     # `standard` and `paper` keep G: nothing here measured them.
     "preview": _preset(
