@@ -84,6 +84,7 @@ def match_rows(photos: list[Photo], masks: list[np.ndarray], library: Library,
 
     from cadnerf_core.photos import canonical_views
 
+    library = library.view_set(result.perspective)
     spec = library.spec
     rgb, crops, _ = canonical_views(photos, masks, spec.silhouette_size, spec.margin)
     m = library.index(result.model_id)
@@ -119,7 +120,8 @@ def write_pictures(out: Path, rows: list[np.ndarray], names: list[str]) -> Path:
 def summary_lines(result: RetrievalResult) -> list[str]:
     """Human-readable lines: the model, the top models, and a line per photo."""
     lines = [f"model: {result.model_id} ({result.category})  solver: {result.solver}  "
-             f"direction: {result.direction:+d}", "top models:"]
+             f"direction: {result.direction:+d}  perspective: {result.perspective}",
+             "top models:"]
     if result.direction_ambiguous:
         from cadnerf_core.config import AMBIGUOUS_HINT
 

@@ -263,6 +263,10 @@ class RetrievalOptions(_Frozen):
     EXIF one where they carry it), and each photo's retrieved scale becomes its distance (off:
     each photo keeps the focal length of its own library match; for photos taken at different
     zooms)."""
+    perspective: Literal["auto", "far", "near"] = "auto"
+    """Library silhouettes to match: "near" (seen from about half as far, as a phone's wide
+    lens frames an object), "far" (a 40-degree camera), or "auto": the set whose perspective
+    fits the photos, which needs their focal length (EXIF); without it "far"."""
 
 
 class PipelineConfig(_Frozen):

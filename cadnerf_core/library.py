@@ -20,7 +20,7 @@ import io
 import json
 import os
 import zipfile
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 from functools import cached_property
 from pathlib import Path
 from typing import Any
@@ -61,6 +61,18 @@ class LibrarySpec:
     """Camera distance from the origin (the model is inside the unit sphere)."""
     fov_deg: float = 40.0
     """Horizontal field of view of the render camera in degrees."""
+    near_distance: float | None = 2.2
+    """Distance of a second set of silhouettes, the same poses seen from nearer (None: none).
+    A phone's wide lens (about 65 degrees across) frames an object from about half the
+    distance a 40-degree camera does, and the nearer view changes the silhouette's
+    perspective; retrieval picks the set whose perspective matches the photos' when their
+    focal length is known (``retrieval.choose_perspective``). On the 52 synthetic walks of
+    ``benchmarks/bench_retrieval.py`` rendered at 65 degrees, the median rotation error of
+    retrieval is 15.0 degrees from the 40-degree set and 13.8 from this one (at 40 degrees:
+    13.6 against 15.3), and three of the four armchair walks are mirrored with the far set."""
+    near_fov_deg: float = 65.0
+    """Horizontal field of view of the near set's render camera (the unit sphere fills
+    about 72% of it at ``near_distance`` 2.2)."""
     render_size: int = 128
     """Side of the square silhouette renders in pixels."""
     silhouette_size: int = 64
@@ -88,6 +100,13 @@ class LibrarySpec:
 
         return intrinsics_from_fov(self.fov_deg, self.render_size)
 
+    def near_spec(self) -> LibrarySpec | None:
+        """The near set's settings as a spec of its own (no near set of its own), or None."""
+        if self.near_distance is None:
+            return None
+        return replace(self, distance=self.near_distance, fov_deg=self.near_fov_deg,
+                       near_distance=None)
+
     def to_dict(self) -> dict[str, Any]:
         """JSON-ready form."""
         data = asdict(self)
@@ -96,9 +115,10 @@ class LibrarySpec:
 
     @classmethod
     def from_dict(cls, data: dict[str, Any]) -> LibrarySpec:
-        """Inverse of ``to_dict``."""
+        """Inverse of ``to_dict`` (a manifest written before the near set has none)."""
         values = dict(data)
         values["elevations"] = tuple(float(e) for e in values["elevations"])
+        values.setdefault("near_distance", None)
         return cls(**values)
 
 
@@ -160,9 +180,20 @@ def load_npz(path: Path) -> dict[str, np.ndarray]:
         raise LibraryError(f"{path} is unreadable ({exc}); {REBUILD_HINT}") from exc
 
 
-def pack_silhouettes(masks: np.ndarray, boxes: np.ndarray) -> dict[str, np.ndarray]:
-    """Arrays of a silhouettes file. masks [V, S, S] bool, boxes [V, 3] -> {bits, boxes}."""
-    return {"bits": np.packbits(masks, axis=-1), "boxes": np.asarray(boxes, dtype=np.float64)}
+NEAR_SUFFIX = "_near"
+"""Suffix of the near set's arrays in a silhouettes file (``bits_near``, ``boxes_near``)."""
+
+
+def pack_silhouettes(masks: np.ndarray, boxes: np.ndarray,
+                     near: tuple[np.ndarray, np.ndarray] | None = None) -> dict[str, np.ndarray]:
+    """Arrays of a silhouettes file. masks [V, S, S] bool, boxes [V, 3] -> {bits, boxes}, and
+    with ``near`` (its masks and boxes) also {bits_near, boxes_near}."""
+    arrays: dict[str, np.ndarray] = {"bits": np.packbits(masks, axis=-1),
+                                     "boxes": np.asarray(boxes, dtype=np.float64)}
+    if near is not None:
+        arrays["bits" + NEAR_SUFFIX] = np.packbits(near[0], axis=-1)
+        arrays["boxes" + NEAR_SUFFIX] = np.asarray(near[1], dtype=np.float64)
+    return arrays
 
 
 def write_manifest(root: Path, spec: LibrarySpec, models: list[ModelEntry],
@@ -216,9 +247,12 @@ class Library:
     """A loaded library: its models, the shared pose set, silhouettes and crop boxes."""
 
     def __init__(self, root: Path, spec: LibrarySpec, models: list[ModelEntry],
-                 packed_silhouettes: np.ndarray, boxes: np.ndarray) -> None:
-        """Args: packed_silhouettes [M, V, S, S/8] uint8 (packbits), boxes [M, V, 3]."""
+                 packed_silhouettes: np.ndarray, boxes: np.ndarray,
+                 near: tuple[np.ndarray, np.ndarray] | None = None) -> None:
+        """Args: packed_silhouettes [M, V, S, S/8] uint8 (packbits), boxes [M, V, 3]; near: the
+        same two for the near set (``LibrarySpec.near_distance``), when the spec has one."""
         self.root = Path(root)
+        self._near_arrays = near
         self.spec = spec
         self.models = models
         self.poses, self.az_el = spec.poses()
@@ -227,6 +261,31 @@ class Library:
         self._packed = packed_silhouettes
         self._index = {m.id: i for i, m in enumerate(models)}
         self._occupancy: dict[str, OccupancyGrid] = {}
+
+    @cached_property
+    def near(self) -> Library | None:
+        """The same models and poses seen from ``spec.near_distance`` (a Library of its own
+        whose poses, camera, silhouettes and boxes are the near set's; occupancy shared), or
+        None when the library has no near set."""
+        near_spec = self.spec.near_spec()
+        if near_spec is None or self._near_arrays is None:
+            return None
+        near = Library(self.root, near_spec, self.models, *self._near_arrays)
+        near._occupancy = self._occupancy
+        return near
+
+    def view_set(self, perspective: str) -> Library:
+        """The Library of a silhouette set by name: "far" (this one) or "near".
+
+        Raises:
+            LibraryError: for "near" when the library has no near set.
+        """
+        if perspective == "far":
+            return self
+        if perspective == "near" and self.near is not None:
+            return self.near
+        raise LibraryError(f"the library at {self.root} has no '{perspective}' silhouette set; "
+                           f"{REBUILD_HINT}")
 
     @cached_property
     def silhouettes(self) -> np.ndarray:
@@ -272,16 +331,22 @@ class Library:
         return loaded
 
 
-def _load_silhouettes(path: Path, spec: LibrarySpec) -> tuple[np.ndarray, np.ndarray]:
-    """Packed silhouettes [V, S, S/8] and boxes [V, 3] of one model, shapes checked."""
+def _load_silhouettes(path: Path, spec: LibrarySpec) -> list[tuple[np.ndarray, np.ndarray]]:
+    """Packed silhouettes [V, S, S/8] and boxes [V, 3] of one model, shapes checked: the main
+    set's, then the near set's where the spec has one."""
     arrays = load_npz(path)
-    bits, boxes = arrays.get("bits"), arrays.get("boxes")
     size, views = spec.silhouette_size, spec.n_views
-    if (bits is None or boxes is None or bits.shape != (views, size, (size + 7) // 8)
-            or boxes.shape != (views, 3)):
-        raise LibraryError(f"{path} does not match the library spec ({views} views of "
-                           f"{size} px); {REBUILD_HINT}")
-    return bits, boxes
+    suffixes = ["", NEAR_SUFFIX] if spec.near_distance is not None else [""]
+    out = []
+    for suffix in suffixes:
+        bits, boxes = arrays.get("bits" + suffix), arrays.get("boxes" + suffix)
+        if (bits is None or boxes is None or bits.shape != (views, size, (size + 7) // 8)
+                or boxes.shape != (views, 3)):
+            raise LibraryError(f"{path} does not match the library spec ({views} views of "
+                               f"{size} px{', and a near set' if suffix else ''}); "
+                               f"{REBUILD_HINT}")
+        out.append((bits, boxes))
+    return out
 
 
 def load_library(root: Path | str, verify: bool = True) -> Library:
@@ -304,11 +369,12 @@ def load_library(root: Path | str, verify: bool = True) -> Library:
         raise LibraryError(f"{root / MANIFEST} is damaged ({exc}); {REBUILD_HINT}") from exc
     if not models:
         raise LibraryError(f"the library at {root} has no models; {REBUILD_HINT}")
-    packed, boxes = [], []
+    sets: list[list[tuple[np.ndarray, np.ndarray]]] = []
     for entry in models:
         if verify:
             verify_model(root, entry)
-        bits, box = _load_silhouettes(root / entry.id / SILHOUETTES_FILE, spec)
-        packed.append(bits)
-        boxes.append(box)
-    return Library(root, spec, models, np.stack(packed), np.stack(boxes))
+        sets.append(_load_silhouettes(root / entry.id / SILHOUETTES_FILE, spec))
+    stacked = [(np.stack([s[k][0] for s in sets]), np.stack([s[k][1] for s in sets]))
+               for k in range(len(sets[0]))]
+    return Library(root, spec, models, *stacked[0],
+                   near=stacked[1] if len(stacked) > 1 else None)

@@ -98,7 +98,7 @@ def run_intake(job_dir: Path, library: Library, config: PipelineConfig,
     opts = config.retrieval
     rcfg = RetrievalConfig(solver=opts.solver, top_k=opts.top_k, max_discard=opts.max_discard,
                            walk=opts.walk, shared_focal=opts.shared_focal,
-                           size=config.image_size)
+                           perspective=opts.perspective, size=config.image_size)
     retrieval = retrieve(masks, names, library, rcfg, progress, [p.rgb for p in photos],
                          [p.focal_pixels for p in photos])
     write_json(job_dir / "retrieval.json", retrieval.to_json())

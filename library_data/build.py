@@ -98,7 +98,9 @@ def write_model(folder: Path, mesh: trimesh.Trimesh, spec: LibrarySpec,
     plain = trimesh.Trimesh(np.asarray(mesh.vertices), np.asarray(mesh.faces), process=False)
     plain.export(folder / fmt.MESH_FILE, file_type="ply")
     masks, boxes = render_silhouettes(plain, spec)
-    fmt.save_npz(folder / fmt.SILHOUETTES_FILE, fmt.pack_silhouettes(masks, boxes))
+    near_spec = spec.near_spec()
+    near = render_silhouettes(plain, near_spec) if near_spec is not None else None
+    fmt.save_npz(folder / fmt.SILHOUETTES_FILE, fmt.pack_silhouettes(masks, boxes, near))
     grid = compute_occupancy(plain, spec.grid_size, rule)
     fmt.save_npz(folder / fmt.OCCUPANCY_FILE, grid.pack())
     return {name: fmt.sha256_file(folder / name) for name in fmt.MODEL_FILES}

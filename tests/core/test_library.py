@@ -57,6 +57,59 @@ def test_silhouettes_match_a_fresh_render(tiny_library: Any) -> None:
         assert np.mean(crop == lib.silhouettes[1, v]) > 0.99
 
 
+def test_the_near_set_sees_the_same_poses_from_nearer(tiny_library: Any) -> None:
+    lib = tiny_library
+    near = lib.near
+    assert near is not None and near.near is None
+    assert near.spec.distance == lib.spec.near_distance == 2.2
+    assert near.spec.fov_deg == lib.spec.near_fov_deg
+    assert near.silhouettes.shape == lib.silhouettes.shape and near.models is lib.models
+    # Same directions, nearer cameras.
+    assert np.allclose(near.poses[:, :3, :3], lib.poses[:, :3, :3])
+    assert np.allclose(near.poses[:, :3, 3] * lib.spec.distance / near.spec.distance,
+                       lib.poses[:, :3, 3])
+    mesh = lib.mesh("chair_wood")
+    size = near.spec.render_size
+    for v in (3, 12):
+        render = render_silhouette_polygons(mesh, near.K_render, near.poses[v], size, size)
+        box = canonical_box(render, near.spec.silhouette_size, near.spec.margin)
+        assert np.allclose(near.boxes[0, v], (box.x0, box.y0, box.side))
+        assert np.mean(apply_crop(render, box) == near.silhouettes[0, v]) > 0.99
+    # Perspective: the near silhouettes differ from the far ones, the crops alike in size.
+    assert np.mean(near.silhouettes != lib.silhouettes) > 0.005
+    assert near.occupancy("mug") is lib.occupancy("mug")
+
+
+def test_a_library_built_before_the_near_set_loads_without_one(library_copy: Path) -> None:
+    from cadnerf_core.library import NEAR_SUFFIX, load_npz, sha256_file
+
+    manifest = json.loads((library_copy / MANIFEST).read_text())
+    for key in ("near_distance", "near_fov_deg"):
+        manifest["spec"].pop(key)
+    for entry in manifest["models"]:
+        path = library_copy / entry["id"] / SILHOUETTES_FILE
+        arrays = {k: v for k, v in load_npz(path).items() if not k.endswith(NEAR_SUFFIX)}
+        save_npz(path, arrays)
+        entry["checksums"][SILHOUETTES_FILE] = sha256_file(path)
+    (library_copy / MANIFEST).write_text(json.dumps(manifest))
+    old = load_library(library_copy)
+    assert old.spec.near_distance is None and old.near is None
+    assert old.silhouettes.shape == (3, 16, 32, 32)
+
+
+def test_a_near_set_missing_from_its_file_is_named(library_copy: Path) -> None:
+    from cadnerf_core.library import NEAR_SUFFIX, load_npz, sha256_file
+
+    manifest = json.loads((library_copy / MANIFEST).read_text())
+    entry = manifest["models"][1]
+    path = library_copy / entry["id"] / SILHOUETTES_FILE
+    save_npz(path, {k: v for k, v in load_npz(path).items() if not k.endswith(NEAR_SUFFIX)})
+    entry["checksums"][SILHOUETTES_FILE] = sha256_file(path)
+    (library_copy / MANIFEST).write_text(json.dumps(manifest))
+    with pytest.raises(LibraryError, match=r"mug.*near set.*cadnerf library build"):
+        load_library(library_copy)
+
+
 def test_canonical_intrinsics_frame_the_model_with_the_margin(tiny_library: Any) -> None:
     lib = tiny_library
     mesh = lib.mesh("chair_wood")

@@ -264,3 +264,65 @@ def test_a_known_focal_length_wins_over_the_matches(tiny_library: Any) -> None:
         # A longer lens sees the object at the same size from farther away.
         assert np.linalg.norm(after.c2w[:3, 3]) == pytest.approx(
             1.5 * np.linalg.norm(before.c2w[:3, 3]), rel=1e-6)
+
+
+def _near_walk(library: Any, azimuths: tuple[int, ...]) -> tuple[list[int], list[np.ndarray],
+                                                                  float]:
+    """Masks of the chair seen from the near set's cameras (a wide lens, close up), with
+    their focal length in pixels."""
+    from cadnerf_core.renderer import render_silhouette_polygons
+
+    near = library.near
+    model = next(i for i, m in enumerate(library.models) if m.category == "chair")
+    n_el = len(library.spec.elevations)
+    views = [a * n_el + (a % n_el) for a in azimuths]
+    mesh = library.mesh(library.models[model].id)
+    size = near.spec.render_size
+    masks = [render_silhouette_polygons(mesh, near.K_render, near.poses[v], size, size)
+             for v in views]
+    return views, masks, float(near.K_render[0, 0])
+
+
+def test_a_known_focal_length_chooses_the_silhouettes_of_the_photos_perspective(
+        tiny_library: Any) -> None:
+    library = tiny_library
+    views, masks, focal = _near_walk(library, (1, 3, 5, 7))
+    names = ["a", "b", "c", "d"]
+    told = retrieve(masks, names, library, RetrievalConfig(), focals=[focal] * 4)
+    assert told.perspective == "near"
+    assert [m.view for m in told.matches] == views
+    assert all(m.iou > 0.9 for m in told.matches)
+    # The cameras stand where the photos were taken: the near set's distance, their focal.
+    for m in told.matches:
+        assert np.linalg.norm(m.c2w[:3, 3]) == pytest.approx(library.spec.near_distance,
+                                                             rel=1e-6)
+        assert m.K_photo[0, 0] == pytest.approx(focal)
+    assert json.loads(json.dumps(told.to_json()))["perspective"] == "near"
+    # Without a focal length the far set is matched; its best IoU is lower.
+    blind = retrieve(masks, names, library, RetrievalConfig())
+    assert blind.perspective == "far"
+    assert np.mean([m.iou for m in blind.matches]) < np.mean([m.iou for m in told.matches])
+    # The far set's own photos with their focal length keep the far set.
+    far_views, far_masks = _walk(library, "chair", (1, 3, 5, 7))
+    far = retrieve(far_masks, names, library, RetrievalConfig(),
+                   focals=[float(library.K_render[0, 0])] * 4)
+    assert far.perspective == "far" and [m.view for m in far.matches] == far_views
+    # Asked for, a set is used whatever the focal length says.
+    forced = retrieve(far_masks, names, library, RetrievalConfig(perspective="near"))
+    assert forced.perspective == "near"
+
+
+def test_asking_for_a_near_set_the_library_lacks_says_how_to_get_one(tiny_library: Any) -> None:
+    import dataclasses
+
+    from cadnerf_core.errors import LibraryError
+    from cadnerf_core.library import Library
+
+    library = tiny_library
+    old = Library(library.root, dataclasses.replace(library.spec, near_distance=None),
+                  library.models, library._packed, library.boxes)
+    _, masks = _walk(library, "chair", (1, 3, 5, 7))
+    with pytest.raises(LibraryError, match="no 'near' silhouette set.*library build"):
+        retrieve(masks, ["a", "b", "c", "d"], old, RetrievalConfig(perspective="near"))
+    result = retrieve(masks, ["a", "b", "c", "d"], old, RetrievalConfig(), focals=[100.0] * 4)
+    assert result.perspective == "far"
