@@ -6,7 +6,8 @@
   rotation error of the kept photos' retrieved poses after similarity alignment
   (``cameras.pose_errors``) for our DP, the paper's Algorithm 1, the DP as it was before its
   spread prior, walk-based model choice and texture cue, and three ablations (model by votes,
-  no spread prior, no texture cue); per set and per mesh.
+  no spread prior, no texture cue); per set and per mesh. The same walks rendered at a phone's
+  65 degrees, retrieved from each silhouette set and from the one chosen by the focal length.
 - Speed: the DP and Algorithm 1 on a 10 photos x 100 views table; a whole retrieval of 9 photo
   masks against the full library (background removal excluded).
 - Real photos: ``ners_espresso`` (ordered by its metadata azimuths, coarse ground truth) and
@@ -64,6 +65,16 @@ VARIANTS: dict[str, tuple[str, dict[str, Any]]] = {
     # replaced by the walk's true direction).
     "walk": ("DP, walk given", {"walk": "given"}),
     "paper_walk": ("Algorithm 1, walk given", {"solver": "paper", "walk": "given"}),
+    # The photos' focal length known (a phone's EXIF): the silhouette set is chosen by it
+    # (``RetrievalConfig.perspective``); these walks are the far set's 40 degrees.
+    "focal": ("DP, focal length known", {"focal": True}),
+}
+PHONE_FOV = 65.0  # a phone's main lens across the longer side, as ``--fov 65`` of bench_training
+# The phone walks: retrieval from each silhouette set, and ours choosing by the focal length.
+PHONE_VARIANTS: dict[str, tuple[str, str]] = {
+    "far": ("40-degree set only (before)", "far"),
+    "near": ("near set only", "near"),
+    "auto": ("**set chosen by the focal length (ours)**", "auto"),
 }
 
 
@@ -100,15 +111,22 @@ def rotation_error(result: Any, c2w_gt: np.ndarray, only: set[int] | None = None
 
 
 def retrieve_all(masks: list[np.ndarray], names: list[str], library: Any,
-                 images: list[np.ndarray], direction: int) -> dict[str, Any]:
+                 images: list[np.ndarray], direction: int,
+                 focals: list[float] | None = None) -> dict[str, Any]:
     """Retrieval with every variant of ``VARIANTS`` (``direction``: the walk's true one, for
-    the variants that are given it). Returns variant -> RetrievalResult."""
+    the variants that are given it; ``focals``: the photos' focal lengths in pixels, for the
+    variant that knows them). Returns variant -> RetrievalResult."""
     from cadnerf_core.retrieval import RetrievalConfig, retrieve
 
     walk = "ccw" if direction > 0 else "cw"
-    return {key: retrieve(masks, names, library, RetrievalConfig(**{
-        **options, **({"walk": walk} if options.get("walk") == "given" else {})}),
-        images=images) for key, (_, options) in VARIANTS.items()}
+    out = {}
+    for key, (_, options) in VARIANTS.items():
+        own = {k: v for k, v in options.items() if k != "focal"}
+        if own.get("walk") == "given":
+            own["walk"] = walk
+        out[key] = retrieve(masks, names, library, RetrievalConfig(**own), images=images,
+                            focals=focals if options.get("focal") else None)
+    return out
 
 
 def synthetic_set(name: str, views: int, direction: int, library: Any, work: Path) -> SetResult:
@@ -119,7 +137,8 @@ def synthetic_set(name: str, views: int, direction: int, library: Any, work: Pat
                             f"{direction}", views, SIZE, SEED + views, up="z" if name in Z_UP
                             else "y", direction=direction)
     data = load_dataset(folder)
-    results = retrieve_all(list(data.masks), data.names, library, list(data.images), direction)
+    results = retrieve_all(list(data.masks), data.names, library, list(data.images), direction,
+                           [float(K[0, 0]) for K in data.K])
     dp, paper = results["dp"], results["paper"]
     model = dp.model_id if paper.model_id == dp.model_id else \
         f"{dp.model_id}; votes: {paper.model_id}"
@@ -175,6 +194,57 @@ def synthetic_table(results: list[SetResult]) -> list[str]:
     return lines
 
 
+@dataclass
+class PhoneResult:
+    """One walk rendered at a phone's field of view, retrieved from each silhouette set."""
+
+    mesh: str
+    views: int
+    direction: int
+    errors: dict[str, float]  # PHONE_VARIANTS key -> median rotation error (degrees)
+    chosen: str  # the set ours chose
+
+
+def phone_set(name: str, views: int, direction: int, library: Any, work: Path) -> PhoneResult:
+    """Render one walk at ``PHONE_FOV`` (the object filling the same share of the frame, so
+    from nearer) and retrieve it with the photos' focal length known."""
+    from cadnerf_core.dataset import load_dataset, render_dataset
+    from cadnerf_core.retrieval import RetrievalConfig, retrieve
+
+    folder = render_dataset(mesh_file(EVAL_ROOT / "meshes" / name), work / f"phone_{name}_"
+                            f"{views}_{direction}", views, SIZE, SEED + views,
+                            up="z" if name in Z_UP else "y", direction=direction,
+                            fov_deg=PHONE_FOV)
+    data = load_dataset(folder)
+    focals = [float(K[0, 0]) for K in data.K]
+    results = {key: retrieve(list(data.masks), data.names, library,
+                             RetrievalConfig(perspective=perspective),  # type: ignore[arg-type]
+                             images=list(data.images), focals=focals)
+               for key, (_, perspective) in PHONE_VARIANTS.items()}
+    return PhoneResult(name, views, direction,
+                       {k: rotation_error(r, data.c2w) for k, r in results.items()},
+                       results["auto"].perspective)
+
+
+def phone_table(results: list[PhoneResult]) -> list[str]:
+    """Markdown table of the phone walks, with a summary line."""
+    keys = list(PHONE_VARIANTS)
+    lines = ["| mesh | views | dir | set chosen | "
+             + " | ".join(f"rot. err. {PHONE_VARIANTS[k][0]}" for k in keys) + " |",
+             "|---" * (4 + len(keys)) + "|"]
+    for r in results:
+        lines.append(f"| {r.mesh} | {r.views} | {r.direction:+d} | {r.chosen} | "
+                     + " | ".join(f"{r.errors[k]:.1f}" for k in keys) + " |")
+    summary = "; ".join(
+        f"{PHONE_VARIANTS[k][0]} {statistics.median(r.errors[k] for r in results):.1f} deg "
+        f"({sum(r.errors[k] < 15 for r in results)} under 15, "
+        f"{sum(r.errors[k] > 90 for r in results)} mirrored or flipped, over 90)"
+        for k in keys)
+    near = sum(r.chosen == "near" for r in results)
+    return [*lines, "", f"Median over the {len(results)} phone walks: {summary}. Ours chose "
+            f"the near set on {near} of {len(results)}."]
+
+
 def mesh_table(results: list[SetResult]) -> list[str]:
     """Markdown table: per mesh, the median over its walks of each variant's error."""
     keys = list(VARIANTS)
@@ -221,6 +291,10 @@ def speed_lines(library: Any, masks: list[np.ndarray], images: list[np.ndarray],
     retrieve_s = _median_seconds(lambda: retrieve(masks, names, library), 5 if quick else 20)
     texture_s = _median_seconds(lambda: retrieve(masks, names, library, images=images),
                                 5 if quick else 20)
+    focals = [float(library.K_render[0, 0])] * len(masks)  # known: both silhouette sets
+    _ = library.near.silhouettes if library.near is not None else None
+    both_s = _median_seconds(lambda: retrieve(masks, names, library, images=images,
+                                              focals=focals), 5 if quick else 20)
     crops = np.stack([np.zeros((library.spec.silhouette_size,) * 2, bool)] * len(masks))
     iou_s = _median_seconds(lambda: iou_table(crops, library.silhouettes), 5)
     m, v = library.silhouettes.shape[:2]
@@ -232,8 +306,10 @@ def speed_lines(library: Any, masks: list[np.ndarray], images: list[np.ndarray],
             f"{masks[0].shape[0]} px) against the full library ({m} models x {v} views), "
             f"background removal excluded: **{retrieve_s * 1e3:.0f} ms** (target < 500 ms); "
             f"with the texture direction cue (photos given): **{texture_s * 1e3:.0f} ms**; "
-            f"of which the IoU table {iou_s * 1e3:.0f} ms. One-off silhouette unpacking when "
-            f"the library is first used: {unpack_s * 1e3:.0f} ms."]
+            f"with the photos' focal length known as well (both silhouette sets searched): "
+            f"**{both_s * 1e3:.0f} ms**; of which the IoU table {iou_s * 1e3:.0f} ms. "
+            f"One-off silhouette unpacking when the library is first used: "
+            f"{unpack_s * 1e3:.0f} ms."]
 
 
 def real_set_photos(name: str) -> tuple[list[Path], list[Path], np.ndarray | None]:
@@ -263,7 +339,7 @@ def _real_lines(name: str, label: str, result: Any, gt: np.ndarray | None) -> li
     tops = ", ".join(f"{t['model_id']} ({t['votes']})" for t in result.top_models[:3])
     return [f"- {name}, {label}: model **{result.model_id}** ({result.category}); top 3 by "
             f"votes: {tops}; direction {result.direction:+d}; azimuth/elevation per photo "
-            f"(* = discarded): {poses}; mean IoU "
+            f"(* = discarded): {poses}; silhouette set {result.perspective}; mean IoU "
             f"{np.mean([m.iou for m in result.matches]):.2f}{error}."]
 
 
@@ -279,7 +355,8 @@ def real_set(name: str, library: Any, picture: Path) -> list[str]:
     shipped = load_photos(paths, mask_paths)
     names = [p.name for p in shipped]
     masks = [p.mask for p in shipped if p.mask is not None]
-    result = retrieve(masks, names, library, images=[p.rgb for p in shipped])
+    focals = [p.focal_pixels for p in shipped]  # EXIF, as a job passes them
+    result = retrieve(masks, names, library, images=[p.rgb for p in shipped], focals=focals)
     lines = _real_lines(name, "shipped masks", result, gt)
     rows = match_rows(shipped, masks, library, result)
     bare = [Photo(p.name, p.rgb) for p in shipped]
@@ -292,7 +369,7 @@ def real_set(name: str, library: Any, picture: Path) -> list[str]:
     seconds = (time.perf_counter() - start) / len(bare)
     if found is not None:
         ious = [float((a & b).sum() / (a | b).sum()) for a, b in zip(found, masks, strict=True)]
-        grab = retrieve(found, names, library, images=[p.rgb for p in bare])
+        grab = retrieve(found, names, library, images=[p.rgb for p in bare], focals=focals)
         lines += _real_lines(name, f"GrabCut masks (IoU with the shipped masks: mean "
                              f"{np.mean(ious):.2f}, min {min(ious):.2f}; {seconds:.2f} s a "
                              f"photo)", grab, gt)
@@ -328,6 +405,8 @@ def run(quick: bool, library_dir: Path = LIBRARY_DIR) -> str:
                 for direction in (1, -1):
                     results.append(synthetic_set(name, views, direction, library, work))
                     log.info("%s", results[-1])
+        phone = [phone_set(name, views, direction, library, work)
+                 for name in names for views in VIEW_COUNTS for direction in (1, -1)]
         from cadnerf_core.dataset import load_dataset
 
         nine_set = load_dataset(work / f"{names[0]}_9_1")
@@ -337,7 +416,14 @@ def run(quick: bool, library_dir: Path = LIBRARY_DIR) -> str:
     lines = [*head, f"Synthetic walks: {SIZE} px renders, elevations 0-60 deg, random start "
              "azimuth, both directions; rotation error = median over the kept photos after "
              "similarity alignment (degrees). Symmetric objects can match front/back flips.",
-             "", *synthetic_table(results), "", "Speed (2 shared CPU cores):", "",
+             "", *synthetic_table(results), "",
+             f"Phone walks: the same walks rendered at {PHONE_FOV:g} deg across (a phone's "
+             "main lens; the object fills the same share of the frame, from about half as "
+             "far), retrieved with the photos' focal length known (EXIF), from the 40-degree "
+             "silhouette set, from the near set (distance 2.2, 65 deg), and by ours, which "
+             "chooses between them by the angle the object spans "
+             "(``RetrievalConfig.perspective``):", "", *phone_table(phone), "",
+             "Speed (2 shared CPU cores):", "",
              *speed_lines(library, *nine, quick), "", "Real photos (picture: each row a photo; "
              "left half shipped masks, right half GrabCut; tiles: canonical crop, mask, matched "
              "silhouette, overlay with white = both, red = photo only, cyan = silhouette "

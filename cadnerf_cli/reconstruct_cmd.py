@@ -11,7 +11,7 @@ from typing import Any
 
 import typer
 
-from cadnerf_cli.retrieve_cmd import Walk
+from cadnerf_cli.retrieve_cmd import PERSPECTIVE_HELP, Perspective, Walk
 
 STAGES = ("masks", "retrieval", "phase1", "phase2", "phase3", "render", "export")
 DEFAULT_LIBRARY = Path("library_data/build")
@@ -55,6 +55,8 @@ def reconstruct(
     own_focal: bool = typer.Option(False, "--own-focal", help="Each photo keeps a focal "
                                    "length of its own (photos taken at different zooms); by "
                                    "default they share one."),
+    perspective: Perspective = typer.Option(Perspective.auto, "--perspective",
+                                            help=PERSPECTIVE_HELP),
 ) -> None:
     """Poses, novel views, an orbit video and a mesh from ordered photos of an object."""
     from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
@@ -69,6 +71,8 @@ def reconstruct(
         retrieval: dict[str, Any] = {} if walk == Walk.auto else {"walk": walk.value}
         if own_focal:
             retrieval["shared_focal"] = False
+        if perspective != Perspective.auto:
+            retrieval["perspective"] = perspective.value
         overrides = {"retrieval": retrieval} if retrieval else {}
         resolve_config(preset, overrides)
         library = load_library(library_dir)

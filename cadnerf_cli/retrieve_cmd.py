@@ -31,6 +31,18 @@ class Walk(StrEnum):
     cw = "cw"
 
 
+class Perspective(StrEnum):
+    """Which library silhouette set to match."""
+
+    auto = "auto"
+    far = "far"
+    near = "near"
+
+
+PERSPECTIVE_HELP = ("Library silhouettes to match: near (seen from about half as far, as a "
+                    "phone's wide lens frames an object), far (a 40-degree camera), or auto "
+                    "(chosen by the photos' EXIF focal length; far without one).")
+
 TILE = 128  # pixels per tile in the match pictures
 MASK_EXTENSIONS = (".png", ".jpg", ".jpeg", ".webp", ".bmp")
 
@@ -151,6 +163,8 @@ def retrieve_command(
     own_focal: bool = typer.Option(False, "--own-focal", help="Each photo keeps a focal "
                                    "length of its own (photos taken at different zooms); by "
                                    "default they share one."),
+    perspective: Perspective = typer.Option(Perspective.auto, "--perspective",
+                                            help=PERSPECTIVE_HELP),
     as_json: bool = typer.Option(False, "--json", help="Print the result as JSON."),
     out: Path | None = typer.Option(None, "--out", help="Folder for match pictures."),
 ) -> None:
@@ -166,7 +180,8 @@ def retrieve_command(
         found = photo_masks(loaded)
         lib = load_library(library)
         config = RetrievalConfig(solver="paper" if solver == Solver.paper else "dp",
-                                 walk=walk.value, shared_focal=not own_focal)
+                                 walk=walk.value, shared_focal=not own_focal,
+                                 perspective=perspective.value)
         result = retrieve(found, [p.name for p in loaded], lib, config,
                           images=[p.rgb for p in loaded],
                           focals=[p.focal_pixels for p in loaded])

@@ -150,14 +150,17 @@ def test_cli_reconstructs_into_the_output_folder(tmp_path: Path, tiny_library: A
     out = tmp_path / "job"
     result = CliRunner().invoke(app, ["reconstruct", *photos, "--out", str(out), "--preset",
                                       "test", "--device", "cpu", "--library",
-                                      str(tiny_library_dir), "--walk", "ccw", "--own-focal"])
+                                      str(tiny_library_dir), "--walk", "ccw", "--own-focal",
+                                      "--perspective", "near"])
     assert result.exit_code == 0, result.output
     assert "results in" in result.output
     # The walk write_job rendered is counter-clockwise (increasing azimuth), as told.
     resolved = json.loads((out / "config.json").read_text())
     assert resolved["retrieval"]["walk"] == "ccw"
     assert resolved["retrieval"]["shared_focal"] is False
+    assert resolved["retrieval"]["perspective"] == "near"
     retrieval = json.loads((out / "retrieval.json").read_text())
+    assert retrieval["perspective"] == "near"
     assert retrieval["direction"] == 1 and retrieval["direction_lead"] is None
     assert sorted(p.name for p in (out / "inputs").iterdir()) == \
         ["000_000_p.png", "001_001_p.png", "002_002_p.png"]
