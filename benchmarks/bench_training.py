@@ -230,22 +230,22 @@ def score_report(report: EvalReport, tta: bool) -> dict[str, Any]:
 
 def run_one(mesh: Path, work: Path, library: Library, name: str, overrides: dict[str, Any],
             tta: bool, oracle: bool = False, exif_focal: bool = False,
-            fov_deg: float = FOV_DEG) -> dict[str, Any]:
+            fov_deg: float = FOV_DEG, views: int = TRAIN_VIEWS) -> dict[str, Any]:
     """Render the dataset (once per mesh), run and score a job with ``overrides`` through
     ``evaluate_dataset`` (with the true cameras for ``oracle``; the photos carrying their
     true focal length in EXIF, as a phone's do, with ``exif_focal``; the photos' field of view
-    ``fov_deg``), and add this benchmark's numbers."""
+    ``fov_deg``; ``views`` training photos), and add this benchmark's numbers."""
     from cadnerf_core.dataset import render_dataset
     from cadnerf_core.evaluation import evaluate_dataset
 
     dataset_dir = work / mesh.parent.name / "dataset"
     if not dataset_dir.exists():
-        render_dataset(mesh, dataset_dir, TRAIN_VIEWS, IMAGE_SIZE, seed=SEED,
+        render_dataset(mesh, dataset_dir, views, IMAGE_SIZE, seed=SEED,
                        test_views=TEST_VIEWS, up="z" if mesh.parent.name in Z_UP else "y",
                        fov_deg=fov_deg)
     job = work / mesh.parent.name / name.replace(" ", "_")
     with true_cameras(dataset_dir) if oracle else contextlib.nullcontext():
-        report = evaluate_dataset(dataset_dir, TRAIN_VIEWS, library, preset=PRESET,
+        report = evaluate_dataset(dataset_dir, views, library, preset=PRESET,
                                   overrides=overrides, job_dir=job, device=DEVICE,
                                   intrinsics="estimated", align="centred",
                                   exif_focal=exif_focal)
@@ -298,13 +298,14 @@ def save_orbit_frame(job: Path) -> None:
 def run(quick: bool, threads: int | None = None, names: list[str] | None = None,
         seeds: int = 1, only: list[str] | None = None, exif_focal: bool = False,
         overrides: dict[str, Any] | None = None, fov_deg: float = FOV_DEG,
-        first_seed: int = 0) -> str:
+        first_seed: int = 0, views: int = TRAIN_VIEWS) -> str:
     """The markdown section (see the module docstring); every run repeated with training
     seeds ``first_seed`` to ``first_seed + seeds - 1`` (the datasets stay the same);
     ``only``: the runs to keep (names of ``ABLATIONS`` or ``ORACLE``; all when None);
     ``exif_focal``: the photos carry their true focal length in EXIF; ``overrides``:
     configuration values applied to every run, under each run's own (dotted keys, as a job's
-    config takes them); ``fov_deg``: the photos' horizontal field of view."""
+    config takes them); ``fov_deg``: the photos' horizontal field of view; ``views``: training
+    photos per walk."""
     import torch
 
     from cadnerf_core.library import load_library
@@ -333,7 +334,8 @@ def run(quick: bool, threads: int | None = None, names: list[str] | None = None,
                     result = run_one(mesh, work, library, label,
                                      {**(overrides or {}), **own, **extra, "seed": seed},
                                      tta=True,
-                                     oracle=oracle, exif_focal=exif_focal, fov_deg=fov_deg)
+                                     oracle=oracle, exif_focal=exif_focal, fov_deg=fov_deg,
+                                     views=views)
                     rows.append((mesh.parent.name, name, {**result, "seed": seed}))
                     log.info("%s %s: %s", mesh.parent.name, label, result)
             if i == 0 and names is None and first_seed == 0 \
@@ -348,6 +350,7 @@ def run(quick: bool, threads: int | None = None, names: list[str] | None = None,
     flags += f" --first-seed {first_seed}" if first_seed else ""
     flags += " --exif-focal" if exif_focal else ""
     flags += f" --fov {fov_deg:g}" if fov_deg != FOV_DEG else ""
+    flags += f" --views {views}" if views != TRAIN_VIEWS else ""
     flags += f" --overrides '{json.dumps(overrides)}'" if overrides else ""
     if only:
         flags += " --runs " + " ".join(f'"{name}"' if " " in name else name for name in only)
@@ -356,7 +359,7 @@ def run(quick: bool, threads: int | None = None, names: list[str] | None = None,
     lines = [f"## Training (preset `{PRESET}`, CPU)", "",
              f"Command: `.venv/bin/python -m benchmarks.bench_training{flags}` "
              f"(torch threads: {torch.get_num_threads()}). Datasets: `render_dataset` "
-             f"{IMAGE_SIZE} px, field of view {fov_deg:g} deg, {TRAIN_VIEWS} training views "
+             f"{IMAGE_SIZE} px, field of view {fov_deg:g} deg, {views} training views "
              f"in walking order, {TEST_VIEWS} held-out test views, seed {SEED}. "
              "Each run is executed and scored by "
              "`cadnerf_core.evaluation.evaluate_dataset`, the evaluation benchmark's protocol: "
@@ -399,10 +402,13 @@ def main() -> None:
     parser.add_argument("--fov", type=float, default=FOV_DEG,
                         help="the photos' horizontal field of view in degrees (a phone's main "
                              "lens: about 65)")
+    parser.add_argument("--views", type=int, default=TRAIN_VIEWS,
+                        help="training photos per walk (the service takes 3 to 10)")
     args = parser.parse_args()
     logging.basicConfig(level=logging.INFO)
     print(run(args.quick, args.threads, args.meshes, max(1, args.seeds), args.runs,
-              args.exif_focal, args.overrides, args.fov, max(0, args.first_seed)))  # noqa: T201 (the section is the command's output)
+              args.exif_focal, args.overrides, args.fov, max(0, args.first_seed),
+              max(3, args.views)))  # noqa: T201 (the section is the command's output)
 
 
 if __name__ == "__main__":
