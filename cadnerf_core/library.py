@@ -66,13 +66,13 @@ class LibrarySpec:
     A phone's wide lens (about 65 degrees across) frames an object from about half the
     distance a 40-degree camera does, and the nearer view changes the silhouette's
     perspective; retrieval picks the set whose perspective matches the photos' when their
-    focal length is known (``retrieval.choose_perspective``). On the 52 synthetic walks of
+    focal length is known (``RetrievalConfig.perspective``). On the 52 synthetic walks of
     ``benchmarks/bench_retrieval.py`` rendered at 65 degrees, the median rotation error of
     retrieval is 15.0 degrees from the 40-degree set and 13.8 from this one (at 40 degrees:
     13.6 against 15.3), and three of the four armchair walks are mirrored with the far set."""
     near_fov_deg: float = 65.0
-    """Horizontal field of view of the near set's render camera (the unit sphere fills
-    about 72% of it at ``near_distance`` 2.2)."""
+    """Horizontal field of view of the near set's render camera (the unit sphere's outline
+    spans about 80% of it at ``near_distance`` 2.2, against 71% of the far set's)."""
     render_size: int = 128
     """Side of the square silhouette renders in pixels."""
     silhouette_size: int = 64
@@ -253,6 +253,7 @@ class Library:
         same two for the near set (``LibrarySpec.near_distance``), when the spec has one."""
         self.root = Path(root)
         self._near_arrays = near
+        self._far: Library | None = None  # set on a near set: the library it belongs to
         self.spec = spec
         self.models = models
         self.poses, self.az_el = spec.poses()
@@ -272,6 +273,7 @@ class Library:
             return None
         near = Library(self.root, near_spec, self.models, *self._near_arrays)
         near._occupancy = self._occupancy
+        near._far = self
         return near
 
     def view_set(self, perspective: str) -> Library:
@@ -280,10 +282,11 @@ class Library:
         Raises:
             LibraryError: for "near" when the library has no near set.
         """
+        far = self._far or self
         if perspective == "far":
-            return self
-        if perspective == "near" and self.near is not None:
-            return self.near
+            return far
+        if perspective == "near" and far.near is not None:
+            return far.near
         raise LibraryError(f"the library at {self.root} has no '{perspective}' silhouette set; "
                            f"{REBUILD_HINT}")
 

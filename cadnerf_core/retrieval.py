@@ -182,13 +182,13 @@ class RetrievalResult:
     direction_lead: float | None = None
     """The DP's objective of its best walk less that of the best walk the other way (None
     when the direction was given or the paper's solver ran)."""
-    perspective: str = "far"
-    """The library silhouette set matched ("far" or "near", ``RetrievalConfig.perspective``)."""
     direction_ambiguous: bool = False
     """Neither the silhouettes (lead under ``RetrievalConfig.ambiguity_margin``) nor the texture
     told the walking direction: the walk is the one ``RetrievalConfig.ambiguous_walk`` assumes
     (counter-clockwise by default), and the poses are the mirrored walk's if the photographer
     went the other way."""
+    perspective: str = "far"
+    """The library silhouette set matched ("far" or "near", ``RetrievalConfig.perspective``)."""
 
     @property
     def kept(self) -> list[PhotoMatch]:
@@ -399,7 +399,8 @@ def retrieve(masks: Sequence[np.ndarray], names: Sequence[str], library: Library
         names: P photo names.
         library: the loaded library.
         config: solver settings (defaults when None).
-        progress: reports stage "retrieval" (2 steps) and checks for cancellation.
+        progress: reports stage "retrieval" (2 steps a silhouette set searched) and checks
+            for cancellation.
         images: the P photos [H_i, W_i, 3] float in [0, 1], optional: their texture helps
             the DP choose the walking direction (``RetrievalConfig.appearance_weight``).
         focals: the P photos' focal lengths in pixels where known (EXIF), else None; with
@@ -408,16 +409,22 @@ def retrieve(masks: Sequence[np.ndarray], names: Sequence[str], library: Library
         The RetrievalResult.
     """
     config = config or RetrievalConfig()
+    spec = library.spec  # both silhouette sets share the crop size and margin
+    crops, boxes = canonical_masks(masks, spec.silhouette_size, spec.margin)
+    evidence = 0.0
+    if images is not None and config.solver == "dp" and config.appearance_weight > 0:
+        evidence = direction_evidence(images, masks, boxes)
+    photos = _Photos(names, [mask.shape[:2] for mask in masks], crops, boxes, evidence, focals)
     near = library.near
     known = [f for f in focals or [] if f is not None]
     wanted = config.perspective
     if wanted != "auto" or near is None or not known:
         single = "far" if wanted == "auto" else wanted
-        chosen = _retrieve_from(masks, names, library.view_set(single), config, progress,
-                                images, focals, single)
+        chosen = _retrieve_from(photos, library.view_set(single), config, progress, single,
+                                (0, 2))
     else:
-        results = [_retrieve_from(masks, names, lib, config, report, images, focals, label)
-                   for lib, label, report in ((library, "far", None), (near, "near", progress))]
+        results = [_retrieve_from(photos, lib, config, progress, label, steps)
+                   for lib, label, steps in ((library, "far", (0, 4)), (near, "near", (2, 4)))]
         mismatch = [_angle_mismatch(r, lib, focals)
                     for r, lib in zip(results, (library, near), strict=True)]
         chosen = results[int(np.argmin(mismatch))]
@@ -427,6 +434,18 @@ def retrieve(masks: Sequence[np.ndarray], names: Sequence[str], library: Library
         log.warning("%s (lead %.3f IoU, texture evidence %+.2f)", AMBIGUOUS_HINT,
                     chosen.direction_lead, chosen.direction_evidence)
     return chosen
+
+
+@dataclass
+class _Photos:
+    """What retrieval needs of the photos, computed once for every silhouette set."""
+
+    names: Sequence[str]
+    sizes: list[tuple[int, int]]  # (height, width) of each photo
+    crops: np.ndarray  # canonical masks [P, S, S]
+    boxes: list[CropBox]  # photo -> canonical crop
+    evidence: float  # texture evidence for the walking direction
+    focals: Sequence[float | None] | None
 
 
 def _angle_mismatch(result: RetrievalResult, library: Library,
@@ -443,21 +462,18 @@ def _angle_mismatch(result: RetrievalResult, library: Library,
     return float(np.median(logs)) if logs else math.inf
 
 
-def _retrieve_from(masks: Sequence[np.ndarray], names: Sequence[str], library: Library,
-                   config: RetrievalConfig, progress: Progress | None,
-                   images: Sequence[np.ndarray] | None, focals: Sequence[float | None] | None,
-                   perspective: str = "far") -> RetrievalResult:
-    """``retrieve`` against one silhouette set (``library`` is the set's own Library)."""
+def _retrieve_from(photos: _Photos, library: Library, config: RetrievalConfig,
+                   progress: Progress | None, perspective: str,
+                   steps: tuple[int, int]) -> RetrievalResult:
+    """``retrieve`` against one silhouette set (``library`` is the set's own Library).
+    ``steps``: (steps done before, total) of the "retrieval" stage; this search adds two."""
     spec = library.spec
-    crops, boxes = canonical_masks(masks, spec.silhouette_size, spec.margin)
-    iou = iou_table(crops, library.silhouettes)
+    names, boxes, evidence = photos.names, photos.boxes, photos.evidence
+    iou = iou_table(photos.crops, library.silhouettes)
     voted, ranking = vote_models(iou)
     if progress is not None:
-        progress.step("retrieval", 1, 2)
+        progress.step("retrieval", steps[0] + 1, steps[1])
     az_index = azimuth_bins(library.az_el, spec.n_azimuths)
-    evidence = 0.0
-    if images is not None and config.solver == "dp" and config.appearance_weight > 0:
-        evidence = direction_evidence(images, masks, boxes)
     m, found = _choose_walk(iou, voted, ranking, az_index, spec.n_azimuths, config, evidence)
     ambiguous = (found.direction_lead is not None
                  and found.direction_lead < config.ambiguity_margin
@@ -475,14 +491,14 @@ def _retrieve_from(masks: Sequence[np.ndarray], names: Sequence[str], library: L
         box = CropBox(boxes[p].x0, boxes[p].y0, boxes[p].side, size)
         matches.append(_match(library, m, p, names[p], v, discarded, float(iou[p, m, v]), box))
     if config.shared_focal:
-        matches = share_focal(matches, [mask.shape[:2] for mask in masks], focals)
+        matches = share_focal(matches, photos.sizes, photos.focals)
     top = [{"model_id": library.models[i].id, "category": library.models[i].category,
             "votes": votes, "score": score} for i, votes, score in ranking[:TOP_MODELS]]
     entry = library.models[m]
     log.info("retrieved %s (%s) with %s: %d of %d photos kept", entry.id, entry.category,
              config.solver, sum(not x.discarded for x in matches), len(matches))
     if progress is not None:
-        progress.step("retrieval", 2, 2)
+        progress.step("retrieval", steps[0] + 2, steps[1])
     return RetrievalResult(entry.id, entry.category, top, matches, config.solver,
                            found.direction, found.score, evidence, found.direction_lead,
                            perspective=perspective, direction_ambiguous=ambiguous)

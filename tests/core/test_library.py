@@ -75,9 +75,11 @@ def test_the_near_set_sees_the_same_poses_from_nearer(tiny_library: Any) -> None
         box = canonical_box(render, near.spec.silhouette_size, near.spec.margin)
         assert np.allclose(near.boxes[0, v], (box.x0, box.y0, box.side))
         assert np.mean(apply_crop(render, box) == near.silhouettes[0, v]) > 0.99
-    # Perspective: the near silhouettes differ from the far ones, the crops alike in size.
+    # Perspective: the near silhouettes differ from the far ones.
     assert np.mean(near.silhouettes != lib.silhouettes) > 0.005
     assert near.occupancy("mug") is lib.occupancy("mug")
+    assert lib.view_set("near") is near and near.view_set("far") is lib
+    assert near.view_set("near") is near and lib.view_set("far") is lib
 
 
 def test_a_library_built_before_the_near_set_loads_without_one(library_copy: Path) -> None:

@@ -307,6 +307,9 @@ def test_a_known_focal_length_chooses_the_silhouettes_of_the_photos_perspective(
     far = retrieve(far_masks, names, library, RetrievalConfig(),
                    focals=[float(library.K_render[0, 0])] * 4)
     assert far.perspective == "far" and [m.view for m in far.matches] == far_views
+    # One photo's focal length is enough to choose.
+    one = retrieve(masks, names, library, RetrievalConfig(), focals=[None, focal, None, None])
+    assert one.perspective == "near" and [m.view for m in one.matches] == views
     # Asked for, a set is used whatever the focal length says.
     forced = retrieve(far_masks, names, library, RetrievalConfig(perspective="near"))
     assert forced.perspective == "near"
