@@ -68,8 +68,9 @@ class LibrarySpec:
     perspective; retrieval picks the set whose perspective matches the photos' when their
     focal length is known (``RetrievalConfig.perspective``). On the 52 synthetic walks of
     ``benchmarks/bench_retrieval.py`` rendered at 65 degrees, the median rotation error of
-    retrieval is 15.0 degrees from the 40-degree set and 13.8 from this one (at 40 degrees:
-    13.6 against 15.3), and three of the four armchair walks are mirrored with the far set."""
+    retrieval is 14.7 degrees from the 40-degree set and 13.9 from this one (at 40 degrees:
+    13.6 against 15.2), and the 40-degree set mirrors three of the four armchair walks;
+    training (``docs/bench_training_focal.md``) gains 0.9 dB on such photos."""
     near_fov_deg: float = 65.0
     """Horizontal field of view of the near set's render camera (the unit sphere's outline
     spans about 80% of it at ``near_distance`` 2.2, against 71% of the far set's)."""
