@@ -3,9 +3,9 @@
 Photos are JPEG, PNG or WebP (read with Pillow). The EXIF orientation is applied, so a photo
 comes out the way a viewer shows it. A photo with real transparency (an alpha channel not fully
 opaque) gives its mask (alpha > one half) and is composited on white. The size is checked from
-the header before any pixel is decoded, so a huge photo costs nothing to refuse. A phone's
-EXIF focal length (35 mm equivalent) is kept: it tells the camera's field of view, which the
-silhouettes alone cannot.
+the header before any pixel is decoded, so a huge photo costs nothing to refuse. The EXIF focal
+length is kept as its 35 mm equivalent (a phone's own tag, or a camera's focal length over its
+sensor size): it tells the camera's field of view, which the silhouettes alone cannot.
 """
 
 from __future__ import annotations
@@ -15,6 +15,7 @@ import math
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 from PIL import Image, ImageOps, UnidentifiedImageError
@@ -103,21 +104,48 @@ _ORIENTATION = {2: Image.Transpose.FLIP_LEFT_RIGHT, 3: Image.Transpose.ROTATE_18
 _EXIF_ORIENTATION_TAG = 0x0112
 _EXIF_IFD = 0x8769
 _EXIF_FOCAL_35MM_TAG = 0xA405  # FocalLengthIn35mmFilm
+_EXIF_FOCAL_TAG = 0x920A  # FocalLength, mm
+_EXIF_PIXEL_X, _EXIF_PIXEL_Y = 0xA002, 0xA003  # PixelXDimension, PixelYDimension
+_EXIF_PLANE_X, _EXIF_PLANE_Y, _EXIF_PLANE_UNIT = 0xA20E, 0xA20F, 0xA210  # FocalPlane*Resolution
+_PLANE_UNIT_MM = {2: 25.4, 3: 10.0, 4: 1.0, 5: 0.001}  # inch, cm, and EXIF 2.3's mm, um
 FULL_FRAME_DIAGONAL_MM = math.hypot(36.0, 24.0)
 FOCAL_35MM_RANGE = (8.0, 1200.0)  # mm: outside it the tag is taken to be wrong
 
 
 def exif_focal_35mm(image: Image.Image) -> float | None:
-    """The photo's ``FocalLengthIn35mmFilm`` in mm, None when absent, zero (unknown, in the
-    EXIF standard) or outside ``FOCAL_35MM_RANGE``."""
+    """The photo's focal length in 35 mm film terms, None when unknown.
+
+    ``FocalLengthIn35mmFilm`` where present and not zero (unknown, in the EXIF standard), as
+    phones write it; else, as cameras write it, ``FocalLength`` in mm over the sensor's
+    diagonal, the sensor's size being the pixel dimensions over ``FocalPlaneX/YResolution``
+    (pixels per ``FocalPlaneResolutionUnit``). None outside ``FOCAL_35MM_RANGE``.
+    """
     try:
-        value = image.getexif().get_ifd(_EXIF_IFD).get(_EXIF_FOCAL_35MM_TAG)
-        focal = float(value) if value is not None else None
-    except (TypeError, ValueError, OSError, SyntaxError):
+        tags = image.getexif().get_ifd(_EXIF_IFD)
+        value = tags.get(_EXIF_FOCAL_35MM_TAG)
+        focal = float(value) if value else None
+        if focal is None:
+            focal = _focal_35mm_from_focal_plane(tags, image.size)
+    except (TypeError, ValueError, OSError, SyntaxError, ZeroDivisionError):
         return None
     if focal is None or not FOCAL_35MM_RANGE[0] <= focal <= FOCAL_35MM_RANGE[1]:
         return None
     return focal
+
+
+def _focal_35mm_from_focal_plane(tags: Any, size: tuple[int, int]) -> float | None:
+    """35 mm equivalent of ``FocalLength`` from the focal plane resolution, None if a tag is
+    missing. ``size``: the stored image's (width, height), used where PixelX/YDimension are
+    absent."""
+    focal_mm, x_res, y_res = (tags.get(t) for t in (_EXIF_FOCAL_TAG, _EXIF_PLANE_X,
+                                                     _EXIF_PLANE_Y))
+    unit = _PLANE_UNIT_MM.get(int(tags.get(_EXIF_PLANE_UNIT, 2)))
+    if not focal_mm or not x_res or not y_res or unit is None:
+        return None
+    width = float(tags.get(_EXIF_PIXEL_X) or size[0])
+    height = float(tags.get(_EXIF_PIXEL_Y) or size[1])
+    sensor_diagonal = math.hypot(width / float(x_res), height / float(y_res)) * unit
+    return float(focal_mm) * FULL_FRAME_DIAGONAL_MM / sensor_diagonal
 
 
 def _decode(image: Image.Image, name: str, what: str) -> Image.Image:

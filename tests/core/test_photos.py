@@ -170,6 +170,36 @@ def test_a_phones_exif_focal_length_is_kept_in_pixels(tmp_path: Path) -> None:
     assert [p.focal_pixels for p in photos[1:]] == [None, None]
 
 
+def test_a_cameras_focal_length_comes_from_its_focal_plane_resolution(tmp_path: Path) -> None:
+    from PIL.TiffImagePlugin import IFDRational
+
+    # A camera that writes no 35 mm equivalent: 4.25 mm on a 5.6 x 4.2 mm sensor (7 mm
+    # diagonal) whose 4000 x 3000 pixels are saved downscaled to 400 x 300.
+    exif = Image.Exif()
+    tags = exif.get_ifd(0x8769)
+    tags[0x920A] = IFDRational(425, 100)  # FocalLength
+    tags[0xA002], tags[0xA003] = 4000, 3000  # PixelX/YDimension of the sensor's image
+    tags[0xA20E] = tags[0xA20F] = IFDRational(400000, 56)  # pixels per cm: 4000 px / 0.56 cm
+    tags[0xA210] = 3  # centimetres
+    camera = _save(tmp_path / "camera.jpg", _gradient(400, 300), "JPEG", exif=exif.tobytes())
+    inch = Image.Exif()
+    inch_tags = inch.get_ifd(0x8769)
+    inch_tags[0x920A] = IFDRational(425, 100)
+    inch_tags[0xA20E] = inch_tags[0xA20F] = IFDRational(400 * 254, 56)  # per inch, 400 px
+    no_unit = _save(tmp_path / "inch.jpg", _gradient(400, 300), "JPEG", exif=inch.tobytes())
+    partial = Image.Exif()
+    partial.get_ifd(0x8769)[0x920A] = IFDRational(425, 100)  # no sensor size: unknown
+    bare = _save(tmp_path / "partial.jpg", _gradient(400, 300), "JPEG", exif=partial.tobytes())
+    photos = load_photos([camera, no_unit, bare])
+    expected = 4.25 * np.hypot(36.0, 24.0) / 7.0  # 26.3 mm equivalent
+    assert photos[0].focal_35mm == pytest.approx(expected, rel=1e-3)
+    # The default unit is the inch and the stored size stands in for the pixel dimensions.
+    assert photos[1].focal_35mm == pytest.approx(expected, rel=1e-3)
+    assert photos[2].focal_35mm is None
+    # The focal length in pixels of the saved photo: 4.25 mm at 400 px / 5.6 mm.
+    assert photos[0].focal_pixels == pytest.approx(4.25 * 400 / 5.6, rel=1e-3)
+
+
 def test_shipped_phone_photos_carry_their_focal_length() -> None:
     folder = Path(__file__).resolve().parents[2] / ".." / "shared" / "eval" / "photos" / \
         "ners_espresso" / "images"
