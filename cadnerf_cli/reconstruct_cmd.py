@@ -11,7 +11,7 @@ from typing import Any
 
 import typer
 
-from cadnerf_cli.retrieve_cmd import PERSPECTIVE_HELP, Perspective, Walk
+from cadnerf_cli.retrieve_cmd import FOCAL_HELP, PERSPECTIVE_HELP, Perspective, Walk
 
 STAGES = ("masks", "retrieval", "phase1", "phase2", "phase3", "render", "export")
 DEFAULT_LIBRARY = Path("library_data/build")
@@ -57,6 +57,8 @@ def reconstruct(
                                    "default they share one."),
     perspective: Perspective = typer.Option(Perspective.auto, "--perspective",
                                             help=PERSPECTIVE_HELP),
+    focal_35mm: float | None = typer.Option(None, "--focal-35mm", min=8.0, max=1200.0,
+                                            help=FOCAL_HELP),
 ) -> None:
     """Poses, novel views, an orbit video and a mesh from ordered photos of an object."""
     from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
@@ -73,6 +75,8 @@ def reconstruct(
             retrieval["shared_focal"] = False
         if perspective != Perspective.auto:
             retrieval["perspective"] = perspective.value
+        if focal_35mm is not None:
+            retrieval["focal_35mm"] = focal_35mm
         overrides = {"retrieval": retrieval} if retrieval else {}
         resolve_config(preset, overrides)
         library = load_library(library_dir)

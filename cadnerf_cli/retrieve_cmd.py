@@ -39,6 +39,8 @@ class Perspective(StrEnum):
     near = "near"
 
 
+FOCAL_HELP = ("The camera's focal length in 35 mm terms, for photos whose EXIF does not say "
+              "(a phone's main lens: about 26; messaging apps strip EXIF).")
 PERSPECTIVE_HELP = ("Library silhouettes to match: near (seen from about half as far, as a "
                     "phone's wide lens frames an object), far (a 40-degree camera), or auto "
                     "(chosen by the photos' EXIF focal length; far without one).")
@@ -165,6 +167,8 @@ def retrieve_command(
                                    "default they share one."),
     perspective: Perspective = typer.Option(Perspective.auto, "--perspective",
                                             help=PERSPECTIVE_HELP),
+    focal_35mm: float | None = typer.Option(None, "--focal-35mm", min=8.0, max=1200.0,
+                                            help=FOCAL_HELP),
     as_json: bool = typer.Option(False, "--json", help="Print the result as JSON."),
     out: Path | None = typer.Option(None, "--out", help="Folder for match pictures."),
 ) -> None:
@@ -172,11 +176,11 @@ def retrieve_command(
     from cadnerf_core.errors import CadNerfError
     from cadnerf_core.library import load_library
     from cadnerf_core.masks import photo_masks
-    from cadnerf_core.photos import load_photos
+    from cadnerf_core.photos import load_photos, with_focal
     from cadnerf_core.retrieval import RetrievalConfig, retrieve
 
     try:
-        loaded = load_photos(photos, resolve_mask_paths(photos, masks))
+        loaded = with_focal(load_photos(photos, resolve_mask_paths(photos, masks)), focal_35mm)
         found = photo_masks(loaded)
         lib = load_library(library)
         config = RetrievalConfig(solver="paper" if solver == Solver.paper else "dp",

@@ -263,6 +263,10 @@ class RetrievalOptions(_Frozen):
     EXIF one where they carry it), and each photo's retrieved scale becomes its distance (off:
     each photo keeps the focal length of its own library match; for photos taken at different
     zooms)."""
+    focal_35mm: float | None = Field(default=None, ge=8.0, le=1200.0)
+    """The camera's focal length in 35 mm film terms, for photos whose EXIF does not say (a
+    phone's main lens is about 24-28 mm; messaging apps strip EXIF). A photo's own EXIF value
+    wins. Known, it sets the shared focal length and lets ``perspective`` choose."""
     perspective: Literal["auto", "far", "near"] = "auto"
     """Library silhouettes to match: "near" (seen from about half as far, as a phone's wide
     lens frames an object), "far" (a 40-degree camera), or "auto": the set whose perspective

@@ -13,7 +13,7 @@ from __future__ import annotations
 import io
 import math
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
@@ -53,6 +53,15 @@ class Photo:
             return None
         height, width = self.rgb.shape[:2]
         return self.focal_35mm * math.hypot(width, height) / FULL_FRAME_DIAGONAL_MM
+
+
+def with_focal(photos: Sequence[Photo], focal_35mm: float | None) -> list[Photo]:
+    """The photos, those without an EXIF focal length given ``focal_35mm`` (35 mm equivalent;
+    None: unchanged). A photo's own EXIF value wins."""
+    if focal_35mm is None:
+        return list(photos)
+    return [p if p.focal_35mm is not None else replace(p, focal_35mm=focal_35mm)
+            for p in photos]
 
 
 def _read_source(source: PhotoSource, index: int) -> tuple[str, bytes]:

@@ -87,7 +87,7 @@ def run_intake(job_dir: Path, library: Library, config: PipelineConfig,
                progress: Progress) -> Intake:
     """Read photos and masks, remove backgrounds where needed, retrieve model and poses."""
     from cadnerf_core.masks import photo_masks
-    from cadnerf_core.photos import load_photo
+    from cadnerf_core.photos import load_photo, with_focal
     from cadnerf_core.retrieval import RetrievalConfig, retrieve
 
     inputs, mask_paths = _input_files(job_dir)
@@ -99,6 +99,7 @@ def run_intake(job_dir: Path, library: Library, config: PipelineConfig,
     rcfg = RetrievalConfig(solver=opts.solver, top_k=opts.top_k, max_discard=opts.max_discard,
                            walk=opts.walk, shared_focal=opts.shared_focal,
                            perspective=opts.perspective, size=config.image_size)
+    photos = with_focal(photos, opts.focal_35mm)  # the user's value where EXIF says nothing
     retrieval = retrieve(masks, names, library, rcfg, progress, [p.rgb for p in photos],
                          [p.focal_pixels for p in photos])
     write_json(job_dir / "retrieval.json", retrieval.to_json())

@@ -151,7 +151,7 @@ def test_cli_reconstructs_into_the_output_folder(tmp_path: Path, tiny_library: A
     result = CliRunner().invoke(app, ["reconstruct", *photos, "--out", str(out), "--preset",
                                       "test", "--device", "cpu", "--library",
                                       str(tiny_library_dir), "--walk", "ccw", "--own-focal",
-                                      "--perspective", "near"])
+                                      "--perspective", "near", "--focal-35mm", "30"])
     assert result.exit_code == 0, result.output
     assert "results in" in result.output
     # The walk write_job rendered is counter-clockwise (increasing azimuth), as told.
@@ -159,6 +159,7 @@ def test_cli_reconstructs_into_the_output_folder(tmp_path: Path, tiny_library: A
     assert resolved["retrieval"]["walk"] == "ccw"
     assert resolved["retrieval"]["shared_focal"] is False
     assert resolved["retrieval"]["perspective"] == "near"
+    assert resolved["retrieval"]["focal_35mm"] == 30.0
     retrieval = json.loads((out / "retrieval.json").read_text())
     assert retrieval["perspective"] == "near"
     assert retrieval["direction"] == 1 and retrieval["direction_lead"] is None
@@ -185,3 +186,26 @@ def test_cli_retrieve_warns_of_a_guessed_direction_unless_given(tmp_path: Path,
     assert told.exit_code == 0, told.output
     data = json.loads(told.output)
     assert data["direction"] == -1 and data["direction_ambiguous"] is False
+
+
+def test_a_focal_length_given_for_photos_without_exif_sets_their_cameras(
+        tmp_path: Path, tiny_library: Any) -> None:
+    from cadnerf_core.pipeline import read_job_config, run_intake
+
+    # 64 px renders at 40 degrees: their true focal length in 35 mm terms.
+    true_focal_px = float(intrinsics_from_fov(40.0, 64)[0, 0])
+    focal_35mm = true_focal_px * np.hypot(36.0, 24.0) / np.hypot(64.0, 64.0)
+    write_job(tmp_path / "told", tiny_library, overrides={"retrieval": {
+        "focal_35mm": focal_35mm}})
+    write_job(tmp_path / "blind", tiny_library)
+    told = run_intake(tmp_path / "told", tiny_library, read_job_config(tmp_path / "told"),
+                      Progress())
+    blind = run_intake(tmp_path / "blind", tiny_library, read_job_config(tmp_path / "blind"),
+                       Progress())
+    assert [m.K_photo[0, 0] for m in told.retrieval.matches] == \
+        pytest.approx([true_focal_px] * 4)
+    assert all(p.focal_35mm == pytest.approx(focal_35mm) for p in told.photos)
+    assert all(p.focal_35mm is None for p in blind.photos)
+    assert blind.retrieval.matches[0].K_photo[0, 0] != pytest.approx(true_focal_px, rel=1e-3)
+    # Known, it lets retrieval choose the perspective: these photos are the far set's.
+    assert told.retrieval.perspective == "far"
