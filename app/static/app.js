@@ -221,8 +221,12 @@ async function submitJob(event) {
   state.photos.forEach((photo) => form.append("images", photo.file, photo.file.name));
   for (const mask of $("masks").files) form.append("masks", mask, mask.name);
   const config = { preset: $("preset").value };
+  const retrieval = {};
   const walk = $("walk").value;
-  if (walk !== "auto") config.overrides = { retrieval: { walk } };
+  if (walk !== "auto") retrieval.walk = walk;
+  const focal = $("focal").value.trim();
+  if (focal !== "") retrieval.focal_35mm = Number(focal);
+  if (Object.keys(retrieval).length) config.overrides = { retrieval };
   form.append("config", JSON.stringify(config));
   $("submit").disabled = true;
   showUploadProgress(0);

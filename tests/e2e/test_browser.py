@@ -34,6 +34,10 @@ def test_upload_progress_video_and_screenshot(live_service, photo_set: list[Path
             page.select_option("#preset", "test")
             # A box looks alike walked either way round: the photographer says which way.
             page.select_option("#walk", "cw")
+            # The renders carry no EXIF: their focal length (40 degrees across a square photo
+            # is 42 mm in 35 mm terms) given in the optional part of the form.
+            page.click("details summary")
+            page.fill("#focal", "42")
             page.click("#submit")
             page.wait_for_selector("#status", state="visible", timeout=30_000)
             widths = _progress_samples(page)
@@ -54,6 +58,9 @@ def test_upload_progress_video_and_screenshot(live_service, photo_set: list[Path
             retrieval = json.loads(max(live_service.settings.data_root.rglob("retrieval.json"),
                                        key=lambda p: p.stat().st_mtime).read_text())
             assert retrieval["direction"] == -1 and retrieval["direction_lead"] is None
+            job_config = json.loads(max(live_service.settings.data_root.rglob("config.json"),
+                                        key=lambda p: p.stat().st_mtime).read_text())
+            assert job_config["retrieval"]["focal_35mm"] == 42.0
             assert page.locator("#warnings").is_hidden()
             page.wait_for_timeout(500)
             (ROOT / "docs").mkdir(exist_ok=True)
