@@ -258,7 +258,10 @@ def section(plan: Any, results: Results, retrieval_rows: list[Row], has_lpips: b
         "errors after a similarity (Umeyama) alignment of camera centres, as BARF and the paper. "
         "Held-out views: the ground-truth cameras mapped into the NeRF's frame by the rotation "
         "and scale about the object's centre that best map the ground-truth training centres "
-        "onto the refined ones, rendered with the NeRF's own focal length"
+        "onto the refined ones, then refined on the training photos (one rotation, "
+        "translation and scale for all cameras, fitted so that the NeRF reproduces the "
+        "training photos from them; no held-out image used), rendered with the NeRF's own "
+        "focal length"
         + (f", scored at {plan.eval_size} px (ground truth area-averaged)."
            if plan.eval_size else "."),
         "",

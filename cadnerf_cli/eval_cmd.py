@@ -17,6 +17,7 @@ DEFAULT_LIBRARY = Path("library_data/build")
 class Align(StrEnum):
     """How held-out ground-truth cameras are mapped into the NeRF's frame."""
 
+    photometric = "photometric"
     centred = "centred"
     umeyama = "umeyama"
 
@@ -78,8 +79,10 @@ def eval_command(
     work: Path | None = typer.Option(None, "--work", help="Where job folders go (default: a "
                                      "temporary folder, removed afterwards)."),
     device: str = typer.Option("auto", "--device", help="auto, cpu or cuda."),
-    align: Align = typer.Option(Align.centred, "--align", help="Mapping of held-out cameras into "
-                              "the NeRF: centred (about the object's centre) or umeyama."),
+    align: Align = typer.Option(Align.photometric, "--align", help="Mapping of held-out cameras "
+                              "into the NeRF: photometric (centred, then one correction for all "
+                              "cameras fitted on the training photos), centred (about the "
+                              "object's centre, from the camera centres) or umeyama."),
     eval_size: int | None = typer.Option(None, "--eval-size", min=8, help="Score held-out "
                                          "views at this side in pixels (default: dataset's)."),
 ) -> None:
