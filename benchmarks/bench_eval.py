@@ -10,7 +10,8 @@ views on white, the same held-out views for every number of input views). For ea
   after refinement, ours against the baseline.
 - Table 4: retrieval: the paper's Algorithm 1 against our exact DP solver.
 - Table 5: ablations at 6 views: full, without CAD initialisation, without pose optimisation,
-  without deformation.
+  without deformation (nothing deforms the density in phase two), and without G but with D
+  fitted to the silhouettes in its place (``preview``'s own setting).
 
 QUICK: 3 objects and a reduced training schedule, sized to finish in a few minutes on 2 CPU
 cores; full: every mesh with the ``preview`` preset.
@@ -53,9 +54,14 @@ VARIANTS: dict[str, dict[str, Any]] = {
     "baseline": {"use_cad_init": False, "use_deformation": False, "optimise_poses": True},
     "no_cad_init": {"use_cad_init": False, "use_deformation": True},
     "no_pose_opt": {"optimise_poses": False, "use_deformation": True},
-    "no_deformation": {"use_deformation": False},
+    # Nothing deforms the density in phase two: the poses are refined against the CAD shape
+    # (D learns in phase three), the paper's pipeline without its deformation.
+    "no_deformation": {"use_deformation": False, "phase2.train_density": False},
+    # G left out but D fitted to the silhouettes in phase two in its place: `preview`'s own
+    # setting (before session 12 this was the "w/o deformation" row).
+    "no_g": {"use_deformation": False},
 }
-ABLATIONS = ("ours", "no_cad_init", "no_pose_opt", "no_deformation")
+ABLATIONS = ("ours", "no_cad_init", "no_pose_opt", "no_deformation", "no_g")
 
 
 @dataclass(frozen=True)

@@ -17,7 +17,8 @@ log = logging.getLogger(__name__)
 Results = dict[str, dict[tuple[str, int], Any]]  # object -> (variant, views) -> report | error
 VARIANT_LABELS = {"ours": "full (ours)", "baseline": "no prior (BARF-like)",
                   "no_cad_init": "w/o CAD init", "no_pose_opt": "w/o pose optimisation",
-                  "no_deformation": "w/o deformation"}
+                  "no_deformation": "w/o deformation",
+                  "no_g": "w/o G, D fitted in phase two"}
 
 
 def _ok(report: Any) -> bool:
@@ -283,7 +284,7 @@ def section(plan: Any, results: Results, retrieval_rows: list[Row], has_lpips: b
         "",
         f"### Table 5: ablations at {n} views",
         "",
-        table5(results, n, ("ours", "no_cad_init", "no_pose_opt", "no_deformation")),
+        table5(results, n, ("ours", "no_cad_init", "no_pose_opt", "no_deformation", "no_g")),
         "",
         "### Cost per phase (time in s, peak memory in MiB)",
         "",

@@ -14,7 +14,7 @@ from __future__ import annotations
 import contextlib
 import logging
 import math
-from collections.abc import Callable, Iterator
+from collections.abc import Callable
 
 import numpy as np
 import torch
@@ -155,12 +155,13 @@ def _maybe_update_grid(state: TrainState, step: int) -> None:
     state.grid.update(occupancy, rcfg.grid_threshold, rcfg.grid_dilation)
 
 
-def _apply_step(loss: torch.Tensor, optimizer: torch.optim.Optimizer,
+def _apply_step(loss: torch.Tensor, optimizer: torch.optim.Optimizer | None,
                 pose_optimizer: torch.optim.Optimizer | None) -> float:
-    """Backpropagate and step; a non-finite loss or gradient skips the step (never NaN weights)."""
-    optimizer.zero_grad(set_to_none=True)
-    if pose_optimizer is not None:
-        pose_optimizer.zero_grad(set_to_none=True)
+    """Backpropagate and step; a non-finite loss or gradient skips the step (never NaN weights).
+    ``optimizer`` None: only the poses learn (phase two with the shape held)."""
+    optimizers = [opt for opt in (optimizer, pose_optimizer) if opt is not None]
+    for opt in optimizers:
+        opt.zero_grad(set_to_none=True)
     value = float(loss.detach())
     if not math.isfinite(value):
         log.warning("non-finite loss: step skipped")
@@ -169,7 +170,6 @@ def _apply_step(loss: torch.Tensor, optimizer: torch.optim.Optimizer,
         log.warning("no sample reached the object in this batch: step skipped")
         return value
     loss.backward()
-    optimizers = [optimizer] if pose_optimizer is None else [optimizer, pose_optimizer]
     grads = [p.grad for opt in optimizers for group in opt.param_groups for p in group["params"]
              if p.grad is not None]
     if grads and not all(bool(torch.isfinite(g).all()) for g in grads):
@@ -180,7 +180,7 @@ def _apply_step(loss: torch.Tensor, optimizer: torch.optim.Optimizer,
     return value
 
 
-def phase2_step(state: TrainState, data: TrainData, optimizer: torch.optim.Optimizer,
+def phase2_step(state: TrainState, data: TrainData, optimizer: torch.optim.Optimizer | None,
                 pose_optimizer: torch.optim.Optimizer | None, step: int,
                 prior: CadPrior | None = None) -> float:
     """One silhouette step: G (or D) and, inside the window, the poses. Returns the loss."""
@@ -196,14 +196,14 @@ def phase2_step(state: TrainState, data: TrainData, optimizer: torch.optim.Optim
     return _apply_step(loss, optimizer, pose_optimizer)
 
 
-def _phase2_params(state: TrainState) -> Iterator[torch.nn.Parameter]:
-    """G's parameters, and D's unless G deforms a frozen D (``phase2.train_density`` off)."""
+def _phase2_params(state: TrainState) -> list[torch.nn.Parameter]:
+    """What phase two fits besides the poses: G, and D unless ``phase2.train_density`` is off
+    (then G deforms a frozen D; without G, nothing: the shape stays the CAD model's and only
+    the poses move)."""
     deformation = state.fields.deformation
-    if deformation is None:
-        return iter(state.fields.density.parameters())
-    if state.config.phase2.train_density:
-        return iter([*deformation.parameters(), *state.fields.density.parameters()])
-    return iter(deformation.parameters())
+    density = list(state.fields.density.parameters()) if state.config.phase2.train_density \
+        else []
+    return density if deformation is None else [*deformation.parameters(), *density]
 
 
 def run_phase2(state: TrainState, data: TrainData, progress: Progress | None = None,
@@ -213,15 +213,19 @@ def run_phase2(state: TrainState, data: TrainData, progress: Progress | None = N
     cfg = state.config.phase2
     torch.manual_seed(state.config.seed + 2)
     prior = make_prior(state, sampler, cfg.prior_weight)
-    optimizer = torch.optim.Adam(list(_phase2_params(state)), lr=cfg.lr)
+    shape = _phase2_params(state)
+    optimizer = torch.optim.Adam(shape, lr=cfg.lr) if shape else None
     pose_optimizer = torch.optim.Adam(state.poses.parameters(), lr=cfg.pose_lr)
     # Without phase2.train_density, D stays the CAD prior while G deforms it: no parameter
     # gradients for D (saves a third of the backward pass); gradients still flow through D to
-    # the offsets.
-    frozen = state.fields.deformation is not None and not cfg.train_density
-    state.fields.density.requires_grad_(not frozen)
+    # the offsets (and to the poses).
+    state.fields.density.requires_grad_(cfg.train_density)
     for step in range(cfg.steps):
         active = state.config.optimise_poses and in_window(step, cfg.steps, cfg.pose_window)
+        if optimizer is None and not active:
+            # Nothing to fit outside the pose window when the shape is held.
+            _report(progress, "phase2", step, cfg.steps)
+            continue
         loss = phase2_step(state, data, optimizer, pose_optimizer if active else None, step,
                            prior)
         state.log("phase2/loss", loss)

@@ -81,17 +81,39 @@ def test_phase_two_moves_a_perturbed_pose_toward_the_truth() -> None:
     c2w_init = (se3_exp(xi) @ torch.from_numpy(c2w)).numpy()
     # D fitted to the true shape and held still: only the pose can explain the silhouette.
     cfg = _config(**{"phase1.steps": 200, "phase1.lr": 3e-3, "phase1.batch_points": 2048,
-                     "use_deformation": False,
-                     "phase2.steps": 120, "phase2.rays": 512, "phase2.lr": 1e-9,
+                     "use_deformation": False, "phase2.train_density": False,
+                     "phase2.steps": 120, "phase2.rays": 512,
                      "phase2.pose_lr": 4e-3, "phase2.pose_window": (0.0, 1.0),
                      "phase2.anneal": (0.0, 0.0), "render.samples_per_ray": 32})
     grid = grid_from_occupancy(mesh.contains, 16, cfg.render.bound, 2)
     state = TrainState.create(cfg, c2w_init, DEVICE, grid)
     phases.run_phase1(state, _sampler(mesh))
     before = pose_errors(c2w_init, c2w, align=False)[0][2]
+    d_before = [p.detach().clone() for p in state.fields.density.parameters()]
     phases.run_phase2(state, data)
     after = pose_errors(state.refined_c2w(), c2w, align=False)[0][2]
     assert after < 0.6 * before
+    assert all(torch.equal(a, b) for a, b in
+               zip(d_before, state.fields.density.parameters(), strict=True))
+
+
+@pytest.mark.parametrize("optimise_poses", [True, False])
+def test_phase_two_with_the_shape_held_runs_only_the_pose_window(optimise_poses: bool) -> None:
+    """No G and ``phase2.train_density`` off: the shape stays the CAD model's, so only the
+    steps inside the pose window run (none when the poses are not optimised); D is untouched
+    and trainable again afterwards."""
+    data, c2w = _scene(_box())
+    cfg = _config(**{"use_deformation": False, "phase2.train_density": False,
+                     "phase2.steps": 8, "phase2.rays": 64, "phase2.pose_window": (0.5, 1.0),
+                     "optimise_poses": optimise_poses})
+    state = TrainState.create(cfg, c2w, DEVICE)
+    d_before = [p.detach().clone() for p in state.fields.density.parameters()]
+    phases.run_phase2(state, data)
+    assert len(state.history.get("phase2/loss", [])) == (4 if optimise_poses else 0)
+    assert bool(state.poses.xi.detach().abs().sum() > 0) == optimise_poses
+    assert all(torch.equal(a, b) for a, b in
+               zip(d_before, state.fields.density.parameters(), strict=True))
+    assert all(p.requires_grad for p in state.fields.density.parameters())
 
 
 def test_phase_three_fits_colour_and_a_seed_repeats_a_run() -> None:
