@@ -351,16 +351,17 @@ PRESETS: dict[str, PipelineConfig] = {
     # three phases take a few minutes (phase three ~0.05-0.13 s a step on 2 cores). Phase three
     # 2000 steps: against 1000 (both with pose_lr 2e-3, seed 0, CesiumMilkTruck / Duck) test
     # PSNR 19.35 / 19.80 -> 19.68 / 20.17 dB, rotation error 3.8 / 7.5 -> 3.0 / 3.2 deg; with
-    # the true cameras 21.06 / 23.08 -> 21.74 / 23.78. No deformation network G: D is fitted to
-    # the silhouettes in its place (the benchmarks' "no G" run). At this scale G is measured to
-    # add a fifth to a third of the job time and no quality; holding the shape in phase two
-    # instead (the paper's pipeline without deformation, the benchmarks' "no deformation" run)
-    # costs half a dB. `docs/bench_training_preview.md`, two seeds, CesiumMilkTruck / Duck,
-    # mean test PSNR: no G 22.68 dB, full (with G) 22.48, no deformation 21.97; jobs about
-    # 175 s, 239 s and 245 s. Earlier (session 9, before the frame fit) on the drill and the
-    # cow: 14.18 / 16.85 without G against 13.95 / 16.87, 191 s against 284 s
-    # (`docs/bench_training_focal.md`). `standard` and `paper` keep G: nothing here measured
-    # them.
+    # the true cameras 21.06 / 23.08 -> 21.74 / 23.78. No deformation network G: D is fitted to the
+    # silhouettes in its place (the benchmarks' "no G" run). At this scale G is measured to add a
+    # fifth to a third of the job time and no quality beyond noise; holding the shape in phase two
+    # instead (the paper's pipeline without deformation, the benchmarks' "no deformation" run) is
+    # clearly worse. `docs/bench_training_preview.md`, CesiumMilkTruck / Duck, mean test PSNR:
+    # session 13 (Xeon, seed 0) full (with G) 22.39 dB, no G 22.19, no deformation 20.69, jobs 213 /
+    # 170 / 150 s; sessions 11-12 (AMD EPYC, two seeds) no G 22.68, full 22.48, no deformation about
+    # 22.0, jobs 175 / 239 s. G's gain or loss is within a seed's spread either way. Earlier
+    # (session 9, before the frame fit) on the drill and the cow: 14.18 / 16.85 without G against
+    # 13.95 / 16.87, 191 s against 284 s (`docs/bench_training_focal.md`). `standard` and `paper`
+    # keep G: nothing here measured them.
     "preview": _preset(
         "preview", image_size=128, use_deformation=False,
         field={"hidden": 64, "pos_freqs": 6, "deform_hidden": 48, "color_hidden": 64},
