@@ -356,8 +356,8 @@ PRESETS: dict[str, PipelineConfig] = {
     # fifth to a third of the job time and no quality beyond noise; holding the shape in phase two
     # instead (the paper's pipeline without deformation, the benchmarks' "no deformation" run) is
     # clearly worse. `docs/bench_training_preview.md`, CesiumMilkTruck / Duck, mean test PSNR:
-    # session 13 (Xeon, seed 0) full (with G) 22.39 dB, no G 22.19, no deformation 20.69, jobs 213 /
-    # 170 / 150 s; sessions 11-12 (AMD EPYC, two seeds) no G 22.68, full 22.48, no deformation about
+    # session 13 (Xeon, seeds 0 and 1) full (with G) 22.46 dB, no G 22.40, no deformation 21.36;
+    # sessions 11-12 (AMD EPYC, two seeds) no G 22.68, full 22.48, no deformation about
     # 22.0, jobs 175 / 239 s. G's gain or loss is within a seed's spread either way. Earlier
     # (session 9, before the frame fit) on the drill and the cow: 14.18 / 16.85 without G against
     # 13.95 / 16.87, 191 s against 284 s (`docs/bench_training_focal.md`). `standard` and `paper`
