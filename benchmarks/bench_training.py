@@ -37,7 +37,9 @@ deterministic for a seed, but two seeds differ by a few tenths of a dB, which is
 difference between ablations has to beat.
 
 Usage: ``python -m benchmarks.bench_training [--quick] [--threads N] [--meshes NAME ...]
-[--seeds N] [--runs NAME ...] [--exif-focal]``; ``--runs`` keeps only the named runs (of
+[--seeds N] [--runs NAME ...] [--exif-focal] [--preset P] [--device D] [--size N]``;
+``--preset``/``--device``/``--size`` (default ``preview``, CPU, 128 px) give the GPU figure
+with ``--preset standard --device cuda --size 256``; ``--runs`` keeps only the named runs (of
 "full", the ablations and the oracle), as when one ablation is checked on more meshes;
 ``--exif-focal`` gives the photos their true focal length in EXIF, as a phone's photos have;
 ``--overrides JSON`` sets configuration values in every run (``'{"field.deform_freqs": 2}'``).
@@ -187,12 +189,13 @@ def refine_test_pose(model: Any, c2w: np.ndarray, K: np.ndarray, image: np.ndarr
         return pose().double().cpu().numpy()[0]
 
 
-def refined_test_psnr(report: EvalReport, steps: int, align: str | None = None) -> float:
+def refined_test_psnr(report: EvalReport, steps: int, align: str | None = None,
+                      device: str = DEVICE) -> float:
     """Mean held-out PSNR after ``refine_test_pose``, started from the cameras and intrinsics
     ``evaluate_dataset`` rendered the report's test PSNR with (same mapping, same focal
     length, same size and background), so only the refinement differs. ``align``: the
     mapping (``evaluation.frame_mapping``), when not the report's; ``steps`` 0: no
-    refinement."""
+    refinement; ``device``: where the model is loaded (the job's own)."""
     from cadnerf_core.dataset import load_dataset
     from cadnerf_core.evaluation import (
         eval_intrinsics,
@@ -205,7 +208,7 @@ def refined_test_psnr(report: EvalReport, steps: int, align: str | None = None) 
     from cadnerf_core.nerf.model import TrainedModel
 
     job = Path(report.job_dir)
-    model = TrainedModel.load(job, DEVICE)
+    model = TrainedModel.load(job, device)
     data = first_views(load_dataset(report.dataset), report.n_views)
     assert data.test is not None
     cams = read_job_cameras(job, model)
@@ -224,14 +227,15 @@ def refined_test_psnr(report: EvalReport, steps: int, align: str | None = None) 
     return float(np.mean(scores))
 
 
-def score_report(report: EvalReport, tta: bool) -> dict[str, Any]:
-    """The table's numbers for one evaluated job."""
+def score_report(report: EvalReport, tta: bool, device: str = DEVICE) -> dict[str, Any]:
+    """The table's numbers for one evaluated job (its model loaded on ``device``)."""
     metrics = json.loads((Path(report.job_dir) / "metrics.json").read_text())
     return {"psnr": report.image.psnr,
             # The same cameras mapped by the camera centres alone (the protocol before
             # session 11): six noisy centres on a ring fix the frame only roughly.
-            "psnr_centred": refined_test_psnr(report, 0, "centred"),
-            "psnr_tta": refined_test_psnr(report, TTA_STEPS) if tta else float("nan"),
+            "psnr_centred": refined_test_psnr(report, 0, "centred", device),
+            "psnr_tta": (refined_test_psnr(report, TTA_STEPS, device=device) if tta
+                         else float("nan")),
             "rot_before": float(np.median(report.pose_retrieved.rotation_deg_per_view)),
             "rot_after": float(np.median(report.pose_refined.rotation_deg_per_view)),
             "kept": len(report.kept), "model_id": report.model_id,
@@ -243,26 +247,28 @@ def score_report(report: EvalReport, tta: bool) -> dict[str, Any]:
 
 def run_one(mesh: Path, work: Path, library: Library, name: str, overrides: dict[str, Any],
             tta: bool, oracle: bool = False, exif_focal: bool = False,
-            fov_deg: float = FOV_DEG, views: int = TRAIN_VIEWS) -> dict[str, Any]:
-    """Render the dataset (once per mesh), run and score a job with ``overrides`` through
-    ``evaluate_dataset`` (with the true cameras for ``oracle``; the photos carrying their
-    true focal length in EXIF, as a phone's do, with ``exif_focal``; the photos' field of view
-    ``fov_deg``; ``views`` training photos), and add this benchmark's numbers."""
+            fov_deg: float = FOV_DEG, views: int = TRAIN_VIEWS, preset: str = PRESET,
+            device: str = DEVICE, size: int = IMAGE_SIZE) -> dict[str, Any]:
+    """Render the dataset (once per mesh, ``size`` pixels square), run and score a job of
+    ``preset`` with ``overrides`` on ``device`` through ``evaluate_dataset`` (with the true
+    cameras for ``oracle``; the photos carrying their true focal length in EXIF, as a phone's
+    do, with ``exif_focal``; the photos' field of view ``fov_deg``; ``views`` training
+    photos), and add this benchmark's numbers."""
     from cadnerf_core.dataset import render_dataset
     from cadnerf_core.evaluation import evaluate_dataset
 
     dataset_dir = work / mesh.parent.name / "dataset"
     if not dataset_dir.exists():
-        render_dataset(mesh, dataset_dir, views, IMAGE_SIZE, seed=SEED,
+        render_dataset(mesh, dataset_dir, views, size, seed=SEED,
                        test_views=TEST_VIEWS, up="z" if mesh.parent.name in Z_UP else "y",
                        fov_deg=fov_deg)
     job = work / mesh.parent.name / name.replace(" ", "_")
     with true_cameras(dataset_dir) if oracle else contextlib.nullcontext():
-        report = evaluate_dataset(dataset_dir, views, library, preset=PRESET,
-                                  overrides=overrides, job_dir=job, device=DEVICE,
+        report = evaluate_dataset(dataset_dir, views, library, preset=preset,
+                                  overrides=overrides, job_dir=job, device=device,
                                   intrinsics="estimated", align="photometric",
                                   exif_focal=exif_focal)
-    return score_report(report, tta)
+    return score_report(report, tta, device)
 
 
 def _table(rows: list[tuple[str, str, dict[str, Any]]]) -> list[str]:
@@ -314,14 +320,16 @@ def save_orbit_frame(job: Path) -> None:
 def run(quick: bool, threads: int | None = None, names: list[str] | None = None,
         seeds: int = 1, only: list[str] | None = None, exif_focal: bool = False,
         overrides: dict[str, Any] | None = None, fov_deg: float = FOV_DEG,
-        first_seed: int = 0, views: int = TRAIN_VIEWS) -> str:
+        first_seed: int = 0, views: int = TRAIN_VIEWS, preset: str = PRESET,
+        device: str = DEVICE, size: int = IMAGE_SIZE) -> str:
     """The markdown section (see the module docstring); every run repeated with training
     seeds ``first_seed`` to ``first_seed + seeds - 1`` (the datasets stay the same);
     ``only``: the runs to keep (names of ``ABLATIONS`` or ``ORACLE``; all when None);
     ``exif_focal``: the photos carry their true focal length in EXIF; ``overrides``:
     configuration values applied to every run, under each run's own (dotted keys, as a job's
     config takes them); ``fov_deg``: the photos' horizontal field of view; ``views``: training
-    photos per walk."""
+    photos per walk; ``preset``, ``device``: the jobs' preset and device ("cuda" for the
+    GPU figures); ``size``: the photos' side in pixels."""
     import torch
 
     from cadnerf_core.library import load_library
@@ -351,7 +359,7 @@ def run(quick: bool, threads: int | None = None, names: list[str] | None = None,
                                      {**(overrides or {}), **own, **extra, "seed": seed},
                                      tta=True,
                                      oracle=oracle, exif_focal=exif_focal, fov_deg=fov_deg,
-                                     views=views)
+                                     views=views, preset=preset, device=device, size=size)
                     rows.append((mesh.parent.name, name, {**result, "seed": seed}))
                     log.info("%s %s: %s", mesh.parent.name, label, result)
             if i == 0 and names is None and first_seed == 0 \
@@ -367,15 +375,21 @@ def run(quick: bool, threads: int | None = None, names: list[str] | None = None,
     flags += " --exif-focal" if exif_focal else ""
     flags += f" --fov {fov_deg:g}" if fov_deg != FOV_DEG else ""
     flags += f" --views {views}" if views != TRAIN_VIEWS else ""
+    flags += f" --preset {preset}" if preset != PRESET else ""
+    flags += f" --device {device}" if device != DEVICE else ""
+    flags += f" --size {size}" if size != IMAGE_SIZE else ""
     flags += f" --overrides '{json.dumps(overrides)}'" if overrides else ""
     if only:
         flags += " --runs " + " ".join(f'"{name}"' if " " in name else name for name in only)
     last = first_seed + seeds - 1
     seed_text = f"{first_seed} to {last}" if seeds > 1 else f"{first_seed}"
-    lines = [f"## Training (preset `{PRESET}`, CPU)", "",
+    where = "CPU"
+    if device != "cpu" and torch.cuda.is_available():
+        where = f"GPU: {torch.cuda.get_device_name(0)}, torch {torch.__version__}"
+    lines = [f"## Training (preset `{preset}`, {where})", "",
              f"Command: `.venv/bin/python -m benchmarks.bench_training{flags}` "
              f"(torch threads: {torch.get_num_threads()}). Datasets: `render_dataset` "
-             f"{IMAGE_SIZE} px, field of view {fov_deg:g} deg, {views} training views "
+             f"{size} px, field of view {fov_deg:g} deg, {views} training views "
              f"in walking order, {TEST_VIEWS} held-out test views, seed {SEED}. "
              "Each run is executed and scored by "
              "`cadnerf_core.evaluation.evaluate_dataset`, the evaluation benchmark's protocol: "
@@ -424,11 +438,15 @@ def main() -> None:
                              "lens: about 65)")
     parser.add_argument("--views", type=int, default=TRAIN_VIEWS,
                         help="training photos per walk (the service takes 3 to 10)")
+    parser.add_argument("--preset", default=PRESET, help="the jobs' preset")
+    parser.add_argument("--device", default=DEVICE, help='training device ("cuda" for a GPU)')
+    parser.add_argument("--size", type=int, default=IMAGE_SIZE,
+                        help="side of the dataset's photos in pixels")
     args = parser.parse_args()
     logging.basicConfig(level=logging.INFO)
     print(run(args.quick, args.threads, args.meshes, max(1, args.seeds), args.runs,
               args.exif_focal, args.overrides, args.fov, max(0, args.first_seed),
-              max(3, args.views)))  # noqa: T201 (the section is the command's output)
+              max(3, args.views), args.preset, args.device, args.size))  # noqa: T201 (the section is the command's output)
 
 
 if __name__ == "__main__":

@@ -14,7 +14,7 @@ from __future__ import annotations
 import contextlib
 import logging
 import math
-from collections.abc import Callable
+from collections.abc import Callable, Iterable
 
 import numpy as np
 import torch
@@ -41,6 +41,22 @@ def autocast(state: TrainState) -> contextlib.AbstractContextManager[None]:
     if state.device.type == "cuda" and state.config.mixed_precision:
         return torch.autocast("cuda", dtype=torch.bfloat16)
     return contextlib.nullcontext()
+
+
+def upload(t: torch.Tensor, device: torch.device) -> torch.Tensor:
+    """A CPU tensor on ``device``. To CUDA through pinned memory without blocking: a copy from
+    pageable memory waits for the GPU to drain first, which each step would otherwise do."""
+    if device.type == "cuda":
+        return t.pin_memory().to(device, non_blocking=True)
+    return t.to(device)
+
+
+def adam(params: Iterable[torch.nn.Parameter], lr: float,
+         device: torch.device) -> torch.optim.Adam:
+    """Adam; on CUDA its fused kernel (one launch per step instead of several per tensor)."""
+    if device.type == "cuda":
+        return torch.optim.Adam(params, lr=lr, fused=True)
+    return torch.optim.Adam(params, lr=lr)
 
 
 def _report(progress: Progress | None, stage: str, step: int, total: int) -> None:
@@ -76,9 +92,9 @@ def run_phase1(state: TrainState, sampler: OccupancySampler,
     pool_pts, pool_occ = sampler(min(POOL_MAX, max(cfg.steps * cfg.batch_points, 1)))
     pts = torch.from_numpy(np.asarray(pool_pts, np.float32)).to(state.device)
     occ = torch.from_numpy(np.asarray(pool_occ, np.float32)).to(state.device)
-    optimizer = torch.optim.Adam(state.fields.density.parameters(), lr=cfg.lr)
+    optimizer = adam(state.fields.density.parameters(), cfg.lr, state.device)
     for step in range(cfg.steps):
-        idx = torch.randint(0, pts.shape[0], (cfg.batch_points,)).to(state.device)
+        idx = upload(torch.randint(0, pts.shape[0], (cfg.batch_points,)), state.device)
         state.log("phase1/bce", phase1_step(state, optimizer, pts[idx], occ[idx]))
         _report(progress, "phase1", step, cfg.steps)
 
@@ -94,7 +110,7 @@ class CadPrior:
 
     def loss(self, state: TrainState, n: int) -> torch.Tensor:
         """BCE of D's logit against the CAD occupancy at ``n`` pool points (CPU draws)."""
-        idx = torch.randint(0, self.points.shape[0], (n,)).to(state.device)
+        idx = upload(torch.randint(0, self.points.shape[0], (n,)), state.device)
         with autocast(state):
             logit, _ = state.fields.density(self.points[idx])
         return F.binary_cross_entropy_with_logits(logit.float(), self.occupancy[idx])
@@ -115,11 +131,11 @@ def sample_pixels(data: TrainData, n: int) -> tuple[torch.Tensor, torch.Tensor, 
     Returns:
         image index [n], x [n], y [n] (long, on the data's device).
     """
-    flat = torch.randint(0, data.n_images * data.height * data.width, (n,))
+    flat = upload(torch.randint(0, data.n_images * data.height * data.width, (n,)),
+                  data.images.device)
     img = flat // (data.height * data.width)
     rem = flat % (data.height * data.width)
-    dev = data.images.device
-    return img.to(dev), (rem % data.width).to(dev), (rem // data.width).to(dev)
+    return img, rem % data.width, rem // data.width
 
 
 def render_batch(state: TrainState, data: TrainData, img: torch.Tensor, x: torch.Tensor,
@@ -158,21 +174,25 @@ def _maybe_update_grid(state: TrainState, step: int) -> None:
 def _apply_step(loss: torch.Tensor, optimizer: torch.optim.Optimizer | None,
                 pose_optimizer: torch.optim.Optimizer | None) -> float:
     """Backpropagate and step; a non-finite loss or gradient skips the step (never NaN weights).
-    ``optimizer`` None: only the poses learn (phase two with the shape held)."""
+    ``optimizer`` None: only the poses learn (phase two with the shape held).
+
+    The loss and the gradients' total norm come back to the host together, after the backward
+    pass: one wait for the GPU per step (a check per tensor waited once per tensor)."""
     optimizers = [opt for opt in (optimizer, pose_optimizer) if opt is not None]
     for opt in optimizers:
         opt.zero_grad(set_to_none=True)
-    value = float(loss.detach())
-    if not math.isfinite(value):
-        log.warning("non-finite loss: step skipped")
-        return value
     if not loss.requires_grad:
         log.warning("no sample reached the object in this batch: step skipped")
-        return value
+        return float(loss.detach())
     loss.backward()
     grads = [p.grad for opt in optimizers for group in opt.param_groups for p in group["params"]
              if p.grad is not None]
-    if grads and not all(bool(torch.isfinite(g).all()) for g in grads):
+    norm = torch.nn.utils.get_total_norm(grads) if grads else torch.zeros((), device=loss.device)
+    value, grad_norm = torch.stack([loss.detach().float(), norm.float()]).tolist()
+    if not math.isfinite(value):
+        log.warning("non-finite loss: step skipped")
+        return value
+    if not math.isfinite(grad_norm):
         log.warning("non-finite gradient: step skipped")
         return value
     for opt in optimizers:
@@ -214,8 +234,8 @@ def run_phase2(state: TrainState, data: TrainData, progress: Progress | None = N
     torch.manual_seed(state.config.seed + 2)
     prior = make_prior(state, sampler, cfg.prior_weight)
     shape = _phase2_params(state)
-    optimizer = torch.optim.Adam(shape, lr=cfg.lr) if shape else None
-    pose_optimizer = torch.optim.Adam(state.poses.parameters(), lr=cfg.pose_lr)
+    optimizer = adam(shape, cfg.lr, state.device) if shape else None
+    pose_optimizer = adam(state.poses.parameters(), cfg.pose_lr, state.device)
     # Without phase2.train_density, D stays the CAD prior while G deforms it: no parameter
     # gradients for D (saves a third of the backward pass); gradients still flow through D to
     # the offsets (and to the poses).
@@ -296,11 +316,11 @@ def run_phase3(state: TrainState, data: TrainData, progress: Progress | None = N
     background = state.fields.background
     params = [p for name, p in state.fields.named_parameters()
               if not name.startswith("background.")]
-    optimizer = torch.optim.Adam(params, lr=cfg.lr)
+    optimizer = adam(params, cfg.lr, state.device)
     scene_steps = cfg.scene_steps if background is not None and data.scene_images is not None \
         else 0
     total = cfg.steps + scene_steps
-    pose_optimizer = torch.optim.Adam(state.poses.parameters(), lr=cfg.pose_lr)
+    pose_optimizer = adam(state.poses.parameters(), cfg.pose_lr, state.device)
     blurred: dict[float, torch.Tensor] = {}
     for step in range(cfg.steps):
         active = state.config.optimise_poses and in_window(step, cfg.steps, cfg.pose_window)

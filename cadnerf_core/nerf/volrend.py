@@ -90,19 +90,21 @@ def composite(alpha: torch.Tensor) -> torch.Tensor:
 
 
 def _evaluate(fn: FieldFn, points: torch.Tensor, dirs: torch.Tensor, keep: torch.Tensor,
-              with_color: bool) -> tuple[torch.Tensor, torch.Tensor | None, FieldOutputs | None]:
-    """Evaluate the fields only at kept samples; scatter back to dense [R*S] tensors."""
+              with_color: bool
+              ) -> tuple[torch.Tensor, torch.Tensor | None, FieldOutputs | None, int]:
+    """Evaluate the fields only at kept samples; scatter back to dense [R*S] tensors.
+    Returns alpha, rgb, the fields' outputs and the number of samples evaluated."""
     n = keep.shape[0]
     idx = keep.nonzero()[:, 0]
     alpha = torch.zeros(n, device=points.device, dtype=torch.float32)
     rgb = torch.zeros(n, 3, device=points.device, dtype=torch.float32) if with_color else None
     if idx.numel() == 0:
-        return alpha, rgb, None
+        return alpha, rgb, None, 0
     out = fn(points[idx], dirs[idx])
     alpha = alpha.index_put((idx,), out.occupancy.float())
     if rgb is not None and out.rgb is not None:
         rgb = rgb.index_put((idx,), out.rgb.float())
-    return alpha, rgb, out
+    return alpha, rgb, out, int(idx.numel())
 
 
 def render_rays(fn: FieldFn, rays_o: torch.Tensor, rays_d: torch.Tensor, n_samples: int,
@@ -130,7 +132,8 @@ def render_rays(fn: FieldFn, rays_o: torch.Tensor, rays_d: torch.Tensor, n_sampl
     if grid is not None:
         keep = keep & grid.contains(points.reshape(-1, 3)).reshape(R, n_samples)
     dirs = rays_d[:, None].expand(R, n_samples, 3).reshape(-1, 3)
-    alpha, rgb, out = _evaluate(fn, points.reshape(-1, 3), dirs, keep.reshape(-1), with_color)
+    alpha, rgb, out, n_evaluated = _evaluate(fn, points.reshape(-1, 3), dirs, keep.reshape(-1),
+                                             with_color)
     weights = composite(alpha.reshape(R, n_samples))
     acc = weights.sum(-1)
     depth = (weights * t).sum(-1) + (1.0 - acc) * far
@@ -142,7 +145,7 @@ def render_rays(fn: FieldFn, rays_o: torch.Tensor, rays_d: torch.Tensor, n_sampl
     zero = torch.zeros((), device=rays_o.device)
     off = zero if out is None or out.offset is None else out.offset.float().norm(dim=-1).mean()
     cor = zero if out is None or out.correction is None else out.correction.float().abs().mean()
-    return RenderOutput(acc, color, depth, off, cor, int(keep.sum()))
+    return RenderOutput(acc, color, depth, off, cor, n_evaluated)
 
 
 @torch.no_grad()
@@ -173,7 +176,7 @@ def march_rays(fn: FieldFn, rays_o: torch.Tensor, rays_d: torch.Tensor, n_sample
         if grid is not None:
             keep = keep & grid.contains(points.reshape(-1, 3)).reshape(R, b)
         dirs = rays_d[:, None].expand(R, b, 3).reshape(-1, 3)
-        alpha, rgb, _ = _evaluate(fn, points.reshape(-1, 3), dirs, keep.reshape(-1), True)
+        alpha, rgb, _, _ = _evaluate(fn, points.reshape(-1, 3), dirs, keep.reshape(-1), True)
         assert rgb is not None
         weights = composite(alpha.reshape(R, b)) * trans[:, None]
         color += (weights[..., None] * rgb.reshape(R, b, 3)).sum(1)

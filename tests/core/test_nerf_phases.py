@@ -10,7 +10,7 @@ import pytest
 import torch
 import trimesh
 
-from cadnerf_core.cameras import intrinsics_from_fov, orbit_pose, pose_errors, se3_exp
+from cadnerf_core.cameras import intrinsics_from_fov, orbit_pose, project, se3_exp
 from cadnerf_core.config import PipelineConfig, resolve_config
 from cadnerf_core.errors import JobCancelled
 from cadnerf_core.nerf import phases
@@ -76,9 +76,19 @@ def test_phase_one_reduces_bce() -> None:
 def test_phase_two_moves_a_perturbed_pose_toward_the_truth() -> None:
     mesh = _box()
     data, c2w = _scene(mesh)
+    # ~6.7 degrees about the camera's own centre: the box moves by ~2.5 pixels in the photo.
+    # (The same turn about the object's centre moves the corners by a quarter of a pixel at
+    # this size, too little for a silhouette to tell; the score was then a matter of CPU
+    # rounding.) Silhouettes fix where the object appears, which a rotation and a translation
+    # can trade between them, so the measure is the corners' reprojection error.
     xi = torch.zeros(len(c2w), 6, dtype=torch.float64)
-    xi[2, :3] = torch.tensor([0.0, 1.0, 0.5]) * math.radians(6.0)  # ~6.7 degrees off
-    c2w_init = (se3_exp(xi) @ torch.from_numpy(c2w)).numpy()
+    xi[2, :3] = torch.tensor([0.0, 1.0, 0.5]) * math.radians(6.0)
+    c2w_init = (torch.from_numpy(c2w) @ se3_exp(xi)).numpy()
+    K = intrinsics_from_fov(40.0, SIZE)
+
+    def corner_error(pose: np.ndarray) -> float:
+        return float(np.abs(project(mesh.vertices, K, pose)
+                            - project(mesh.vertices, K, c2w[2])).mean())
     # D fitted to the true shape and held still: only the pose can explain the silhouette.
     cfg = _config(**{"phase1.steps": 200, "phase1.lr": 3e-3, "phase1.batch_points": 2048,
                      "use_deformation": False, "phase2.train_density": False,
@@ -88,11 +98,12 @@ def test_phase_two_moves_a_perturbed_pose_toward_the_truth() -> None:
     grid = grid_from_occupancy(mesh.contains, 16, cfg.render.bound, 2)
     state = TrainState.create(cfg, c2w_init, DEVICE, grid)
     phases.run_phase1(state, _sampler(mesh))
-    before = pose_errors(c2w_init, c2w, align=False)[0][2]
+    before = corner_error(c2w_init[2])
     d_before = [p.detach().clone() for p in state.fields.density.parameters()]
     phases.run_phase2(state, data)
-    after = pose_errors(state.refined_c2w(), c2w, align=False)[0][2]
-    assert after < 0.6 * before
+    after = corner_error(state.refined_c2w()[2])
+    assert before > 2.0
+    assert after < 0.4 * before
     assert all(torch.equal(a, b) for a, b in
                zip(d_before, state.fields.density.parameters(), strict=True))
 
