@@ -241,7 +241,7 @@ def score_report(report: EvalReport, tta: bool, device: str = DEVICE) -> dict[st
             "kept": len(report.kept), "model_id": report.model_id,
             "train_psnr": metrics["mean_psnr"],
             # evaluate_dataset's wall time less the held-out renders: the whole job (writing
-            # its photos, retrieval, training, exports) and loading its model.
+            # its photos, retrieval, training, exports), loading its model and the frame fit.
             "seconds": report.seconds - report.render_seconds}
 
 
@@ -405,7 +405,8 @@ def run(quick: bool, threads: int | None = None, names: list[str] | None = None,
              f"protocol). Training seeds: {seed_text} (same datasets). Rotation errors "
              "are medians over the kept photos after similarity "
              "(Umeyama) alignment of camera centres. Job s: the evaluation's wall time less "
-             "the held-out renders (the whole job and loading its model). "
+             "the held-out renders (the whole job, loading its model and the evaluation's "
+             "photometric frame fit). "
              f"{ORACLE} (an oracle, not the method): the full run with each kept photo's "
              "retrieved camera replaced by the ground truth (pose mapped into the CAD model's "
              "frame, true intrinsics), poses fixed; its retrieval column reads 0 since the "

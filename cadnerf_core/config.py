@@ -335,16 +335,21 @@ PRESETS: dict[str, PipelineConfig] = {
     # Default: best quality in about a minute on a GPU at 256 px. Narrower nets than `paper`
     # (128 wide: the benchmark shows small objects do not need more), 64 samples with grid
     # skipping; poses refined in the second half of phase two and the first three quarters of
-    # phase three (against blurred photos first),
-    # D trained beside G in phase two, raw view directions only (the schema's defaults,
-    # measured on `preview`: no GPU was at hand to measure this one).
+    # phase three (against blurred photos first), D trained beside G in phase two, raw view
+    # directions only (the schema's defaults, measured on `preview`). Few large steps: on an
+    # H100 a step of these small networks costs ~20-25 ms whatever its batch (kernel launches,
+    # not arithmetic), so 8192 rays a step over a quarter of the steps sees the same samples
+    # in a third of the time. `docs/bench_training_gpu.md` (session 14, H100, truck and Duck at
+    # 256 px, seed 0): 2048 rays x 800/2000/4000 steps gave 22.29 dB mean test PSNR (21.32 /
+    # 23.25) in 180 s a job; these values 22.36 dB (21.79 / 22.94) in 69 s. One seed on two
+    # meshes: the two are level within a seed's spread, not shown better. On a CPU, `preview`.
     "standard": _preset(
         "standard", image_size=256,
         field={"hidden": 128, "pos_freqs": 8, "deform_hidden": 64, "color_hidden": 96},
-        render={"samples_per_ray": 64, "grid_resolution": 48},
-        phase1={"steps": 800, "batch_points": 8192},
-        phase2={"steps": 2000, "rays": 2048},
-        phase3={"steps": 4000, "rays": 2048, "scene_steps": 1000},
+        render={"samples_per_ray": 64, "grid_resolution": 48, "grid_update_every": 25},
+        phase1={"steps": 200, "batch_points": 32768},
+        phase2={"steps": 500, "rays": 8192},
+        phase3={"steps": 1000, "rays": 8192, "scene_steps": 250},
         export={"orbit_size": 256, "mesh_resolution": 128}),
     # A useful result in minutes on 2 CPU cores, on 128 px crops: widths 64, 6 frequencies, 32
     # samples per ray (grid skipping leaves ~5-7 evaluated per ray), step counts sized so the
