@@ -14,7 +14,7 @@ from __future__ import annotations
 import contextlib
 import logging
 import math
-from collections.abc import Callable, Iterable
+from collections.abc import Callable, Iterable, Iterator
 
 import numpy as np
 import torch
@@ -33,6 +33,7 @@ log = logging.getLogger(__name__)
 OccupancySampler = Callable[[int], tuple[np.ndarray, np.ndarray]]
 
 POOL_MAX = 1 << 18  # CAD occupancy samples drawn once for phase one
+CPU_PASS_RAYS = 2048  # ``render.train_pass_rays`` 0 on the CPU
 REPORTS = 50  # progress reports per phase
 
 
@@ -171,24 +172,43 @@ def _maybe_update_grid(state: TrainState, step: int) -> None:
     state.grid.update(occupancy, rcfg.grid_threshold, rcfg.grid_dilation)
 
 
-def _apply_step(loss: torch.Tensor, optimizer: torch.optim.Optimizer | None,
+def ray_passes(state: TrainState, n: int) -> list[tuple[slice, float]]:
+    """How a step's ``n`` rays are split into forward and backward passes
+    (``render.train_pass_rays``): each pass's slice and its share of the rays."""
+    size = state.config.render.train_pass_rays
+    if size <= 0:
+        size = n if state.device.type == "cuda" else CPU_PASS_RAYS
+    return [(slice(start, min(start + size, n)), (min(start + size, n) - start) / n)
+            for start in range(0, n, size)]
+
+
+def _apply_step(losses: Iterable[torch.Tensor], optimizer: torch.optim.Optimizer | None,
                 pose_optimizer: torch.optim.Optimizer | None) -> float:
-    """Backpropagate and step; a non-finite loss or gradient skips the step (never NaN weights).
-    ``optimizer`` None: only the poses learn (phase two with the shape held).
+    """Backpropagate each pass's loss (``ray_passes``; their sum is the step's loss), then step
+    once; a non-finite loss or gradient skips the step (never NaN weights). ``optimizer``
+    None: only the poses learn (phase two with the shape held). Returns the step's loss.
 
     The loss and the gradients' total norm come back to the host together, after the backward
-    pass: one wait for the GPU per step (a check per tensor waited once per tensor)."""
+    passes: one wait for the GPU per step (a check per tensor waited once per tensor)."""
     optimizers = [opt for opt in (optimizer, pose_optimizer) if opt is not None]
     for opt in optimizers:
         opt.zero_grad(set_to_none=True)
-    if not loss.requires_grad:
+    total: torch.Tensor | None = None
+    learned = False
+    for loss in losses:
+        total = loss.detach().float() if total is None else total + loss.detach().float()
+        if loss.requires_grad:
+            loss.backward()
+            learned = True
+    assert total is not None, "a step has at least one pass"
+    if not learned:
         log.warning("no sample reached the object in this batch: step skipped")
-        return float(loss.detach())
-    loss.backward()
+        return float(total)
+    loss = total
     grads = [p.grad for opt in optimizers for group in opt.param_groups for p in group["params"]
              if p.grad is not None]
     norm = torch.nn.utils.get_total_norm(grads) if grads else torch.zeros((), device=loss.device)
-    value, grad_norm = torch.stack([loss.detach().float(), norm.float()]).tolist()
+    value, grad_norm = torch.stack([loss, norm.float()]).tolist()
     if not math.isfinite(value):
         log.warning("non-finite loss: step skipped")
         return value
@@ -208,12 +228,21 @@ def phase2_step(state: TrainState, data: TrainData, optimizer: torch.optim.Optim
     state.fields.set_anneal((step / max(cfg.steps, 1) - cfg.anneal[0])
                             / max(cfg.anneal[1] - cfg.anneal[0], 1e-6))
     img, x, y = sample_pixels(data, cfg.rays)
-    out = render_batch(state, data, img, x, y, False, pose_optimizer is not None)
-    loss = F.mse_loss(out.acc, data.masks[img, y, x])
-    loss = loss + cfg.lambda_offset * out.offset_norm + cfg.lambda_correction * out.correction_abs
-    if prior is not None:
-        loss = loss + cfg.prior_weight * prior.loss(state, cfg.prior_points)
-    return _apply_step(loss, optimizer, pose_optimizer)
+
+    def losses() -> Iterator[torch.Tensor]:
+        for i, (part, share) in enumerate(ray_passes(state, len(img))):
+            out = render_batch(state, data, img[part], x[part], y[part], False,
+                               pose_optimizer is not None)
+            loss = F.mse_loss(out.acc, data.masks[img[part], y[part], x[part]])
+            loss = loss + cfg.lambda_offset * out.offset_norm \
+                + cfg.lambda_correction * out.correction_abs
+            if share < 1.0:
+                loss = loss * share
+            if prior is not None and i == 0:
+                loss = loss + cfg.prior_weight * prior.loss(state, cfg.prior_points)
+            yield loss
+
+    return _apply_step(losses(), optimizer, pose_optimizer)
 
 
 def _phase2_params(state: TrainState) -> list[torch.nn.Parameter]:
@@ -290,19 +319,29 @@ def phase3_step(state: TrainState, data: TrainData, optimizer: torch.optim.Optim
     phase three's window). Returns the loss."""
     cfg = state.config.phase3
     img, x, y = sample_pixels(data, cfg.rays)
-    out = render_batch(state, data, img, x, y, True, pose_optimizer is not None,
-                       None if scene else torch.ones(3, device=state.device))
-    assert out.rgb is not None
     target = data.scene_images if scene and data.scene_images is not None else data.images
     if targets is not None:
         target = targets
-    loss = F.mse_loss(out.rgb, target[img, y, x])
-    if cfg.mask_weight > 0:
-        loss = loss + cfg.mask_weight * F.mse_loss(out.acc, data.masks[img, y, x])
-    loss = loss + cfg.lambda_offset * out.offset_norm + cfg.lambda_correction * out.correction_abs
-    if prior is not None:
-        loss = loss + cfg.prior_weight * prior.loss(state, cfg.prior_points)
-    return _apply_step(loss, optimizer, pose_optimizer)
+    white = None if scene else torch.ones(3, device=state.device)
+
+    def losses() -> Iterator[torch.Tensor]:
+        for i, (part, share) in enumerate(ray_passes(state, len(img))):
+            pimg, px, py = img[part], x[part], y[part]
+            out = render_batch(state, data, pimg, px, py, True, pose_optimizer is not None,
+                               white)
+            assert out.rgb is not None
+            loss = F.mse_loss(out.rgb, target[pimg, py, px])
+            if cfg.mask_weight > 0:
+                loss = loss + cfg.mask_weight * F.mse_loss(out.acc, data.masks[pimg, py, px])
+            loss = loss + cfg.lambda_offset * out.offset_norm \
+                + cfg.lambda_correction * out.correction_abs
+            if share < 1.0:
+                loss = loss * share
+            if prior is not None and i == 0:
+                loss = loss + cfg.prior_weight * prior.loss(state, cfg.prior_points)
+            yield loss
+
+    return _apply_step(losses(), optimizer, pose_optimizer)
 
 
 def run_phase3(state: TrainState, data: TrainData, progress: Progress | None = None,

@@ -283,3 +283,45 @@ def test_cad_prior_needs_a_template_and_a_deformation() -> None:
             assert float(prior.loss(state, 64).detach()) > 0
     state = TrainState.create(_config(), np.eye(4)[None], DEVICE)
     assert phases.make_prior(state, sampler, 0.0) is None
+
+
+def test_ray_passes_split_a_step_into_shares_that_sum_to_one() -> None:
+    state = TrainState.create(_config(**{"render.train_pass_rays": 300}), np.eye(4)[None],
+                              DEVICE)
+    passes = phases.ray_passes(state, 1000)
+    assert [(p.start, p.stop) for p, _ in passes] == [(0, 300), (300, 600), (600, 900),
+                                                      (900, 1000)]
+    assert sum(share for _, share in passes) == pytest.approx(1.0)
+    assert phases.ray_passes(state, 200) == [(slice(0, 200), 1.0)]
+    auto = TrainState.create(_config(), np.eye(4)[None], DEVICE)
+    assert [p.stop for p, _ in phases.ray_passes(auto, 5000)] == [2048, 4096, 5000]
+
+
+@pytest.mark.parametrize("phase", [2, 3])
+def test_a_step_in_passes_learns_what_one_pass_learns(phase: int) -> None:
+    """The same rays in one pass or in four: the same loss and the same update of every
+    network and pose (up to float rounding), with the poses optimised and G on."""
+    mesh = _box()
+    data, c2w = _scene(mesh)
+    results = []
+    for pass_rays in (512, 128):
+        cfg = _config(**{"render.train_pass_rays": pass_rays, "render.samples_per_ray": 16,
+                         "phase2.rays": 512, "phase3.rays": 512})
+        state = TrainState.create(cfg, c2w, DEVICE,
+                                  grid_from_occupancy(mesh.contains, 8, cfg.render.bound, 1))
+        params = list(state.fields.parameters())
+        optimizer = torch.optim.SGD(params, lr=1.0)
+        pose_optimizer = torch.optim.SGD(state.poses.parameters(), lr=1.0)
+        torch.manual_seed(5)
+        if phase == 2:
+            loss = phases.phase2_step(state, data, optimizer, pose_optimizer, 0)
+        else:
+            loss = phases.phase3_step(state, data, optimizer, pose_optimizer)
+        results.append((loss, [p.detach().clone() for p in params],
+                        state.poses.xi.detach().clone()))
+    (loss_one, params_one, pose_one), (loss_four, params_four, pose_four) = results
+    assert loss_four == pytest.approx(loss_one, rel=1e-5)
+    for a, b in zip(params_one, params_four, strict=True):
+        torch.testing.assert_close(a, b, rtol=1e-4, atol=1e-6)
+    assert pose_one.abs().max() > 0
+    torch.testing.assert_close(pose_one, pose_four, rtol=1e-4, atol=1e-7)
