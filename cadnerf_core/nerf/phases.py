@@ -20,6 +20,7 @@ import numpy as np
 import torch
 import torch.nn.functional as F
 
+from cadnerf_core.config import Phase2Config, Phase3Config
 from cadnerf_core.nerf.fields import FieldOutputs
 from cadnerf_core.nerf.poses import in_window
 from cadnerf_core.nerf.rays import pixel_rays
@@ -220,6 +221,20 @@ def _apply_step(losses: Iterable[torch.Tensor], optimizer: torch.optim.Optimizer
     return value
 
 
+def _pass_loss(state: TrainState, loss: torch.Tensor, out: RenderOutput,
+               cfg: Phase2Config | Phase3Config, share: float,
+               prior: CadPrior | None) -> torch.Tensor:
+    """One pass's loss: its re-rendering ``loss`` plus the deformation regularisers, scaled by
+    the pass's ``share`` of the step's rays (the passes then add up to the step's means), and
+    the CAD prior, given to one pass of the step only."""
+    loss = loss + cfg.lambda_offset * out.offset_norm + cfg.lambda_correction * out.correction_abs
+    if share < 1.0:
+        loss = loss * share
+    if prior is not None:
+        loss = loss + cfg.prior_weight * prior.loss(state, cfg.prior_points)
+    return loss
+
+
 def phase2_step(state: TrainState, data: TrainData, optimizer: torch.optim.Optimizer | None,
                 pose_optimizer: torch.optim.Optimizer | None, step: int,
                 prior: CadPrior | None = None) -> float:
@@ -234,13 +249,7 @@ def phase2_step(state: TrainState, data: TrainData, optimizer: torch.optim.Optim
             out = render_batch(state, data, img[part], x[part], y[part], False,
                                pose_optimizer is not None)
             loss = F.mse_loss(out.acc, data.masks[img[part], y[part], x[part]])
-            loss = loss + cfg.lambda_offset * out.offset_norm \
-                + cfg.lambda_correction * out.correction_abs
-            if share < 1.0:
-                loss = loss * share
-            if prior is not None and i == 0:
-                loss = loss + cfg.prior_weight * prior.loss(state, cfg.prior_points)
-            yield loss
+            yield _pass_loss(state, loss, out, cfg, share, prior if i == 0 else None)
 
     return _apply_step(losses(), optimizer, pose_optimizer)
 
@@ -333,13 +342,7 @@ def phase3_step(state: TrainState, data: TrainData, optimizer: torch.optim.Optim
             loss = F.mse_loss(out.rgb, target[pimg, py, px])
             if cfg.mask_weight > 0:
                 loss = loss + cfg.mask_weight * F.mse_loss(out.acc, data.masks[pimg, py, px])
-            loss = loss + cfg.lambda_offset * out.offset_norm \
-                + cfg.lambda_correction * out.correction_abs
-            if share < 1.0:
-                loss = loss * share
-            if prior is not None and i == 0:
-                loss = loss + cfg.prior_weight * prior.loss(state, cfg.prior_points)
-            yield loss
+            yield _pass_loss(state, loss, out, cfg, share, prior if i == 0 else None)
 
     return _apply_step(losses(), optimizer, pose_optimizer)
 
