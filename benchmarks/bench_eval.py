@@ -115,7 +115,7 @@ def prepare_datasets(name: str, plan: BenchPlan, work: Path) -> dict[int, Path]:
     Returns:
         view count -> dataset folder.
     """
-    from cadnerf_core.dataset import render_dataset
+    from cadnerf_core.evaluation.dataset import render_dataset
 
     mesh = mesh_file(EVAL_ROOT / "meshes" / name)
     up: Literal["y", "z"] = "z" if name in Z_UP else "y"
@@ -143,7 +143,7 @@ def _jobs(plan: BenchPlan) -> list[tuple[str, int]]:
 def run_job_once(name: str, variant: str, n: int, plan: BenchPlan, library: Any,
                  lpips_net: Any, work: Path, suffix: str = "") -> Any:
     """One evaluation job. Returns its EvalReport, or the exception it raised."""
-    from cadnerf_core.evaluation import evaluate_dataset
+    from cadnerf_core.evaluation.evaluate import evaluate_dataset
 
     overrides = {**plan.overrides, **VARIANTS[variant], "seed": plan.seed}
     start = time.perf_counter()
@@ -202,8 +202,8 @@ def run(quick: bool) -> str:
 
 def _run_plan(plan: BenchPlan, quick: bool) -> str:
     """Every object's jobs, retrieval rows and pictures, then the section."""
-    from cadnerf_core.library import load_library
-    from cadnerf_core.metrics import load_lpips
+    from cadnerf_core.evaluation.metrics import load_lpips
+    from cadnerf_core.library.format import load_library
 
     library = load_library(LIBRARY_DIR)
     weights = os.environ.get("CADNERF_LPIPS_WEIGHTS")

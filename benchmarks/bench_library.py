@@ -18,7 +18,7 @@ from pathlib import Path
 import numpy as np
 
 from cadnerf_core.errors import LibraryError
-from cadnerf_core.library import MANIFEST, load_library, read_manifest
+from cadnerf_core.library.format import MANIFEST, load_library, read_manifest
 
 ROOT = Path(__file__).resolve().parents[1]
 EVAL = ROOT / ".." / "shared" / "eval"
@@ -45,7 +45,7 @@ def _load_times(root: Path) -> tuple[float, float]:
     included), and the median of 5 loads once the imports are done (as in the worker)."""
     script = (
         "import time; t0 = time.perf_counter()\n"
-        "from cadnerf_core.library import load_library\n"
+        "from cadnerf_core.library.format import load_library\n"
         f"lib = load_library({str(root)!r}); lib.silhouettes\n"
         "first = time.perf_counter() - t0; times = []\n"
         "for _ in range(5):\n"

@@ -66,7 +66,7 @@ def _library(folder: Path) -> Path:
     built = ROOT / "library_data" / "build"
     if (built / "manifest.json").is_file():
         return built
-    from cadnerf_core.library import LibrarySpec
+    from cadnerf_core.library.format import LibrarySpec
     from library_data.build import build_library
 
     spec = LibrarySpec(n_azimuths=8, elevations=(0.0, 30.0), silhouette_size=32, grid_size=32)

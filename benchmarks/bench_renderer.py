@@ -16,9 +16,9 @@ import numpy as np
 import trimesh
 
 from cadnerf_core.cameras import intrinsics_from_fov, library_poses
-from cadnerf_core.dataset import render_dataset
-from cadnerf_core.meshio import load_mesh, normalise_mesh
-from cadnerf_core.renderer import MeshRenderer, render_silhouette_polygons
+from cadnerf_core.evaluation.dataset import render_dataset
+from cadnerf_core.mesh.meshio import load_mesh, normalise_mesh
+from cadnerf_core.mesh.renderer import MeshRenderer, render_silhouette_polygons
 
 EVAL = Path(__file__).resolve().parents[1] / ".." / "shared" / "eval"
 SIZE = 128

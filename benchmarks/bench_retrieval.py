@@ -118,7 +118,7 @@ def retrieve_all(masks: list[np.ndarray], names: list[str], library: Any,
     """Retrieval with every variant of ``VARIANTS`` (``direction``: the walk's true one, for
     the variants that are given it; ``focals``: the photos' focal lengths in pixels, for the
     variant that knows them). Returns variant -> RetrievalResult."""
-    from cadnerf_core.retrieval import RetrievalConfig, retrieve
+    from cadnerf_core.retrieval.retrieve import RetrievalConfig, retrieve
 
     walk = "ccw" if direction > 0 else "cw"
     out = {}
@@ -133,7 +133,7 @@ def retrieve_all(masks: list[np.ndarray], names: list[str], library: Any,
 
 def synthetic_set(name: str, views: int, direction: int, library: Any, work: Path) -> SetResult:
     """Render one walk of a mesh and retrieve it with every variant."""
-    from cadnerf_core.dataset import load_dataset, render_dataset
+    from cadnerf_core.evaluation.dataset import load_dataset, render_dataset
 
     folder = render_dataset(mesh_file(EVAL_ROOT / "meshes" / name), work / f"{name}_{views}_"
                             f"{direction}", views, SIZE, SEED + views, up="z" if name in Z_UP
@@ -212,8 +212,8 @@ def phone_set(name: str, views: int, direction: int, library: Any, work: Path,
               fov: float = PHONE_FOV) -> PhoneResult:
     """Render one walk at ``fov`` degrees across (the object filling the same share of the
     frame: from nearer at a wider angle) and retrieve it with the photos' focal length known."""
-    from cadnerf_core.dataset import load_dataset, render_dataset
-    from cadnerf_core.retrieval import RetrievalConfig, retrieve
+    from cadnerf_core.evaluation.dataset import load_dataset, render_dataset
+    from cadnerf_core.retrieval.retrieve import RetrievalConfig, retrieve
 
     folder = render_dataset(mesh_file(EVAL_ROOT / "meshes" / name), work / f"fov{fov:g}_{name}_"
                             f"{views}_{direction}", views, SIZE, SEED + views,
@@ -279,8 +279,8 @@ def _median_seconds(function: Any, repeats: int) -> float:
 def speed_lines(library: Any, masks: list[np.ndarray], images: list[np.ndarray],
                 quick: bool) -> list[str]:
     """Solver and whole-retrieval timings, as markdown bullet lines."""
-    from cadnerf_core.posesearch import cyclic_dp, paper_algorithm1
-    from cadnerf_core.retrieval import RetrievalConfig, iou_table, retrieve
+    from cadnerf_core.retrieval.posesearch import cyclic_dp, paper_algorithm1
+    from cadnerf_core.retrieval.retrieve import RetrievalConfig, iou_table, retrieve
 
     rng = np.random.default_rng(0)
     iou = rng.random((10, 100))
@@ -357,9 +357,9 @@ def real_set(name: str, library: Any, picture: Path) -> list[str]:
     """Retrieve one real photo set with shipped and GrabCut masks; write its picture."""
     from cadnerf_cli.retrieve_cmd import match_rows
     from cadnerf_core.errors import InputError
-    from cadnerf_core.masks import photo_masks
-    from cadnerf_core.photos import Photo, load_photos
-    from cadnerf_core.retrieval import retrieve
+    from cadnerf_core.intake.masks import photo_masks
+    from cadnerf_core.intake.photos import Photo, load_photos
+    from cadnerf_core.retrieval.retrieve import retrieve
 
     paths, mask_paths, gt = real_set_photos(name)
     shipped = load_photos(paths, mask_paths)
@@ -398,7 +398,7 @@ def _save_picture(path: Path, rows: list[np.ndarray]) -> None:
 
 def run(quick: bool, library_dir: Path = LIBRARY_DIR) -> str:
     """Run the retrieval benchmark. Returns its markdown section."""
-    from cadnerf_core.library import load_library
+    from cadnerf_core.library.format import load_library
 
     head = ["## Retrieval", "", f"Command: `python -m benchmarks.bench_retrieval"
             f"{' --quick' if quick else ''}`", ""]
@@ -419,7 +419,7 @@ def run(quick: bool, library_dir: Path = LIBRARY_DIR) -> str:
                  for direction in (1, -1)]
         phone = [phone_set(*walk, library, work) for walk in walks]
         library_fov = [phone_set(*walk, library, work, library.spec.fov_deg) for walk in walks]
-        from cadnerf_core.dataset import load_dataset
+        from cadnerf_core.evaluation.dataset import load_dataset
 
         nine_set = load_dataset(work / f"{names[0]}_9_1")
         nine = (list(nine_set.masks), list(nine_set.images))

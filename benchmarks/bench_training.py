@@ -1,7 +1,7 @@
 """Training benchmark: whole jobs on synthetic datasets, test-view PSNR, poses, ablations.
 
-Each run is executed and scored by ``cadnerf_core.evaluation.evaluate_dataset``, the protocol
-of the evaluation benchmark (``benchmarks.bench_eval``), so both score held-out views the same
+Each run is executed and scored by ``evaluation.evaluate.evaluate_dataset``, the protocol of
+the evaluation benchmark (``benchmarks.bench_eval``), so both score held-out views the same
 way. For each mesh in ``../shared/eval/meshes``: ``render_dataset`` (128 px, 6 training views in
 walking order, 12 held-out test views, white background, seed 0); the 6 training views become
 the photos of a job run by ``run_job`` (retrieval from the built library, three phases, orbit,
@@ -67,8 +67,8 @@ import numpy as np
 from benchmarks.bench_eval import Z_UP
 
 if TYPE_CHECKING:
-    from cadnerf_core.evaluation import EvalReport
-    from cadnerf_core.library import Library
+    from cadnerf_core.evaluation.evaluate import EvalReport
+    from cadnerf_core.library.format import Library
 
 ROOT = Path(__file__).resolve().parents[1]
 EVAL = ROOT / ".." / "shared" / "eval" / "meshes"
@@ -127,10 +127,10 @@ def true_cameras(dataset_dir: Path) -> Iterator[None]:
     retrieved model and its occupancy (phase one) stay; ``retrieval.json`` is rewritten, so
     the evaluation reads the true cameras back as the job's."""
     import cadnerf_core.pipeline as pipeline
-    from cadnerf_core.crop import crop_intrinsics
-    from cadnerf_core.dataset import load_dataset
-    from cadnerf_core.evaluation import centre_similarity
-    from cadnerf_core.export import write_json
+    from cadnerf_core.evaluation.dataset import load_dataset
+    from cadnerf_core.evaluation.evaluate import centre_similarity
+    from cadnerf_core.export.artifacts import write_json
+    from cadnerf_core.intake.crop import crop_intrinsics
 
     truth = load_dataset(dataset_dir)
     original = pipeline.run_intake
@@ -200,15 +200,15 @@ def refined_test_psnr(report: EvalReport, steps: int, align: str | None = None,
     length, same size and background), so only the refinement differs. ``align``: the
     mapping (``evaluation.frame_mapping``), when not the report's; ``steps`` 0: no
     refinement; ``device``: where the model is loaded (the job's own)."""
-    from cadnerf_core.dataset import load_dataset
-    from cadnerf_core.evaluation import (
+    from cadnerf_core.evaluation.dataset import load_dataset
+    from cadnerf_core.evaluation.evaluate import (
         eval_intrinsics,
         first_views,
         frame_mapping,
         read_job_cameras,
         resize_view,
     )
-    from cadnerf_core.metrics import image_metrics
+    from cadnerf_core.evaluation.metrics import image_metrics
     from cadnerf_core.nerf.model import TrainedModel
 
     job = Path(report.job_dir)
@@ -258,8 +258,8 @@ def run_one(mesh: Path, work: Path, library: Library, name: str, overrides: dict
     cameras for ``oracle``; the photos carrying their true focal length in EXIF, as a phone's
     do, with ``exif_focal``; the photos' field of view ``fov_deg``; ``views`` training
     photos), and add this benchmark's numbers."""
-    from cadnerf_core.dataset import render_dataset
-    from cadnerf_core.evaluation import evaluate_dataset
+    from cadnerf_core.evaluation.dataset import render_dataset
+    from cadnerf_core.evaluation.evaluate import evaluate_dataset
 
     dataset_dir = work / mesh.parent.name / "dataset"
     if not dataset_dir.exists():
@@ -366,7 +366,7 @@ def run(quick: bool, threads: int | None = None, names: list[str] | None = None,
     GPU figures); ``size``: the photos' side in pixels."""
     import torch
 
-    from cadnerf_core.library import load_library
+    from cadnerf_core.library.format import load_library
 
     unknown = set(only or ()) - {*ABLATIONS, ORACLE}
     if unknown:
@@ -426,7 +426,8 @@ def run(quick: bool, threads: int | None = None, names: list[str] | None = None,
              f"{size} px, field of view {fov_deg:g} deg, {views} training views "
              f"in walking order, {TEST_VIEWS} held-out test views, seed {SEED}. "
              "Each run is executed and scored by "
-             "`cadnerf_core.evaluation.evaluate_dataset`, the evaluation benchmark's protocol: "
+             "`cadnerf_core.evaluation.evaluate.evaluate_dataset`, the evaluation benchmark's "
+             "protocol: "
              "the held-out ground-truth cameras are mapped into the NeRF frame by the centred "
              "similarity (rotation and scale about the object's centre, fitted on the training "
              "cameras' centres), refined photometrically on the training photos (one rotation, "

@@ -124,7 +124,7 @@ def table4(rows: list[Row]) -> str:
 
 def _solver_ms(iou: np.ndarray, library: Any, config: Any, repeats: int = 5) -> float:
     """Median wall time of one pose solve on one model's IoU table, in milliseconds."""
-    from cadnerf_core.retrieval import azimuth_bins, solve_poses
+    from cadnerf_core.retrieval.retrieve import azimuth_bins, solve_poses
 
     az_index = azimuth_bins(library.az_el, library.spec.n_azimuths)
     times = []
@@ -141,10 +141,10 @@ def retrieval_row(name: str, dataset_dir: Path, library: Any) -> Row:
     The rotation error is measured on the kept photos after similarity alignment; the time is
     the solver's alone (the IoU table and the model vote are shared by both).
     """
-    from cadnerf_core.dataset import load_dataset
-    from cadnerf_core.metrics import pose_metrics
-    from cadnerf_core.photos import canonical_masks
-    from cadnerf_core.retrieval import RetrievalConfig, iou_table, retrieve
+    from cadnerf_core.evaluation.dataset import load_dataset
+    from cadnerf_core.evaluation.metrics import pose_metrics
+    from cadnerf_core.intake.photos import canonical_masks
+    from cadnerf_core.retrieval.retrieve import RetrievalConfig, iou_table, retrieve
 
     ds = load_dataset(dataset_dir)
     crops, _ = canonical_masks(list(ds.masks), library.spec.silhouette_size, library.spec.margin)
@@ -213,7 +213,7 @@ def save_pictures(name: str, report: Any, folder: Path) -> list[Path]:
     """
     if not _ok(report):
         return []
-    from cadnerf_core.dataset import load_dataset
+    from cadnerf_core.evaluation.dataset import load_dataset
 
     inputs = [_read_rgb(p) for p in sorted((Path(report.job_dir) / "inputs").glob("*.png"))]
     test = load_dataset(report.dataset).test
@@ -243,7 +243,7 @@ def _worst_line(results: Results, n: int) -> str:
 def section(plan: Any, results: Results, retrieval_rows: list[Row], has_lpips: bool,
             seconds: float, quick: bool, repeat: str = "") -> str:
     """The benchmark's markdown section."""
-    from cadnerf_core.metrics import LPIPS_MISSING
+    from cadnerf_core.evaluation.metrics import LPIPS_MISSING
 
     n = plan.ablation_views
     mode = "quick" if quick else "full"

@@ -35,7 +35,7 @@ def picture(job: Path, photos: list[Path], masks: list[Path], out: Path) -> None
     import imageio_ffmpeg
     from PIL import Image
 
-    from cadnerf_core.photos import canonical_views, load_photos
+    from cadnerf_core.intake.photos import canonical_views, load_photos
 
     loaded = load_photos(photos, masks)
     found = [p.mask for p in loaded if p.mask is not None]  # every photo has its shipped mask
@@ -59,7 +59,7 @@ def picture(job: Path, photos: list[Path], masks: list[Path], out: Path) -> None
 def run(preset: str, job: Path) -> str:
     """Run the job into ``job`` (an empty or absent folder) and write the picture."""
     from cadnerf_cli.reconstruct_cmd import stage_inputs
-    from cadnerf_core.library import load_library
+    from cadnerf_core.library.format import load_library
     from cadnerf_core.pipeline import run_job
 
     photos, masks, _ = real_set_photos(SET)

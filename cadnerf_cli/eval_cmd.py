@@ -88,9 +88,9 @@ def eval_command(
 ) -> None:
     """Evaluate novel views and camera poses on DATASET for each number of input views."""
     from cadnerf_core.errors import CadNerfError
-    from cadnerf_core.evaluation import evaluate_dataset
-    from cadnerf_core.library import load_library
-    from cadnerf_core.metrics import load_lpips
+    from cadnerf_core.evaluation.evaluate import evaluate_dataset
+    from cadnerf_core.evaluation.metrics import load_lpips
+    from cadnerf_core.library.format import load_library
 
     counts = parse_views(views)
     config = {**parse_overrides(overrides), "seed": seed}

@@ -12,9 +12,9 @@ import typer
 if TYPE_CHECKING:
     import numpy as np
 
-    from cadnerf_core.library import Library
-    from cadnerf_core.photos import Photo
-    from cadnerf_core.retrieval import RetrievalResult
+    from cadnerf_core.intake.photos import Photo
+    from cadnerf_core.library.format import Library
+    from cadnerf_core.retrieval.retrieve import RetrievalResult
 
 class Solver(StrEnum):
     """Pose solver."""
@@ -96,7 +96,7 @@ def match_rows(photos: list[Photo], masks: list[np.ndarray], library: Library,
     import cv2
     import numpy as np
 
-    from cadnerf_core.photos import canonical_views
+    from cadnerf_core.intake.photos import canonical_views
 
     library = library.view_set(result.perspective)
     spec = library.spec
@@ -174,10 +174,10 @@ def retrieve_command(
 ) -> None:
     """Find the CAD model and a library pose for every photo."""
     from cadnerf_core.errors import CadNerfError
-    from cadnerf_core.library import load_library
-    from cadnerf_core.masks import photo_masks
-    from cadnerf_core.photos import load_photos, with_focal
-    from cadnerf_core.retrieval import RetrievalConfig, retrieve
+    from cadnerf_core.intake.masks import photo_masks
+    from cadnerf_core.intake.photos import load_photos, with_focal
+    from cadnerf_core.library.format import load_library
+    from cadnerf_core.retrieval.retrieve import RetrievalConfig, retrieve
 
     try:
         loaded = with_focal(load_photos(photos, resolve_mask_paths(photos, masks)), focal_35mm)

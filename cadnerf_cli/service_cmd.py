@@ -166,7 +166,7 @@ def run_demo(url: str, preset: str = "preview", views: int = 6, size: int = 160,
         The job's final status.
     """
     from app.client import JobClient
-    from cadnerf_core.dataset import render_dataset
+    from cadnerf_core.evaluation.dataset import render_dataset
 
     logging.getLogger("httpx").setLevel(logging.WARNING)  # one line per poll is noise here
     out = out or Path(tempfile.mkdtemp(prefix="cadnerf-demo-"))

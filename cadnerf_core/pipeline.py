@@ -20,17 +20,17 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from cadnerf_core.config import PipelineConfig, resolve_config
-from cadnerf_core.crop import apply_crop
 from cadnerf_core.errors import InputError
-from cadnerf_core.export import write_json
+from cadnerf_core.export.artifacts import write_json
+from cadnerf_core.intake.crop import apply_crop
 from cadnerf_core.progress import Progress
 
 if TYPE_CHECKING:
     import torch
 
-    from cadnerf_core.library import Library
+    from cadnerf_core.library.format import Library
     from cadnerf_core.nerf.state import TrainData, TrainState
-    from cadnerf_core.retrieval import RetrievalResult
+    from cadnerf_core.retrieval.retrieve import RetrievalResult
 
 log = logging.getLogger(__name__)
 
@@ -42,7 +42,7 @@ class Intake:
     """Photos, masks and the retrieval of one job."""
 
     names: list[str]
-    photos: list[Any]  # cadnerf_core.photos.Photo
+    photos: list[Any]  # cadnerf_core.intake.photos.Photo
     masks: list[np.ndarray]  # [H_i, W_i] bool
     retrieval: RetrievalResult
 
@@ -86,9 +86,9 @@ def _input_files(job_dir: Path) -> tuple[list[Path], list[Path | None]]:
 def run_intake(job_dir: Path, library: Library, config: PipelineConfig,
                progress: Progress) -> Intake:
     """Read photos and masks, remove backgrounds where needed, retrieve model and poses."""
-    from cadnerf_core.masks import photo_masks
-    from cadnerf_core.photos import load_photo, with_focal
-    from cadnerf_core.retrieval import RetrievalConfig, retrieve
+    from cadnerf_core.intake.masks import photo_masks
+    from cadnerf_core.intake.photos import load_photo, with_focal
+    from cadnerf_core.retrieval.retrieve import RetrievalConfig, retrieve
 
     inputs, mask_paths = _input_files(job_dir)
     photos = [load_photo(p, i, m) for i, (p, m) in enumerate(zip(inputs, mask_paths,
@@ -112,8 +112,8 @@ def run_intake(job_dir: Path, library: Library, config: PipelineConfig,
 def training_data(intake: Intake, config: PipelineConfig, margin: float,
                   device: torch.device) -> TrainData:
     """Canonical crops (on white), masks and crop intrinsics of the kept photos."""
+    from cadnerf_core.intake.photos import canonical_views
     from cadnerf_core.nerf.state import TrainData
-    from cadnerf_core.photos import canonical_views
 
     kept = intake.retrieval.kept
     photos = [intake.photos[m.index] for m in kept]
@@ -170,8 +170,8 @@ def _resume(job_dir: Path, c2w_init: np.ndarray, config: PipelineConfig,
 
 def _run_phase(phase: int, state: TrainState, library: Library, model_id: str,
                data: TrainData, progress: Progress) -> None:
+    from cadnerf_core.library.occupancy import sample_occupancy
     from cadnerf_core.nerf import phases
-    from cadnerf_core.occupancy import sample_occupancy
 
     cfg = state.config
     sampler: phases.OccupancySampler | None = None
@@ -236,7 +236,7 @@ def run_job(job_dir: Path, library: Library, progress: Progress | None = None,
     Raises:
         InputError: unusable photos, masks or configuration. JobCancelled: cancelled.
     """
-    from cadnerf_core.export import export_job
+    from cadnerf_core.export.artifacts import export_job
     from cadnerf_core.nerf.model import TrainedModel, resolve_device
 
     job_dir = Path(job_dir)

@@ -23,12 +23,12 @@ from typing import Any
 import numpy as np
 import trimesh
 
-from cadnerf_core import library as fmt
-from cadnerf_core.crop import apply_crop, canonical_box
 from cadnerf_core.errors import LibraryError
-from cadnerf_core.library import LibrarySpec, ModelEntry
-from cadnerf_core.occupancy import compute_occupancy
-from cadnerf_core.renderer import MeshRenderer
+from cadnerf_core.intake.crop import apply_crop, canonical_box
+from cadnerf_core.library import format as fmt
+from cadnerf_core.library.format import LibrarySpec, ModelEntry
+from cadnerf_core.library.occupancy import compute_occupancy
+from cadnerf_core.mesh.renderer import MeshRenderer
 from library_data.catalog import LICENCE, MODELS, SOURCE, find_model
 
 log = logging.getLogger(__name__)

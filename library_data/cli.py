@@ -45,7 +45,7 @@ def build(out: Path = typer.Option(None, help=_ROOT_HELP),
                                         help="Do nothing when the library is current."),
           jobs: int = typer.Option(None, help="Worker processes (default: CPU count).")) -> None:
     """Build the library: parametric models (and models added before), renders, occupancy."""
-    from cadnerf_core.library import LibrarySpec
+    from cadnerf_core.library.format import LibrarySpec
     from library_data.build import build_library
 
     default = LibrarySpec()
@@ -76,7 +76,7 @@ def build(out: Path = typer.Option(None, help=_ROOT_HELP),
 def list_models(library: Path = typer.Option(None, help=_ROOT_HELP),
                 as_json: bool = typer.Option(False, "--json", help="Print JSON.")) -> None:
     """List the library's models."""
-    from cadnerf_core.library import read_manifest
+    from cadnerf_core.library.format import read_manifest
 
     root = library or _default_root()
     with _errors():
@@ -129,7 +129,7 @@ def preview(out: Path = typer.Option(Path("docs/library.png"), help="PNG to writ
             size: int = typer.Option(160, help="Tile side in pixels."),
             library: Path = typer.Option(None, help=_ROOT_HELP)) -> None:
     """Write a contact sheet: every model shaded from a three-quarter view, labelled."""
-    from cadnerf_core.library import load_library
+    from cadnerf_core.library.format import load_library
     from library_data.preview import write_contact_sheet
 
     with _errors():

@@ -22,10 +22,10 @@ import trimesh
 from scipy import ndimage
 from skimage.measure import marching_cubes
 
-from cadnerf_core import library as fmt
 from cadnerf_core.errors import InputError, MeshError
-from cadnerf_core.library import LibrarySpec, ModelEntry
-from cadnerf_core.meshio import SUPPORTED_EXTENSIONS, load_mesh, normalise_mesh
+from cadnerf_core.library import format as fmt
+from cadnerf_core.library.format import LibrarySpec, ModelEntry
+from cadnerf_core.mesh.meshio import SUPPORTED_EXTENSIONS, load_mesh, normalise_mesh
 from library_data.build import write_model
 
 log = logging.getLogger(__name__)

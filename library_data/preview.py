@@ -9,8 +9,8 @@ import cv2
 import numpy as np
 
 from cadnerf_core.cameras import intrinsics_from_fov, orbit_pose
-from cadnerf_core.library import Library
-from cadnerf_core.renderer import MeshRenderer
+from cadnerf_core.library.format import Library
+from cadnerf_core.mesh.renderer import MeshRenderer
 
 PREVIEW_AZIMUTH = 35.0  # front-right three-quarter view
 PREVIEW_ELEVATION = 25.0

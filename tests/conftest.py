@@ -27,7 +27,7 @@ def build_tiny_library(root: Path) -> Path:
     Returns:
         The library folder.
     """
-    from cadnerf_core.library import LibrarySpec
+    from cadnerf_core.library.format import LibrarySpec
     from library_data.build import build_library
 
     spec = LibrarySpec(n_azimuths=8, elevations=(0.0, 30.0), silhouette_size=32, grid_size=32)
@@ -43,7 +43,7 @@ def tiny_library_dir(tmp_path_factory: pytest.TempPathFactory) -> Path:
 
 @pytest.fixture(scope="session")
 def tiny_library(tiny_library_dir: Path) -> Any:
-    """The tiny library, loaded (a ``cadnerf_core.library.Library``; its folder is ``.root``)."""
-    from cadnerf_core.library import load_library
+    """The tiny library, loaded (a ``library.format.Library``; its folder is ``.root``)."""
+    from cadnerf_core.library.format import load_library
 
     return load_library(tiny_library_dir)

@@ -1,1 +1,1 @@
-"""The NeRF of CAD-NeRF: fields, volume rendering, empty-space skipping, poses, the three phases."""
+"""Stages 5 to 8: the NeRF: fields, volume rendering, empty-space skipping, poses, three phases."""

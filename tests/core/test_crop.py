@@ -7,7 +7,7 @@ import pytest
 import trimesh
 
 from cadnerf_core.cameras import intrinsics_from_fov, orbit_pose, project
-from cadnerf_core.crop import (
+from cadnerf_core.intake.crop import (
     CropBox,
     apply_crop,
     canonical_box,
@@ -15,7 +15,7 @@ from cadnerf_core.crop import (
     mask_bbox,
     uncrop_intrinsics,
 )
-from cadnerf_core.renderer import MeshRenderer
+from cadnerf_core.mesh.renderer import MeshRenderer
 
 
 def _rect_mask(height: int, width: int, x0: int, y0: int, x1: int, y1: int) -> np.ndarray:

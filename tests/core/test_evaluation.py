@@ -12,7 +12,7 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from cadnerf_core.cameras import orbit_pose
-from cadnerf_core.evaluation import Similarity, centre_similarity
+from cadnerf_core.evaluation.evaluate import Similarity, centre_similarity
 
 # ---------------------------------------------------------------- alignment on synthetic poses
 
@@ -116,7 +116,7 @@ class _Ball:
 
 def test_fit_frame_recovers_a_shared_offset() -> None:
     from cadnerf_core.cameras import intrinsics_from_fov
-    from cadnerf_core.evaluation import fit_frame
+    from cadnerf_core.evaluation.evaluate import fit_frame
 
     ball = _Ball()
     gt = _gt_poses(5, seed=2)
@@ -144,8 +144,8 @@ def test_fit_frame_recovers_a_shared_offset() -> None:
 def test_evaluate_tiny_box_has_all_fields(tmp_path: Path, tiny_library: Any) -> None:
     import trimesh
 
-    from cadnerf_core.dataset import render_dataset
-    from cadnerf_core.evaluation import evaluate_dataset
+    from cadnerf_core.evaluation.dataset import render_dataset
+    from cadnerf_core.evaluation.evaluate import evaluate_dataset
 
     mesh_path = tmp_path / "box.ply"
     trimesh.creation.box(extents=(1.2, 0.8, 0.6)).export(mesh_path)
@@ -203,7 +203,7 @@ def test_tables_mean_row_and_layout(monkeypatch: pytest.MonkeyPatch) -> None:
 
 
 def test_phase_costs_reads_both_layouts() -> None:
-    from cadnerf_core.evaluation import phase_costs
+    from cadnerf_core.evaluation.evaluate import phase_costs
 
     extra = {"timings": {"phase1_s": 1.0, "phase2_s": 2.0},
              "memory": {"phase1": {"rss_peak_mb": 100.0}}}
@@ -216,7 +216,7 @@ def test_phase_costs_reads_both_layouts() -> None:
 
 
 def test_read_job_cameras_and_intrinsics(tmp_path: Path) -> None:
-    from cadnerf_core.evaluation import eval_intrinsics, read_job_cameras
+    from cadnerf_core.evaluation.evaluate import eval_intrinsics, read_job_cameras
 
     poses = _gt_poses(4)
     K_photo = np.array([[150.0, 0, 64], [0, 150.0, 64], [0, 0, 1]])
@@ -253,7 +253,7 @@ def test_read_job_cameras_and_intrinsics(tmp_path: Path) -> None:
 
 def test_resize_view_scales_intrinsics() -> None:
     from cadnerf_core.cameras import intrinsics_from_fov
-    from cadnerf_core.evaluation import resize_view
+    from cadnerf_core.evaluation.evaluate import resize_view
 
     image = np.zeros((8, 8, 3), np.float32)
     image[:4] = 1.0
@@ -321,8 +321,8 @@ def test_true_cameras_oracle_gives_the_job_the_ground_truth(tmp_path: Path,
 
     import cadnerf_core.pipeline as pipeline
     from benchmarks.bench_training import true_cameras
-    from cadnerf_core.dataset import render_dataset
-    from cadnerf_core.evaluation import evaluate_dataset
+    from cadnerf_core.evaluation.dataset import render_dataset
+    from cadnerf_core.evaluation.evaluate import evaluate_dataset
 
     mesh_path = tmp_path / "box.ply"
     trimesh.creation.box(extents=(1.2, 0.8, 0.6)).export(mesh_path)
@@ -355,9 +355,9 @@ def test_training_benchmark_rejects_an_unknown_run_name() -> None:
 def test_a_job_written_with_exif_focal_gives_its_photos_the_true_focal(tmp_path: Path) -> None:
     import trimesh
 
-    from cadnerf_core.dataset import load_dataset, render_dataset
-    from cadnerf_core.evaluation import write_job
-    from cadnerf_core.photos import load_photos
+    from cadnerf_core.evaluation.dataset import load_dataset, render_dataset
+    from cadnerf_core.evaluation.evaluate import write_job
+    from cadnerf_core.intake.photos import load_photos
 
     mesh_path = tmp_path / "box.ply"
     trimesh.creation.box(extents=(1.2, 0.8, 0.6)).export(mesh_path)

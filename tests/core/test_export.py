@@ -11,7 +11,7 @@ import trimesh
 from PIL import Image
 
 from cadnerf_core.cameras import from_transforms_json, intrinsics_from_fov, orbit_pose
-from cadnerf_core.export import (
+from cadnerf_core.export.artifacts import (
     extract_mesh,
     orbit_intrinsics,
     orbit_poses,

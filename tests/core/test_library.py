@@ -10,16 +10,16 @@ from typing import Any
 import numpy as np
 import pytest
 
-from cadnerf_core.crop import apply_crop, canonical_box
 from cadnerf_core.errors import LibraryError
-from cadnerf_core.library import (
+from cadnerf_core.intake.crop import apply_crop, canonical_box
+from cadnerf_core.library.format import (
     MANIFEST,
     OCCUPANCY_FILE,
     SILHOUETTES_FILE,
     load_library,
     save_npz,
 )
-from cadnerf_core.renderer import render_silhouette_polygons
+from cadnerf_core.mesh.renderer import render_silhouette_polygons
 
 
 @pytest.fixture()
@@ -83,7 +83,7 @@ def test_the_near_set_sees_the_same_poses_from_nearer(tiny_library: Any) -> None
 
 
 def test_a_library_built_before_the_near_set_loads_without_one(library_copy: Path) -> None:
-    from cadnerf_core.library import NEAR_SUFFIX, load_npz, sha256_file
+    from cadnerf_core.library.format import NEAR_SUFFIX, load_npz, sha256_file
 
     manifest = json.loads((library_copy / MANIFEST).read_text())
     for key in ("near_distance", "near_fov_deg"):
@@ -100,7 +100,7 @@ def test_a_library_built_before_the_near_set_loads_without_one(library_copy: Pat
 
 
 def test_a_near_set_missing_from_its_file_is_named(library_copy: Path) -> None:
-    from cadnerf_core.library import NEAR_SUFFIX, load_npz, sha256_file
+    from cadnerf_core.library.format import NEAR_SUFFIX, load_npz, sha256_file
 
     manifest = json.loads((library_copy / MANIFEST).read_text())
     entry = manifest["models"][1]

@@ -9,8 +9,8 @@ import numpy as np
 import pytest
 
 from cadnerf_core.errors import InputError
-from cadnerf_core.masks import largest_component, photo_masks, remove_background
-from cadnerf_core.photos import Photo
+from cadnerf_core.intake.masks import largest_component, photo_masks, remove_background
+from cadnerf_core.intake.photos import Photo
 
 
 def _synthetic_photo(height: int = 96, width: int = 128) -> tuple[Photo, np.ndarray]:

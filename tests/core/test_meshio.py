@@ -11,8 +11,8 @@ from PIL import Image
 
 from cadnerf_core.cameras import intrinsics_from_fov, look_at
 from cadnerf_core.errors import MeshError
-from cadnerf_core.meshio import load_mesh, merge_meshes, normalise_mesh, texture_image
-from cadnerf_core.renderer import MeshRenderer
+from cadnerf_core.mesh.meshio import load_mesh, merge_meshes, normalise_mesh, texture_image
+from cadnerf_core.mesh.renderer import MeshRenderer
 
 EVAL = Path(__file__).resolve().parents[2] / ".." / "shared" / "eval"
 

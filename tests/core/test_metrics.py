@@ -10,8 +10,8 @@ import pytest
 import torch
 from skimage.metrics import structural_similarity
 
-from cadnerf_core import metrics
 from cadnerf_core.cameras import orbit_pose
+from cadnerf_core.evaluation import metrics
 
 
 def _image(seed: int, size: int = 32) -> np.ndarray:

@@ -13,12 +13,12 @@ import trimesh
 from cadnerf_core.cameras import intrinsics_from_fov, orbit_pose, project, se3_exp
 from cadnerf_core.config import PipelineConfig, resolve_config
 from cadnerf_core.errors import JobCancelled
+from cadnerf_core.mesh.renderer import MeshRenderer
 from cadnerf_core.nerf import phases
 from cadnerf_core.nerf.grid import SkipGrid, grid_from_occupancy
 from cadnerf_core.nerf.model import TrainedModel
 from cadnerf_core.nerf.state import TrainData, TrainState
 from cadnerf_core.progress import Progress
-from cadnerf_core.renderer import MeshRenderer
 
 SIZE = 32
 DEVICE = torch.device("cpu")

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 import trimesh
 
-from cadnerf_core.occupancy import OccupancyGrid, compute_occupancy, sample_occupancy
+from cadnerf_core.library.occupancy import OccupancyGrid, compute_occupancy, sample_occupancy
 
 
 def _box() -> trimesh.Trimesh:

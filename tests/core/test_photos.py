@@ -10,7 +10,7 @@ import pytest
 from PIL import Image
 
 from cadnerf_core.errors import InputError
-from cadnerf_core.photos import canonical_masks, canonical_views, load_photos
+from cadnerf_core.intake.photos import canonical_masks, canonical_views, load_photos
 
 
 def _gradient(width: int, height: int) -> np.ndarray:
@@ -127,7 +127,7 @@ def test_bad_inputs_raise_input_error_naming_the_photo(tmp_path: Path, case: str
 def test_huge_photo_is_refused_from_its_header(tmp_path: Path,
                                                monkeypatch: pytest.MonkeyPatch) -> None:
     path = _save(tmp_path / "big.png", _gradient(300, 200))
-    monkeypatch.setattr("cadnerf_core.photos.MAX_PIXELS", 50_000)
+    monkeypatch.setattr("cadnerf_core.intake.photos.MAX_PIXELS", 50_000)
     loaded = []
     monkeypatch.setattr(Image.Image, "load", lambda self: loaded.append(1))
     with pytest.raises(InputError, match="megapixels") as info:
@@ -140,7 +140,7 @@ def test_canonical_views_frame_the_object_like_the_library(tmp_path: Path) -> No
     rgb[..., 2] = 1.0
     mask = np.zeros((100, 160), bool)
     mask[20:60, 90:110] = True  # 40 tall, 20 wide, off-centre
-    from cadnerf_core.photos import Photo
+    from cadnerf_core.intake.photos import Photo
 
     images, crops, boxes = canonical_views([Photo("a", rgb, mask)], [mask], 50, margin=0.1)
     assert images.shape == (1, 50, 50, 3) and crops.shape == (1, 50, 50)

@@ -21,7 +21,7 @@ pytestmark = pytest.mark.usefixtures("one_torch_thread")
 def write_job(job_dir: Path, library: Any, model_id: str = "mug", n: int = 4,
               overrides: dict[str, Any] | None = None) -> None:
     """Render ``n`` RGBA photos of a library model walking around it into a job folder."""
-    from cadnerf_core.renderer import MeshRenderer
+    from cadnerf_core.mesh.renderer import MeshRenderer
 
     renderer = MeshRenderer(library.mesh(model_id))
     K = intrinsics_from_fov(40.0, 64)

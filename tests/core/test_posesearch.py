@@ -9,7 +9,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from cadnerf_core.posesearch import cyclic_dp, paper_algorithm1
+from cadnerf_core.retrieval.posesearch import cyclic_dp, paper_algorithm1
 
 
 def _walk_ok(bins: list[int], n_az: int, sign: int) -> bool:

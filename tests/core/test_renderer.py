@@ -11,8 +11,8 @@ import trimesh
 from PIL import Image
 
 from cadnerf_core.cameras import intrinsics_from_fov, look_at, orbit_pose
-from cadnerf_core.meshio import load_mesh, normalise_mesh
-from cadnerf_core.renderer import MeshRenderer, render_silhouette_polygons, sample_texture
+from cadnerf_core.mesh.meshio import load_mesh, normalise_mesh
+from cadnerf_core.mesh.renderer import MeshRenderer, render_silhouette_polygons, sample_texture
 
 EVAL = Path(__file__).resolve().parents[2] / ".." / "shared" / "eval"
 

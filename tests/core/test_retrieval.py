@@ -8,7 +8,7 @@ from typing import Any, Literal
 import numpy as np
 import pytest
 
-from cadnerf_core.retrieval import (
+from cadnerf_core.retrieval.retrieve import (
     RetrievalConfig,
     azimuth_bins,
     iou_table,
@@ -51,7 +51,7 @@ def test_azimuth_bins_follow_the_library_order() -> None:
 
 def _render_views(library: Any, model: int, views: list[int], pad: tuple[int, int]) -> list:
     """Masks of a library model at library poses, rendered into a larger, shifted canvas."""
-    from cadnerf_core.renderer import render_silhouette_polygons
+    from cadnerf_core.mesh.renderer import render_silhouette_polygons
 
     mesh = library.mesh(library.models[model].id)
     size = library.spec.render_size
@@ -186,8 +186,8 @@ def test_an_ambiguous_walk_is_taken_counter_clockwise_unless_asked_for_the_best(
 
 def _match(index: int, focal: float, discarded: bool = False) -> Any:
     from cadnerf_core.cameras import orbit_pose
-    from cadnerf_core.crop import CropBox, crop_intrinsics
-    from cadnerf_core.retrieval import PhotoMatch
+    from cadnerf_core.intake.crop import CropBox, crop_intrinsics
+    from cadnerf_core.retrieval.retrieve import PhotoMatch
 
     K_photo = np.array([[focal, 0.0, 140.0], [0.0, focal, 95.0], [0.0, 0.0, 1.0]])
     box = CropBox(40.0, 10.0, 150.0, 64)
@@ -198,8 +198,8 @@ def _match(index: int, focal: float, discarded: bool = False) -> Any:
 
 def test_shared_focal_keeps_every_object_its_size() -> None:
     from cadnerf_core.cameras import project
-    from cadnerf_core.crop import crop_intrinsics
-    from cadnerf_core.retrieval import share_focal
+    from cadnerf_core.intake.crop import crop_intrinsics
+    from cadnerf_core.retrieval.retrieve import share_focal
 
     # Focal lengths per pixel of the longer side: 1/3, 0.4, 0.25 (a photo of twice the
     # resolution); the discarded photo's wild estimate has no say in the median, 1/3, and
@@ -270,7 +270,7 @@ def _near_walk(library: Any, azimuths: tuple[int, ...]) -> tuple[list[int], list
                                                                   float]:
     """Masks of the chair seen from the near set's cameras (a wide lens, close up), with
     their focal length in pixels."""
-    from cadnerf_core.renderer import render_silhouette_polygons
+    from cadnerf_core.mesh.renderer import render_silhouette_polygons
 
     near = library.near
     model = next(i for i, m in enumerate(library.models) if m.category == "chair")
@@ -319,7 +319,7 @@ def test_asking_for_a_near_set_the_library_lacks_says_how_to_get_one(tiny_librar
     import dataclasses
 
     from cadnerf_core.errors import LibraryError
-    from cadnerf_core.library import Library
+    from cadnerf_core.library.format import Library
 
     library = tiny_library
     old = Library(library.root, dataclasses.replace(library.spec, near_distance=None),

@@ -106,7 +106,7 @@ def photo_set(tmp_path_factory: pytest.TempPathFactory) -> list[Path]:
     """Four 64 px RGBA renders of a box walked around (alpha = mask)."""
     import trimesh
 
-    from cadnerf_core.dataset import render_dataset
+    from cadnerf_core.evaluation.dataset import render_dataset
 
     folder = tmp_path_factory.mktemp("photos")
     mesh_path = folder / "box.ply"

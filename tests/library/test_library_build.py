@@ -9,7 +9,7 @@ import pytest
 
 import library_data.build as build_module
 from cadnerf_core.errors import LibraryError
-from cadnerf_core.library import MANIFEST, LibrarySpec, read_manifest
+from cadnerf_core.library.format import MANIFEST, LibrarySpec, read_manifest
 from library_data.build import build_library, code_version, is_current
 
 SPEC = LibrarySpec(n_azimuths=8, elevations=(0.0, 30.0), silhouette_size=32, grid_size=32)

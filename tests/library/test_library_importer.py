@@ -12,8 +12,8 @@ import trimesh
 from typer.testing import CliRunner
 
 from cadnerf_core.errors import InputError, MeshError
-from cadnerf_core.library import MANIFEST, LibrarySpec, load_library
-from cadnerf_core.meshio import Z_UP_TO_Y_UP
+from cadnerf_core.library.format import MANIFEST, LibrarySpec, load_library
+from cadnerf_core.mesh.meshio import Z_UP_TO_Y_UP
 from library_data.build import build_library
 from library_data.importer import add_model, prepare_mesh, remove_model, resolve_source
 
@@ -105,7 +105,7 @@ def test_imported_models_survive_a_rebuild(library_copy: Path, tmp_path: Path) -
     path = tmp_path / "crate.stl"
     trimesh.creation.box(extents=(1.0, 1.0, 1.0)).export(path)
     add_model(library_copy, path, "crate")
-    from cadnerf_core.library import LibrarySpec
+    from cadnerf_core.library.format import LibrarySpec
 
     spec = LibrarySpec(n_azimuths=4, elevations=(0.0,), silhouette_size=16, grid_size=16)
     build_library(library_copy, spec, jobs=1, model_ids=["sphere"])

@@ -87,7 +87,7 @@ def render_photo_set(folder: Path, n_views: int = 4, size: int = 64) -> list[Pat
     """RGBA renders of a box walked around (alpha = mask): photos a real job can use."""
     import trimesh
 
-    from cadnerf_core.dataset import render_dataset
+    from cadnerf_core.evaluation.dataset import render_dataset
 
     folder.mkdir(parents=True, exist_ok=True)
     mesh_path = folder / "box.ply"

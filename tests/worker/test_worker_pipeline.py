@@ -22,7 +22,7 @@ def renders(tmp_path_factory: pytest.TempPathFactory) -> list[Path]:
     """Four 64 px RGBA renders of a box walked around."""
     import trimesh
 
-    from cadnerf_core.dataset import render_dataset
+    from cadnerf_core.evaluation.dataset import render_dataset
 
     folder = tmp_path_factory.mktemp("renders")
     trimesh.creation.box((1.0, 0.6, 0.4)).export(folder / "box.ply")

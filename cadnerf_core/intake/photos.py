@@ -20,8 +20,8 @@ from typing import Any
 import numpy as np
 from PIL import Image, ImageOps, UnidentifiedImageError
 
-from cadnerf_core.crop import DEFAULT_MARGIN, CropBox, apply_crop, canonical_box
 from cadnerf_core.errors import InputError
+from cadnerf_core.intake.crop import DEFAULT_MARGIN, CropBox, apply_crop, canonical_box
 
 MIN_SIDE = 64  # pixels: smaller photos hold too little of the object
 MAX_PIXELS = 40_000_000  # 40 megapixels: larger photos are refused before decoding

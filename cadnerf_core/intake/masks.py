@@ -22,7 +22,7 @@ import numpy as np
 from scipy import ndimage
 
 from cadnerf_core.errors import InputError
-from cadnerf_core.photos import Photo
+from cadnerf_core.intake.photos import Photo
 from cadnerf_core.progress import Progress
 
 log = logging.getLogger(__name__)

@@ -24,7 +24,7 @@ from cadnerf_core.progress import Progress
 if TYPE_CHECKING:
     from cadnerf_core.nerf.model import TrainedModel
     from cadnerf_core.nerf.state import TrainData
-    from cadnerf_core.retrieval import RetrievalResult
+    from cadnerf_core.retrieval.retrieve import RetrievalResult
 
 
 @contextmanager
@@ -171,7 +171,7 @@ def render_views(job_dir: Path, model: TrainedModel, data: TrainData, progress: 
     Returns:
         The written names, and PSNR/SSIM of each photo's render against its training crop.
     """
-    from cadnerf_core.metrics import psnr, ssim
+    from cadnerf_core.evaluation.metrics import psnr, ssim
 
     cfg = model.state.config
     c2w = model.c2w
@@ -228,7 +228,7 @@ def export_mesh(job_dir: Path, model: TrainedModel, progress: Progress | None = 
 
 def poses_json(model: TrainedModel, retrieval: RetrievalResult) -> list[dict[str, Any]]:
     """Per photo: name, refined and initial c2w, IoU, discarded, K (crop and photo pixels)."""
-    from cadnerf_core.crop import uncrop_intrinsics
+    from cadnerf_core.intake.crop import uncrop_intrinsics
 
     refined = dict(zip([m.index for m in retrieval.kept], model.c2w, strict=True))
     out = []
@@ -267,7 +267,7 @@ def export_job(job_dir: Path, model: TrainedModel, retrieval: RetrievalResult,
     """Write every artifact of a trained job and return the service's summary.
 
     Args:
-        photos: the job's photos (cadnerf_core.photos.Photo), for their pixel sizes.
+        photos: the job's photos (cadnerf_core.intake.photos.Photo), for their pixel sizes.
     """
     import time
 

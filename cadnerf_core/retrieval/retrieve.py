@@ -22,13 +22,13 @@ import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 
 from cadnerf_core.config import AMBIGUOUS_HINT
-from cadnerf_core.crop import CropBox, apply_crop, crop_intrinsics, uncrop_intrinsics
-from cadnerf_core.photos import canonical_masks
-from cadnerf_core.posesearch import PoseSearchResult, cyclic_dp, paper_algorithm1
+from cadnerf_core.intake.crop import CropBox, apply_crop, crop_intrinsics, uncrop_intrinsics
+from cadnerf_core.intake.photos import canonical_masks
 from cadnerf_core.progress import Progress
+from cadnerf_core.retrieval.posesearch import PoseSearchResult, cyclic_dp, paper_algorithm1
 
 if TYPE_CHECKING:
-    from cadnerf_core.library import Library
+    from cadnerf_core.library.format import Library
 
 log = logging.getLogger(__name__)
 
@@ -363,7 +363,7 @@ def direction_evidence(images: Sequence[np.ndarray], masks: Sequence[np.ndarray]
     """Texture evidence for the walking direction (``direction.walk_direction_evidence``) of
     photos [H_i, W_i, 3] float in [0, 1], composited on white inside their masks and cropped
     by their canonical boxes at ``APPEARANCE_SIZE``."""
-    from cadnerf_core.direction import walk_direction_evidence
+    from cadnerf_core.retrieval.direction import walk_direction_evidence
 
     rgbs, crops = [], []
     for image, mask, b in zip(images, masks, boxes, strict=True):

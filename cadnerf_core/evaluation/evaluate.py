@@ -31,9 +31,8 @@ import numpy as np
 from PIL import Image
 
 from cadnerf_core.cameras import align_poses, umeyama
-from cadnerf_core.dataset import Dataset, load_dataset
-from cadnerf_core.library import Library
-from cadnerf_core.metrics import (
+from cadnerf_core.evaluation.dataset import Dataset, load_dataset
+from cadnerf_core.evaluation.metrics import (
     LPIPS_MISSING,
     ImageMetrics,
     LpipsNet,
@@ -42,6 +41,7 @@ from cadnerf_core.metrics import (
     mean_image_metrics,
     pose_metrics,
 )
+from cadnerf_core.library.format import Library
 from cadnerf_core.progress import Progress
 
 if TYPE_CHECKING:
@@ -263,7 +263,7 @@ def first_views(dataset: Dataset, n_views: int) -> Dataset:
 def exif_with_focal(K: np.ndarray, width: int, height: int) -> bytes:
     """EXIF bytes whose ``FocalLengthIn35mmFilm`` is the focal length of ``K`` [3, 3] for a
     photo of ``width`` x ``height`` pixels (rounded to whole mm, as the tag stores it)."""
-    from cadnerf_core.photos import FULL_FRAME_DIAGONAL_MM
+    from cadnerf_core.intake.photos import FULL_FRAME_DIAGONAL_MM
 
     exif = Image.Exif()
     focal_35mm = float(K[0, 0]) * FULL_FRAME_DIAGONAL_MM / float(np.hypot(width, height))
@@ -409,7 +409,7 @@ def _render_held_out(model: TrainedModel, test: Dataset, c2w_nerf: np.ndarray, K
                      out_dir: Path, lpips_net: LpipsNet | None, size: int | None,
                      ) -> tuple[list[ImageMetrics], list[str]]:
     """Render every held-out view, save it, and score it against the ground truth."""
-    from cadnerf_core.export import write_png
+    from cadnerf_core.export.artifacts import write_png
 
     out_dir.mkdir(parents=True, exist_ok=True)
     scores, paths = [], []

@@ -17,7 +17,7 @@ import trimesh
 from embreex import rtcore_scene
 from embreex.mesh_construction import TriangleMesh
 
-from cadnerf_core.meshio import texture_image
+from cadnerf_core.mesh.meshio import texture_image
 
 AMBIENT = 0.35  # share of light reaching every surface, so nothing renders black
 DEFAULT_GREY = 0.7  # colour of meshes with neither texture nor colours

@@ -28,9 +28,9 @@ from typing import Any
 import numpy as np
 import trimesh
 
-from cadnerf_core.crop import CropBox, crop_intrinsics
 from cadnerf_core.errors import LibraryError
-from cadnerf_core.occupancy import OccupancyGrid
+from cadnerf_core.intake.crop import CropBox, crop_intrinsics
+from cadnerf_core.library.occupancy import OccupancyGrid
 
 FORMAT_VERSION = 1
 MANIFEST = "manifest.json"

@@ -27,8 +27,8 @@ from cadnerf_core.cameras import (
     to_transforms_json,
 )
 from cadnerf_core.errors import InputError
-from cadnerf_core.meshio import load_mesh, normalise_mesh
-from cadnerf_core.renderer import MeshRenderer, render_silhouette_polygons
+from cadnerf_core.mesh.meshio import load_mesh, normalise_mesh
+from cadnerf_core.mesh.renderer import MeshRenderer, render_silhouette_polygons
 
 log = logging.getLogger(__name__)
 

@@ -1,0 +1,1 @@
+"""Evaluation: synthetic datasets with true cameras, image and pose metrics, the protocol."""

@@ -1,0 +1,1 @@
+"""Stage 9: outputs: poses, transforms.json, views, orbit video, mesh and the results bundle."""

@@ -1,0 +1,1 @@
+"""Meshes: loading and normalising CAD files, and ray casting them (silhouettes, colour, depth)."""
