@@ -118,7 +118,8 @@ def retrieve_all(masks: list[np.ndarray], names: list[str], library: Any,
     """Retrieval with every variant of ``VARIANTS`` (``direction``: the walk's true one, for
     the variants that are given it; ``focals``: the photos' focal lengths in pixels, for the
     variant that knows them). Returns variant -> RetrievalResult."""
-    from cadnerf_core.retrieval.retrieve import RetrievalConfig, retrieve
+    from cadnerf_core.config import RetrievalConfig
+    from cadnerf_core.retrieval.retrieve import retrieve
 
     walk = "ccw" if direction > 0 else "cw"
     out = {}
@@ -212,8 +213,9 @@ def phone_set(name: str, views: int, direction: int, library: Any, work: Path,
               fov: float = PHONE_FOV) -> PhoneResult:
     """Render one walk at ``fov`` degrees across (the object filling the same share of the
     frame: from nearer at a wider angle) and retrieve it with the photos' focal length known."""
+    from cadnerf_core.config import RetrievalConfig
     from cadnerf_core.evaluation.dataset import load_dataset, render_dataset
-    from cadnerf_core.retrieval.retrieve import RetrievalConfig, retrieve
+    from cadnerf_core.retrieval.retrieve import retrieve
 
     folder = render_dataset(mesh_file(EVAL_ROOT / "meshes" / name), work / f"fov{fov:g}_{name}_"
                             f"{views}_{direction}", views, SIZE, SEED + views,
@@ -279,8 +281,10 @@ def _median_seconds(function: Any, repeats: int) -> float:
 def speed_lines(library: Any, masks: list[np.ndarray], images: list[np.ndarray],
                 quick: bool) -> list[str]:
     """Solver and whole-retrieval timings, as markdown bullet lines."""
+    from cadnerf_core.config import RetrievalConfig
     from cadnerf_core.retrieval.posesearch import cyclic_dp, paper_algorithm1
-    from cadnerf_core.retrieval.retrieve import RetrievalConfig, iou_table, retrieve
+    from cadnerf_core.retrieval.retrieve import retrieve
+    from cadnerf_core.retrieval.scoring import iou_table
 
     rng = np.random.default_rng(0)
     iou = rng.random((10, 100))

@@ -124,7 +124,8 @@ def table4(rows: list[Row]) -> str:
 
 def _solver_ms(iou: np.ndarray, library: Any, config: Any, repeats: int = 5) -> float:
     """Median wall time of one pose solve on one model's IoU table, in milliseconds."""
-    from cadnerf_core.retrieval.retrieve import azimuth_bins, solve_poses
+    from cadnerf_core.retrieval.retrieve import solve_poses
+    from cadnerf_core.retrieval.scoring import azimuth_bins
 
     az_index = azimuth_bins(library.az_el, library.spec.n_azimuths)
     times = []
@@ -141,10 +142,12 @@ def retrieval_row(name: str, dataset_dir: Path, library: Any) -> Row:
     The rotation error is measured on the kept photos after similarity alignment; the time is
     the solver's alone (the IoU table and the model vote are shared by both).
     """
+    from cadnerf_core.config import RetrievalConfig
     from cadnerf_core.evaluation.dataset import load_dataset
     from cadnerf_core.evaluation.metrics import pose_metrics
     from cadnerf_core.intake.photos import canonical_masks
-    from cadnerf_core.retrieval.retrieve import RetrievalConfig, iou_table, retrieve
+    from cadnerf_core.retrieval.retrieve import retrieve
+    from cadnerf_core.retrieval.scoring import iou_table
 
     ds = load_dataset(dataset_dir)
     crops, _ = canonical_masks(list(ds.masks), library.spec.silhouette_size, library.spec.margin)

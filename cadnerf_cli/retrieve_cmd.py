@@ -14,7 +14,7 @@ if TYPE_CHECKING:
 
     from cadnerf_core.intake.photos import Photo
     from cadnerf_core.library.format import Library
-    from cadnerf_core.retrieval.retrieve import RetrievalResult
+    from cadnerf_core.retrieval.result import RetrievalResult
 
 class Solver(StrEnum):
     """Pose solver."""
@@ -173,11 +173,12 @@ def retrieve_command(
     out: Path | None = typer.Option(None, "--out", help="Folder for match pictures."),
 ) -> None:
     """Find the CAD model and a library pose for every photo."""
+    from cadnerf_core.config import RetrievalConfig
     from cadnerf_core.errors import CadNerfError
     from cadnerf_core.intake.masks import photo_masks
     from cadnerf_core.intake.photos import load_photos, with_focal
     from cadnerf_core.library.format import load_library
-    from cadnerf_core.retrieval.retrieve import RetrievalConfig, retrieve
+    from cadnerf_core.retrieval.retrieve import retrieve
 
     try:
         loaded = with_focal(load_photos(photos, resolve_mask_paths(photos, masks)), focal_35mm)

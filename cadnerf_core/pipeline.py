@@ -88,20 +88,17 @@ def run_intake(job_dir: Path, library: Library, config: PipelineConfig,
     """Read photos and masks, remove backgrounds where needed, retrieve model and poses."""
     from cadnerf_core.intake.masks import photo_masks
     from cadnerf_core.intake.photos import load_photo, with_focal
-    from cadnerf_core.retrieval.retrieve import RetrievalConfig, retrieve
+    from cadnerf_core.retrieval.retrieve import retrieve
 
     inputs, mask_paths = _input_files(job_dir)
     photos = [load_photo(p, i, m) for i, (p, m) in enumerate(zip(inputs, mask_paths,
                                                                  strict=True))]
     names = [p.name for p in inputs]
     masks = photo_masks(photos, progress=progress)
-    opts = config.retrieval
-    rcfg = RetrievalConfig(solver=opts.solver, top_k=opts.top_k, max_discard=opts.max_discard,
-                           walk=opts.walk, shared_focal=opts.shared_focal,
-                           perspective=opts.perspective, size=config.image_size)
-    photos = with_focal(photos, opts.focal_35mm)  # the user's value where EXIF says nothing
-    retrieval = retrieve(masks, names, library, rcfg, progress, [p.rgb for p in photos],
-                         [p.focal_pixels for p in photos])
+    photos = with_focal(photos, config.retrieval.focal_35mm)  # where EXIF says nothing
+    retrieval = retrieve(masks, names, library, config.retrieval, progress,
+                         [p.rgb for p in photos], [p.focal_pixels for p in photos],
+                         crop_size=config.image_size)
     write_json(job_dir / "retrieval.json", retrieval.to_json())
     if len(retrieval.kept) < 2:
         raise InputError("fewer than two photos could be matched to the retrieved model",

@@ -24,7 +24,7 @@ from cadnerf_core.progress import Progress
 if TYPE_CHECKING:
     from cadnerf_core.nerf.model import TrainedModel
     from cadnerf_core.nerf.state import TrainData
-    from cadnerf_core.retrieval.retrieve import RetrievalResult
+    from cadnerf_core.retrieval.result import RetrievalResult
 
 
 @contextmanager

@@ -8,13 +8,9 @@ from typing import Any, Literal
 import numpy as np
 import pytest
 
-from cadnerf_core.retrieval.retrieve import (
-    RetrievalConfig,
-    azimuth_bins,
-    iou_table,
-    retrieve,
-    vote_models,
-)
+from cadnerf_core.config import RetrievalConfig
+from cadnerf_core.retrieval.retrieve import retrieve
+from cadnerf_core.retrieval.scoring import azimuth_bins, iou_table, vote_models
 
 
 def test_iou_table_equals_a_naive_loop() -> None:
@@ -75,7 +71,7 @@ def test_retrieval_of_a_library_model_at_library_poses(tiny_library: Any,
     pad = (40, 10)  # off-centre in a bigger photo: the canonical crop undoes it
     masks = _render_views(library, model, true_views, pad)
     names = [f"p{i}.png" for i in range(len(masks))]
-    result = retrieve(masks, names, library, RetrievalConfig(solver=solver, size=96))
+    result = retrieve(masks, names, library, RetrievalConfig(solver=solver), crop_size=96)
     assert result.model_id == library.models[model].id
     assert result.top_models[0]["model_id"] == result.model_id
     assert result.top_models[0]["votes"] == len(masks)
@@ -187,7 +183,7 @@ def test_an_ambiguous_walk_is_taken_counter_clockwise_unless_asked_for_the_best(
 def _match(index: int, focal: float, discarded: bool = False) -> Any:
     from cadnerf_core.cameras import orbit_pose
     from cadnerf_core.intake.crop import CropBox, crop_intrinsics
-    from cadnerf_core.retrieval.retrieve import PhotoMatch
+    from cadnerf_core.retrieval.result import PhotoMatch
 
     K_photo = np.array([[focal, 0.0, 140.0], [0.0, focal, 95.0], [0.0, 0.0, 1.0]])
     box = CropBox(40.0, 10.0, 150.0, 64)
@@ -199,7 +195,7 @@ def _match(index: int, focal: float, discarded: bool = False) -> Any:
 def test_shared_focal_keeps_every_object_its_size() -> None:
     from cadnerf_core.cameras import project
     from cadnerf_core.intake.crop import crop_intrinsics
-    from cadnerf_core.retrieval.retrieve import share_focal
+    from cadnerf_core.retrieval.cameras import share_focal
 
     # Focal lengths per pixel of the longer side: 1/3, 0.4, 0.25 (a photo of twice the
     # resolution); the discarded photo's wild estimate has no say in the median, 1/3, and

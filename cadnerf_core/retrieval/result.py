@@ -1,0 +1,82 @@
+"""What retrieval returns: the chosen model and every photo's camera (``retrieval.json``)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from cadnerf_core.intake.crop import CropBox
+
+
+@dataclass
+class PhotoMatch:
+    """One photo's retrieved camera.
+
+    ``view``: library view index (a discarded photo keeps its own best view, flagged);
+    ``c2w [4, 4]``: library pose; ``K_canon [3, 3]``: intrinsics in the canonical crop of
+    ``box.size`` px; ``box``: photo -> canonical crop; ``K_photo [3, 3]``: in photo pixels.
+    """
+
+    index: int
+    name: str
+    view: int
+    azimuth: float
+    elevation: float
+    iou: float
+    discarded: bool
+    c2w: np.ndarray
+    K_canon: np.ndarray
+    box: CropBox
+    K_photo: np.ndarray
+
+    def to_json(self) -> dict[str, Any]:
+        """JSON-ready form (matrices as nested lists)."""
+        return {"index": self.index, "name": self.name, "view": self.view,
+                "azimuth": self.azimuth, "elevation": self.elevation, "iou": self.iou,
+                "discarded": self.discarded, "c2w": self.c2w.tolist(),
+                "K_canon": self.K_canon.tolist(), "box": self.box.to_dict(),
+                "K_photo": self.K_photo.tolist()}
+
+
+@dataclass
+class RetrievalResult:
+    """The chosen model, the best models by votes, and every photo's match."""
+
+    model_id: str
+    category: str
+    top_models: list[dict[str, Any]]
+    matches: list[PhotoMatch]
+    solver: str
+    direction: int
+    score: float
+    direction_evidence: float = 0.0
+    """Texture evidence for the walking direction (> 0: increasing azimuth; 0: none used)."""
+    direction_lead: float | None = None
+    """The DP's objective of its best walk less that of the best walk the other way (None
+    when the direction was given or the paper's solver ran)."""
+    direction_ambiguous: bool = False
+    """Neither the silhouettes (lead under ``RetrievalConfig.ambiguity_margin``) nor the texture
+    told the walking direction: the walk is the one ``RetrievalConfig.ambiguous_walk`` assumes
+    (counter-clockwise by default), and the poses are the mirrored walk's if the photographer
+    went the other way."""
+    perspective: str = "far"
+    """The library silhouette set matched ("far" or "near", ``RetrievalConfig.perspective``)."""
+
+    @property
+    def kept(self) -> list[PhotoMatch]:
+        """Matches of the photos that were not discarded."""
+        return [m for m in self.matches if not m.discarded]
+
+    def to_json(self) -> dict[str, Any]:
+        """JSON-ready form (the ``retrieval.json`` of a job)."""
+        return {"model_id": self.model_id, "category": self.category,
+                "top_models": self.top_models, "solver": self.solver,
+                "direction": self.direction, "score": self.score,
+                "direction_evidence": self.direction_evidence,
+                "direction_lead": self.direction_lead,
+                "direction_ambiguous": self.direction_ambiguous,
+                "perspective": self.perspective,
+                "discarded": [m.index for m in self.matches if m.discarded],
+                "matches": [m.to_json() for m in self.matches]}
