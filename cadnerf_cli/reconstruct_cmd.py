@@ -11,6 +11,7 @@ from typing import Any
 
 import typer
 
+from cadnerf_cli.eval_cmd import parse_overrides
 from cadnerf_cli.retrieve_cmd import FOCAL_HELP, PERSPECTIVE_HELP, Perspective, Walk
 
 STAGES = ("masks", "retrieval", "phase1", "phase2", "phase3", "render", "export")
@@ -46,7 +47,9 @@ def reconstruct(
     photos: list[Path] = typer.Argument(..., help="3 to 10 photos, in walking order."),
     out: Path = typer.Option(..., "--out", help="Job folder for the results."),
     masks: list[Path] | None = typer.Option(None, "--masks", help="One mask per photo."),
-    preset: str = typer.Option("standard", "--preset", help="paper, standard, preview, test."),
+    preset: str = typer.Option("standard", "--preset", help="paper, standard or preview."),
+    settings: list[str] = typer.Option([], "--set", help="Config override key=value (dotted "
+                                       "keys, JSON values); repeatable."),
     device: str = typer.Option("auto", "--device", help="auto, cpu, cuda, cuda:N."),
     library_dir: Path = typer.Option(DEFAULT_LIBRARY, "--library", help="CAD library folder."),
     walk: Walk = typer.Option(Walk.auto, "--walk", help="Which way round the photos were "
@@ -77,7 +80,8 @@ def reconstruct(
             retrieval["perspective"] = perspective.value
         if focal_35mm is not None:
             retrieval["focal_35mm"] = focal_35mm
-        overrides = {"retrieval": retrieval} if retrieval else {}
+        overrides = {**parse_overrides(settings),
+                     **{f"retrieval.{key}": value for key, value in retrieval.items()}}
         resolve_config(preset, overrides)
         library = load_library(library_dir)
         stage_inputs(photos, masks, out)

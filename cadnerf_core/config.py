@@ -236,7 +236,7 @@ class RetrievalConfig(_Frozen):
     photos' texture favours is preferred (0: silhouettes alone; more overrides them)."""
     appearance_threshold: float = Field(default=0.25, ge=0.0, le=10.0)
     """DP only: texture evidence weaker than this (in absolute value) is ignored."""
-    ambiguity_margin: float = Field(default=0.05, ge=0.0, le=10.0)
+    ambiguity_margin: float = Field(default=0.05, ge=0.0, le=100.0)
     """DP, "auto" only: a best walk that leads the other direction's best by less than this
     (summed IoU), with no texture evidence, flags ``direction_ambiguous`` and a warning."""
     ambiguous_walk: Literal["ccw", "best"] = "ccw"

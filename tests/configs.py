@@ -47,3 +47,10 @@ def tiny_config(**overrides: Any) -> PipelineConfig:
     """The tiny configuration, resolved and validated like a job's."""
     request = tiny_request(**overrides)
     return resolve_config(request["preset"], request["overrides"])
+
+
+def tiny_cli_options(**overrides: Any) -> list[str]:
+    """``tiny_request`` as ``cadnerf reconstruct`` options: ``--preset`` and one ``--set`` a key."""
+    request = tiny_request(**overrides)
+    return ["--preset", request["preset"], *(f"--set={key}={json.dumps(value)}"
+                                             for key, value in request["overrides"].items())]

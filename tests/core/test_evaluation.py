@@ -13,6 +13,7 @@ from scipy.spatial.transform import Rotation
 
 from cadnerf_core.cameras import orbit_pose
 from cadnerf_core.evaluation.evaluate import Similarity, centre_similarity
+from tests.configs import TINY_OVERRIDES, TINY_PRESET, tiny_request
 
 # ---------------------------------------------------------------- alignment on synthetic poses
 
@@ -152,7 +153,7 @@ def test_evaluate_tiny_box_has_all_fields(tmp_path: Path, tiny_library: Any) -> 
     dataset = render_dataset(mesh_path, tmp_path / "ds", n_views=4, size=64, seed=0,
                              test_views=2)
     library = tiny_library
-    report = evaluate_dataset(dataset, 3, library, preset="test", overrides={"seed": 0},
+    report = evaluate_dataset(dataset, 3, library, **tiny_request(seed=0),
                               job_dir=tmp_path / "job")
     data = report.to_json()
     json.dumps(data)  # serialisable
@@ -170,7 +171,7 @@ def test_evaluate_tiny_box_has_all_fields(tmp_path: Path, tiny_library: Any) -> 
     assert report.phases, "metrics.json phases missing"
     assert report.eval_size == 64 and report.align == "photometric"
     with pytest.raises(ValueError, match="not empty"):
-        evaluate_dataset(dataset, 3, library, preset="test", job_dir=tmp_path / "job")
+        evaluate_dataset(dataset, 3, library, **tiny_request(), job_dir=tmp_path / "job")
 
 
 # ---------------------------------------------------------------- benchmark tables, fake inputs
@@ -330,11 +331,11 @@ def test_true_cameras_oracle_gives_the_job_the_ground_truth(tmp_path: Path,
                              test_views=1)
     original = pipeline.run_intake
     with true_cameras(dataset):
-        oracle = evaluate_dataset(dataset, 4, tiny_library, preset="test",
-                                  overrides={"optimise_poses": False}, job_dir=tmp_path / "o")
+        oracle = evaluate_dataset(dataset, 4, tiny_library, **tiny_request(optimise_poses=False),
+                                  job_dir=tmp_path / "o")
     assert pipeline.run_intake is original
-    plain = evaluate_dataset(dataset, 4, tiny_library, preset="test",
-                             overrides={"optimise_poses": False}, job_dir=tmp_path / "p")
+    plain = evaluate_dataset(dataset, 4, tiny_library, **tiny_request(optimise_poses=False),
+                             job_dir=tmp_path / "p")
     assert max(oracle.pose_retrieved.rotation_deg_per_view) < 1e-3
     assert max(oracle.pose_refined.rotation_deg_per_view) < 0.05  # float32 in the model
     assert oracle.focal_used == pytest.approx(oracle.focal_gt)
@@ -363,8 +364,8 @@ def test_a_job_written_with_exif_focal_gives_its_photos_the_true_focal(tmp_path:
     trimesh.creation.box(extents=(1.2, 0.8, 0.6)).export(mesh_path)
     data = load_dataset(render_dataset(mesh_path, tmp_path / "ds", n_views=3, size=64, seed=0,
                                        fov_deg=55.0))
-    write_job(tmp_path / "with", data, "test", {}, exif_focal=True)
-    write_job(tmp_path / "without", data, "test", {})
+    write_job(tmp_path / "with", data, TINY_PRESET, TINY_OVERRIDES, exif_focal=True)
+    write_job(tmp_path / "without", data, TINY_PRESET, TINY_OVERRIDES)
     told = load_photos(sorted((tmp_path / "with" / "inputs").iterdir()))
     plain = load_photos(sorted((tmp_path / "without" / "inputs").iterdir()))
     for photo, K in zip(told, data.K, strict=True):

@@ -11,7 +11,7 @@ import torch
 import trimesh
 
 from cadnerf_core.cameras import intrinsics_from_fov, orbit_pose, project, se3_exp
-from cadnerf_core.config import PipelineConfig, resolve_config
+from cadnerf_core.config import PipelineConfig
 from cadnerf_core.errors import JobCancelled
 from cadnerf_core.mesh.renderer import MeshRenderer
 from cadnerf_core.nerf import phases
@@ -19,6 +19,7 @@ from cadnerf_core.nerf.grid import SkipGrid, grid_from_occupancy
 from cadnerf_core.nerf.model import TrainedModel
 from cadnerf_core.nerf.state import TrainData, TrainState
 from cadnerf_core.progress import Progress
+from tests.configs import tiny_config
 
 SIZE = 32
 DEVICE = torch.device("cpu")
@@ -55,7 +56,7 @@ def _sampler(mesh: trimesh.Trimesh, seed: int = 0) -> phases.OccupancySampler:
 
 
 def _config(**overrides: object) -> PipelineConfig:
-    return resolve_config("test", {"field.hidden": 32, "field.pos_freqs": 4, **overrides})
+    return tiny_config(**{"field.hidden": 32, "field.pos_freqs": 4, **overrides})
 
 
 def test_phase_one_reduces_bce() -> None:

@@ -1,4 +1,4 @@
-"""The whole job on the tiny library with preset `test`: every artifact, resume, CLI errors."""
+"""The whole job on the tiny library with the tiny config: every artifact, resume, CLI errors."""
 
 from __future__ import annotations
 
@@ -14,6 +14,7 @@ from PIL import Image
 from cadnerf_core.cameras import intrinsics_from_fov, orbit_pose
 from cadnerf_core.errors import JobCancelled
 from cadnerf_core.progress import Progress
+from tests.configs import TINY_PRESET, tiny_cli_options, tiny_request
 
 pytestmark = pytest.mark.usefixtures("one_torch_thread")
 
@@ -31,8 +32,7 @@ def write_job(job_dir: Path, library: Any, model_id: str = "mug", n: int = 4,
         rgb = (result.rgb * 255).astype(np.uint8)
         alpha = result.mask.astype(np.uint8) * 255
         Image.fromarray(np.dstack([rgb, alpha]), "RGBA").save(job_dir / "inputs" / f"{i:03d}_p.png")
-    (job_dir / "config.json").write_text(json.dumps({"preset": "test",
-                                                     "overrides": overrides or {}}))
+    (job_dir / "config.json").write_text(json.dumps(tiny_request(**(overrides or {}))))
 
 
 def test_run_job_writes_every_artifact(tmp_path: Path, tiny_library: Any) -> None:
@@ -63,7 +63,7 @@ def test_run_job_writes_every_artifact(tmp_path: Path, tiny_library: Any) -> Non
     assert metrics["peak_memory_mb"]["phase3"]["rss_peak_mb"] > 0
     assert all(np.isfinite(p["psnr"]) and -1 <= p["ssim"] <= 1 for p in metrics["photos"])
     config = json.loads((tmp_path / "config.json").read_text())
-    assert config["preset"] == "test" and "phase2" in config
+    assert config["preset"] == TINY_PRESET and "phase2" in config
 
     from cadnerf_core.nerf.model import TrainedModel
 
@@ -133,7 +133,7 @@ def test_cli_reports_errors_in_one_line(tmp_path: Path, tiny_library_dir: Path) 
     assert result.exit_code == 2
     assert "unknown preset" in result.output
     result = runner.invoke(app, ["reconstruct", str(tmp_path / "missing.png"), "--out",
-                                 str(tmp_path / "job"), "--preset", "test",
+                                 str(tmp_path / "job"), "--preset", "preview",
                                  "--library", str(tiny_library_dir)])
     assert result.exit_code == 2
     assert "no such file" in result.output
@@ -148,8 +148,8 @@ def test_cli_reconstructs_into_the_output_folder(tmp_path: Path, tiny_library: A
     write_job(tmp_path / "src", tiny_library, n=3)
     photos = sorted(str(p) for p in (tmp_path / "src" / "inputs").iterdir())
     out = tmp_path / "job"
-    result = CliRunner().invoke(app, ["reconstruct", *photos, "--out", str(out), "--preset",
-                                      "test", "--device", "cpu", "--library",
+    result = CliRunner().invoke(app, ["reconstruct", *photos, "--out", str(out),
+                                      *tiny_cli_options(), "--device", "cpu", "--library",
                                       str(tiny_library_dir), "--walk", "ccw", "--own-focal",
                                       "--perspective", "near", "--focal-35mm", "30"])
     assert result.exit_code == 0, result.output
