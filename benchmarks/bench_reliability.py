@@ -24,6 +24,7 @@ from typing import Any
 import httpx
 import redis
 
+from tests.configs import tiny_request
 from tests.reliability import jobs
 from tests.reliability.cases import CASES
 from tests.reliability.load import run_load
@@ -107,7 +108,7 @@ def worker_kill_recovery(live: Live) -> float:
 
 def mid_job_kill(live: Live, photos: list[Path]) -> dict[str, Any]:
     """Kill -9 the worker in phase two, start a new one; does the job finish, and how fast?"""
-    job = jobs.submit(live.url, photos, {"preset": "test", "overrides": {"phase2.steps": 1500}})
+    job = jobs.submit(live.url, photos, tiny_request(phase2={"steps": 1500}))
     try:
         jobs.wait_state(live.url, job["id"], 300, until=("running",), stage="phase2",
                         every_s=0.05)
@@ -137,7 +138,7 @@ def redis_restart_recovery(folder: Path) -> dict[str, Any]:
     port = free_port()
     procs = [start_redis(folder / "own-redis", port)]
     settings = load_settings(redis_url=f"redis://127.0.0.1:{port}/0", data_root=folder / "rjobs",
-                             library_dir=folder / "nolib", default_preset="test")
+                             library_dir=folder / "nolib", default_preset="preview")
     try:
         with TestClient(create_app(settings), raise_server_exceptions=False) as client:
             job_id = client.post("/v1/jobs", files=photo_files(3)).json()["id"]

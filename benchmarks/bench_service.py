@@ -55,7 +55,7 @@ def _photo(width: int, height: int, seed: int) -> bytes:
 
 def _start_server(url: str, folder: Path, port: int) -> subprocess.Popen[bytes]:
     env = {**os.environ, "CADNERF_REDIS_URL": url, "CADNERF_DATA_ROOT": str(folder / "jobs"),
-           "CADNERF_DEFAULT_PRESET": "test"}
+           "CADNERF_DEFAULT_PRESET": "preview"}  # no worker runs: the job stays queued
     command = [sys.executable, "-m", "uvicorn", "--factory", "app.main:create_app",
                "--host", "127.0.0.1", "--port", str(port), "--log-level", "warning",
                "--timeout-keep-alive", "60"]  # pollers wait longer than the 5 s default

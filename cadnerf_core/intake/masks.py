@@ -4,9 +4,9 @@ A photo's own mask (its alpha, or one the user uploaded) wins. Otherwise OpenCV 
 needs no downloaded weights: it runs on a copy downscaled to about 320 pixels, seeded with a
 band along the image border as sure background and the centre as probable foreground. The
 result is cleaned to one connected component (the one nearest the centre, weighted by size)
-with holes filled, then scaled back up. On cluttered real scenes it is rough (mean IoU about
-0.57 against the shipped masks of the two real photo sets in ``../shared/eval``, see the
-retrieval benchmark): an uploaded mask or alpha is better. A learned remover (a U2Net-style
+with holes filled, then scaled back up. On cluttered real scenes it is rough (the retrieval
+benchmark scores it against real photos' own masks): an uploaded mask or alpha is better. A
+learned remover (a U2Net-style
 ONNX model, as used by ``rembg``) can be used instead, only from weights already on disk.
 """
 
