@@ -6,8 +6,8 @@ band along the image border as sure background and the centre as probable foregr
 result is cleaned to one connected component (the one nearest the centre, weighted by size)
 with holes filled, then scaled back up. On cluttered real scenes it is rough (the retrieval
 benchmark scores it against real photos' own masks): an uploaded mask or alpha is better. A
-learned remover (a U2Net-style
-ONNX model, as used by ``rembg``) can be used instead, only from weights already on disk.
+learned remover (a U2Net-style ONNX model, as used by ``rembg``) can be used instead, only from
+weights already on disk.
 """
 
 from __future__ import annotations
