@@ -196,7 +196,7 @@ AMBIGUOUS_HINT = ("the walking direction is a guess: these photos look alike wal
 
 
 class RetrievalConfig(_Frozen):
-    """How the CAD model and the photos' poses are retrieved (``retrieval.retrieve``)."""
+    """How the CAD model and the photos' poses are retrieved (``retrieval.retrieve.retrieve``)."""
 
     solver: Literal["dp", "paper"] = "dp"
     """Pose solver: "dp" (exact cyclic dynamic programme, ours) or "paper" (Algorithm 1)."""
@@ -206,7 +206,7 @@ class RetrievalConfig(_Frozen):
     """Most photos either solver may discard as inconsistent (the paper: 1-2)."""
     walk: Literal["auto", "ccw", "cw"] = "auto"
     """Which way round the photos were taken: "ccw" (the object on your left), "cw", or "auto".
-    Give it for objects alike from mirrored sides (mugs, bottles), where silhouettes cannot."""
+    Give it for objects alike from mirrored sides (mugs, bottles): silhouettes cannot tell."""
     shared_focal: bool = True
     """One camera for the walk: the photos share one focal length (their EXIF one, else their
     matches' median), each camera moved to keep the object's size in its photo. Off: each
@@ -226,11 +226,11 @@ class RetrievalConfig(_Frozen):
     """DP only: IoU per photo by which a decreasing walk must beat an increasing one (0: any
     margin turned true decreasing walks into front/back flips)."""
     spread_weight: float = Field(default=10.0, ge=0.0, le=100.0)
-    """DP only: weight of the prior that photos are spread round the object (minus the walk's
-    summed squared gaps, in turns). Lower it, or 0, for partial walks."""
+    """DP only: weight of the prior that photos are spread round the object: this times the sum
+    of the walk's squared gaps (in turns) is subtracted. Lower it, or 0, for partial walks."""
     model_choice: Literal["votes", "walk"] = "walk"
-    """"votes": the model of most photos' best views (the paper; its solver's). "walk": of the
-    five most voted, the one whose best ordered walk scores best."""
+    """"votes": the model most photos' best views belong to (the paper, whose solver always
+    votes). "walk": of the five most voted, the one whose best ordered walk scores best."""
     appearance_weight: float = Field(default=0.2, ge=0.0, le=10.0)
     """DP only, photos given: IoU per unit of texture evidence by which the direction the
     photos' texture favours is preferred (0: silhouettes alone; more overrides them)."""
