@@ -100,8 +100,9 @@ def test_retrieval_finds_the_exact_views_of_an_asymmetric_model(tiny_library: An
     # A walk around the object (every solver), and half a walk with uneven steps: exact for
     # the paper's solver and for the DP without its spread prior. (The default prior, made
     # for walks around the object, may spread a half walk; see RetrievalConfig.)
-    walks = {(1, 3, 5, 7): ({"solver": "dp"}, {"solver": "paper"}),
-             (1, 2, 3, 5): ({"solver": "dp", "spread_weight": 0.0}, {"solver": "paper"})}
+    walks: dict[tuple[int, ...], tuple[dict[str, Any], ...]] = {
+        (1, 3, 5, 7): ({"solver": "dp"}, {"solver": "paper"}),
+        (1, 2, 3, 5): ({"solver": "dp", "spread_weight": 0.0}, {"solver": "paper"})}
     for azimuths, configs in walks.items():
         true_views = [a * n_el + (a % n_el) for a in azimuths]
         masks = _render_views(library, model, true_views, (0, 0))
