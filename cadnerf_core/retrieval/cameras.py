@@ -23,7 +23,7 @@ if TYPE_CHECKING:
 
 
 def photo_match(library: Library, m: int, p: int, name: str, view: int, discarded: bool,
-           iou: float, box: CropBox) -> PhotoMatch:
+                iou: float, box: CropBox) -> PhotoMatch:
     """Photo ``p``'s match to view ``view`` of library model ``m``: the view's pose, its
     intrinsics in the canonical crop ``box`` and in the photo's own pixels."""
     K_canon = library.canonical_K(m, view, box.size)
@@ -70,10 +70,11 @@ def share_focal(matches: Sequence[PhotoMatch], sizes: Sequence[tuple[int, int]],
     return out
 
 
-
 def angle_mismatch(result: RetrievalResult, library: Library,
-                    focals: Sequence[float | None] | None) -> float:
-    """Median over the kept photos with a known focal length of |log(a_photo / a_view)|, a
+                   focals: Sequence[float | None] | None) -> float:
+    """How far the photos' perspective is from their matched views' (``perspective`` "auto").
+
+    The median over the kept photos with a known focal length of |log(a_photo / a_view)|, a
     being the angle the object's canonical crop spans: crop side over focal length, in the
     photo and in the matched view's render. inf when no kept photo has a known focal length."""
     m = library.index(result.model_id)
