@@ -157,6 +157,7 @@ def test_cli_reconstructs_into_the_output_folder(tmp_path: Path, tiny_library: A
     # The walk write_job rendered is counter-clockwise (increasing azimuth), as told.
     resolved = json.loads((out / "config.json").read_text())
     assert resolved["retrieval"]["walk"] == "ccw"
+    assert resolved["image_size"] == 32  # the tiny config's --set options reached the job
     assert resolved["retrieval"]["shared_focal"] is False
     assert resolved["retrieval"]["perspective"] == "near"
     assert resolved["retrieval"]["focal_35mm"] == 30.0
