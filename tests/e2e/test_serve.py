@@ -107,6 +107,10 @@ def test_serve_runs_everything_and_restarts_a_dead_worker(tmp_path: Path,
     time.sleep(1)
     text = (tmp_path / "serve.log").read_text()
     assert not _alive(new_pid), text[-3000:]
+    # Quiet by default (`--verbose` shows them): no access log of the /readyz polls above, no
+    # Celery banner, no superuser warning.
+    assert "GET /readyz" not in text and "[queues]" not in text and "superuser" not in text, \
+        text[-3000:]
     with pytest.raises(redis.ConnectionError):  # the embedded server is gone too
         redis.Redis.from_url(_embedded_redis_url(tmp_path / "serve.log"),
                              socket_connect_timeout=1).ping()
