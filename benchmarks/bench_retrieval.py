@@ -4,8 +4,8 @@
   128 px (elevations 0-60, random start azimuth, both walking directions) rendered with
   ``dataset.render_dataset``; retrieval from their masks against the full library; median
   rotation error of the kept photos' retrieved poses after similarity alignment
-  (``cameras.pose_errors``) for our DP, the paper's Algorithm 1, the DP as it was before its
-  spread prior, walk-based model choice and texture cue, and three ablations (model by votes,
+  (``cameras.pose_errors``) for our DP, the paper's Algorithm 1, the bare DP (without its
+  spread prior, walk-based model choice and texture cue), and three ablations (model by votes,
   no spread prior, no texture cue); per set and per mesh. The same walks rendered at a phone's
   65 degrees, retrieved from each silhouette set and from the one chosen by the focal length.
 - Speed: the DP and Algorithm 1 on a 10 photos x 100 views table; a whole retrieval of 9 photo

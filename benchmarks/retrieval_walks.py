@@ -20,13 +20,12 @@ SIZE = 128
 SEED = 0
 
 
-# Variants retrieved on every synthetic walk: ours (defaults), the paper's Algorithm 1, the DP
-# as it was before the spread prior and the walk-based model choice ("DP, old"), and two
-# ablations of ours.
+# Variants retrieved on every synthetic walk: ours (defaults), the paper's Algorithm 1, the bare
+# DP (no spread prior, model by votes, no texture cue: "DP, bare"), and ablations of ours.
 VARIANTS: dict[str, tuple[str, dict[str, Any]]] = {
     "dp": ("**DP (ours)**", {}),
     "paper": ("Algorithm 1", {"solver": "paper"}),
-    "old": ("DP, old", {"model_choice": "votes", "spread_weight": 0.0, "appearance_weight": 0.0,
+    "old": ("DP, bare", {"model_choice": "votes", "spread_weight": 0.0, "appearance_weight": 0.0,
                         "direction_margin": 0.005, "ambiguous_walk": "best"}),
     "votes": ("DP, model by votes", {"model_choice": "votes"}),
     "nospread": ("DP, no spread prior", {"spread_weight": 0.0}),

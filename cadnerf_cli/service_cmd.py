@@ -143,8 +143,8 @@ def _when_ready(url: str, demo_preset: str | None) -> None:
             return False
 
     if not wait_until(ready, timeout_s=600):
-        log.error("the service did not become ready in 10 minutes%s",
-                  "; no demo" if demo_preset else "")
+        if demo_preset is not None:
+            log.error("the service did not become ready in 10 minutes; no demo")
         return
     typer.echo(f"ready: web page {url}/ , API {url}/v1/jobs (docs at {url}/docs)")
     if demo_preset is None:
