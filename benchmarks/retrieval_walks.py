@@ -25,7 +25,7 @@ SEED = 0
 VARIANTS: dict[str, tuple[str, dict[str, Any]]] = {
     "dp": ("**DP (ours)**", {}),
     "paper": ("Algorithm 1", {"solver": "paper"}),
-    "old": ("DP, bare", {"model_choice": "votes", "spread_weight": 0.0, "appearance_weight": 0.0,
+    "bare": ("DP, bare", {"model_choice": "votes", "spread_weight": 0.0, "appearance_weight": 0.0,
                         "direction_margin": 0.005, "ambiguous_walk": "best"}),
     "votes": ("DP, model by votes", {"model_choice": "votes"}),
     "nospread": ("DP, no spread prior", {"spread_weight": 0.0}),
