@@ -8,6 +8,10 @@ CADNERF := $(VENV)/bin/cadnerf
 STAMP := .make
 LIBRARY_DIR ?= library_data/build
 QUICK ?=
+VERBOSE ?=
+# pip stays quiet: no warning about running as root (containers do), no notice of a newer pip.
+export PIP_ROOT_USER_ACTION := ignore
+export PIP_DISABLE_PIP_VERSION_CHECK := 1
 
 .PHONY: setup library run test lint typecheck pytest bench clean
 
@@ -16,18 +20,20 @@ setup: $(STAMP)/venv
 # torch goes in first, from the local CPU wheel: anything that depends on torch installed before
 # it would pull a multi-gigabyte CUDA build from the registry.
 $(STAMP)/venv: pyproject.toml
+	@echo "setting up $(VENV): PyTorch (CPU) and the project (minutes, the first time only)"
 	@mkdir -p $(STAMP)
 	@test -x $(PY) || python3 -m venv $(VENV)
-	$(PY) -m pip install -q --upgrade pip setuptools wheel
-	$(PY) -m pip install -q torch==2.13.0
-	$(PY) -m pip install -q -e '.[dev]'
+	@$(PY) -m pip install -q --upgrade pip setuptools wheel
+	@$(PY) -m pip install -q torch==2.13.0
+	@$(PY) -m pip install -q -e '.[dev]'
 	@touch $@
 
 library: setup
-	$(CADNERF) library build --out $(LIBRARY_DIR) --if-stale
+	@$(CADNERF) library build --out $(LIBRARY_DIR) --if-stale
 
+# VERBOSE=1 adds the access log, the worker's banner and its log to the demo's progress.
 run: setup library
-	$(CADNERF) serve --demo
+	@$(CADNERF) serve --demo $(if $(VERBOSE),--verbose,)
 
 lint: setup
 	$(VENV)/bin/ruff check .

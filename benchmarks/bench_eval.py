@@ -48,7 +48,7 @@ Z_UP = frozenset({"YcbMustardBottle", "YcbPowerDrill", "ycb_mug", "fuze", "os_pl
 QUICK_MESHES = ("armchair", "CesiumMilkTruck", "ycb_mug")
 
 # "ours" is the paper's full method, G included, whatever the preset's default (`preview`
-# runs without G since session 9); each ablation removes one part of it.
+# runs without G); each ablation removes one part of it.
 VARIANTS: dict[str, dict[str, Any]] = {
     "ours": {"use_deformation": True},
     "baseline": {"use_cad_init": False, "use_deformation": False, "optimise_poses": True},
@@ -58,7 +58,7 @@ VARIANTS: dict[str, dict[str, Any]] = {
     # (D learns in phase three), the paper's pipeline without its deformation.
     "no_deformation": {"use_deformation": False, "phase2.train_density": False},
     # G left out but D fitted to the silhouettes in phase two in its place: `preview`'s own
-    # setting (before session 12 this was the "w/o deformation" row).
+    # setting.
     "no_g": {"use_deformation": False},
 }
 ABLATIONS = ("ours", "no_cad_init", "no_pose_opt", "no_deformation", "no_g")

@@ -6,7 +6,7 @@ default preset, 256-pixel photos and the GPU: the full method and the preset's o
 of G. It answers "about a minute on a GPU" with a measured job time and test PSNR.
 
 Where CUDA is present it runs, writes its section into ``docs/bench_training_gpu.md`` between
-the ``LATEST`` markers (the rest of that file, earlier measurements, stays) and returns the
+the ``LATEST`` markers (the rest of that file stays) and returns the
 section. Where it is not (our 2-core machines, CI), it runs nothing and returns the last
 recorded section, saying that it was not measured in this run.
 
@@ -63,7 +63,7 @@ def run(quick: bool = True) -> str:
             return f"{heading}\n\nNot measured: no CUDA device here and no recorded run.\n"
         return (f"{heading}\n\nNot measured in this run: no CUDA device here. The last "
                 f"measurement on a GPU, recorded in `{RECORD.relative_to(ROOT)}` (which also "
-                f"holds the earlier ones):\n\n{_demote(recorded)}\n")
+                f"holds the runs that chose its schedule):\n\n{_demote(recorded)}\n")
     from benchmarks import bench_training
 
     section = bench_training.run(True, only=RUNS, preset=PRESET, device="cuda", size=SIZE)

@@ -1,19 +1,20 @@
 """Training benchmark: whole jobs on synthetic datasets, test-view PSNR, poses, ablations.
 
-Each run is executed and scored by ``evaluation.evaluate.evaluate_dataset``, the protocol of
-the evaluation benchmark (``benchmarks.bench_eval``), so both score held-out views the same
-way. For each mesh in ``../shared/eval/meshes``: ``render_dataset`` (128 px, 6 training views in
-walking order, 12 held-out test views, white background, seed 0); the 6 training views become
-the photos of a job run by ``run_job`` (retrieval from the built library, three phases, orbit,
-mesh) with preset ``preview``; the held-out ground-truth cameras are mapped into the NeRF frame
-by the centred similarity (rotation and scale about the object's centre, which both frames
-share, fitted on the training cameras' centres) and that mapping refined on the training photos
+The runs, meshes and tables live in ``benchmarks.training_plan``, the scores in
+``benchmarks.training_scoring``. Each run is executed and scored by
+``evaluation.evaluate.evaluate_dataset``, the protocol of the evaluation benchmark
+(``benchmarks.bench_eval``), so both score held-out views the same way. For each mesh in
+``../shared/eval/meshes``: ``render_dataset`` (128 px, 6 training views in walking order, 12
+held-out test views, white background, seed 0); the 6 training views become the photos of a job
+run by ``run_job`` (retrieval from the built library, three phases, orbit, mesh) with preset
+``preview``; the held-out ground-truth cameras are mapped into the NeRF frame by the centred
+similarity (rotation and scale about the object's centre, which both frames share, fitted on the
+training cameras' centres) and that mapping refined on the training photos
 (``evaluation.fit_frame``: one rotation, translation and scale for all cameras, fitted so the
 NeRF reproduces the training photos from the mapped true training cameras), rendered at the
 NeRF's estimated focal length and scored. On top of that report this benchmark adds:
 
-- the test PSNR with the centres' mapping alone (the protocol before session 11);
-
+- the test PSNR with the centres' mapping alone (no photometric refinement);
 - whole-job wall time;
 - rotation error (median degrees, after similarity alignment of camera centres) of the
   retrieved and of the refined poses against the ground truth (the report's pose metrics);
@@ -53,200 +54,41 @@ from __future__ import annotations
 
 import argparse
 import contextlib
-import dataclasses
 import json
 import logging
-import math
 import tempfile
-from collections.abc import Iterator
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from benchmarks.bench_eval import Z_UP
+from benchmarks.training_plan import (
+    ABLATIONS,
+    DEVICE,
+    FOV_DEG,
+    IMAGE_SIZE,
+    LIBRARY,
+    LIGHT_EXPORT,
+    ORACLE,
+    ORACLE_OVERRIDES,
+    ORBIT_FRAME,
+    PRESET,
+    SEED,
+    TEST_VIEWS,
+    TRAIN_VIEWS,
+    TTA_STEPS,
+    mesh_files,
+    results_table,
+    run_plan,
+    summaries,
+)
+from benchmarks.training_scoring import score_report, true_cameras
 
 if TYPE_CHECKING:
-    from cadnerf_core.evaluation.evaluate import EvalReport
     from cadnerf_core.library.format import Library
 
-ROOT = Path(__file__).resolve().parents[1]
-EVAL = ROOT / ".." / "shared" / "eval" / "meshes"
-LIBRARY = ROOT / "library_data" / "build"
-ORBIT_FRAME = ROOT / "docs" / "orbit_frame.png"
-QUICK_MESHES = ("Duck", "CesiumMilkTruck")
-# The paper's full method and its Table 5 ablations, whatever the preset's own default. "no
-# deformation": nothing deforms the density in phase two, whose poses are refined against the
-# CAD shape (D learns in phase three), the paper's pipeline without its deformation. "no G":
-# G left out but D fitted to the silhouettes in its place, the preset's own default since
-# session 9 (until session 12 that was the "no deformation" row).
-ABLATIONS: dict[str, dict[str, Any]] = {
-    "full": {"use_deformation": True},
-    "no CAD init": {"use_cad_init": False, "use_deformation": True},
-    "no pose optimisation": {"optimise_poses": False, "use_deformation": True},
-    "no deformation": {"use_deformation": False, "phase2.train_density": False},
-    "no G (D fitted in phase two)": {"use_deformation": False},
-}
-ORACLE = "true cameras"
-ORACLE_OVERRIDES: dict[str, Any] = {"optimise_poses": False, "use_deformation": True}
-# Ablation runs skip what does not change their score: a 2-frame orbit, a coarse mesh.
-LIGHT_EXPORT = {"export.orbit_frames": 2, "export.mesh_resolution": 16, "export.novel_views": 0}
-TTA_STEPS = 100  # test-time pose refinement steps per test view (BARF: optim.test_iter)
-IMAGE_SIZE = 128  # dataset side in pixels
-TRAIN_VIEWS = 6
-TEST_VIEWS = 12
-SEED = 0
-PRESET = "preview"
-DEVICE = "cpu"
-FOV_DEG = 40.0  # the photos' horizontal field of view: the library's own
-
 log = logging.getLogger(__name__)
-
-
-def mesh_files(quick: bool, names: list[str] | None = None) -> list[Path]:
-    """One mesh file per folder of the evaluation set (``QUICK_MESHES`` with ``quick``, or the
-    folders ``names``)."""
-    out = []
-    wanted = names or (list(QUICK_MESHES) if quick else None)
-    for folder in sorted(EVAL.iterdir()) if EVAL.is_dir() else []:
-        if wanted is not None and folder.name not in wanted:
-            continue
-        files = sorted(p for p in folder.iterdir()
-                       if p.suffix.lower() in {".obj", ".glb", ".ply", ".off", ".stl"})
-        if files:
-            out.append(files[0])
-    return out
-
-
-@contextlib.contextmanager
-def true_cameras(dataset_dir: Path) -> Iterator[None]:
-    """Inside this context every job's retrieval is followed by an oracle step: each kept
-    photo's camera becomes the dataset's ground truth, the pose mapped into the retrieved
-    (CAD model's) frame by the centred similarity fitted between the true and the retrieved
-    camera centres, the intrinsics the true ones cropped by the photo's canonical box. The
-    retrieved model and its occupancy (phase one) stay; ``retrieval.json`` is rewritten, so
-    the evaluation reads the true cameras back as the job's."""
-    import cadnerf_core.pipeline as pipeline
-    from cadnerf_core.evaluation.dataset import load_dataset
-    from cadnerf_core.evaluation.evaluate import centre_similarity
-    from cadnerf_core.export.artifacts import write_json
-    from cadnerf_core.intake.crop import crop_intrinsics
-
-    truth = load_dataset(dataset_dir)
-    original = pipeline.run_intake
-
-    def oracle_intake(job_dir: Path, *args: Any, **kwargs: Any) -> Any:
-        intake = original(job_dir, *args, **kwargs)
-        kept = intake.retrieval.kept
-        index = [m.index for m in kept]
-        to_cad = centre_similarity(truth.c2w[index], np.stack([m.c2w for m in kept]),
-                                   fix_origin=True)
-        poses = dict(zip(index, to_cad.apply_to_poses(truth.c2w[index]), strict=True))
-        intake.retrieval.matches = [
-            m if m.discarded else dataclasses.replace(
-                m, c2w=poses[m.index], K_photo=truth.K[m.index].copy(),
-                K_canon=crop_intrinsics(truth.K[m.index], m.box))
-            for m in intake.retrieval.matches]
-        write_json(Path(job_dir) / "retrieval.json", intake.retrieval.to_json())
-        return intake
-
-    pipeline.run_intake = oracle_intake
-    try:
-        yield
-    finally:
-        pipeline.run_intake = original
-
-
-def refine_test_pose(model: Any, c2w: np.ndarray, K: np.ndarray, image: np.ndarray,
-                     steps: int) -> np.ndarray:
-    """BARF-style test-time pose refinement: the NeRF frozen, one camera's SE(3) optimised."""
-    import torch
-
-    from cadnerf_core.nerf.poses import PoseCorrection
-    from cadnerf_core.nerf.rays import pixel_rays
-    from cadnerf_core.nerf.volrend import render_rays
-
-    st = model.state
-    dev = st.device
-    pose = PoseCorrection(torch.as_tensor(c2w, dtype=torch.float32, device=dev)[None])
-    optimizer = torch.optim.Adam(pose.parameters(), lr=2e-3)
-    target = torch.as_tensor(image, dtype=torch.float32, device=dev)
-    Kt = torch.as_tensor(K, dtype=torch.float32, device=dev)
-    height, width = image.shape[:2]
-    rcfg = st.config.render
-    st.fields.requires_grad_(False)
-    gen = torch.Generator().manual_seed(0)
-    for _ in range(steps):
-        flat = torch.randint(0, height * width, (1024,), generator=gen).to(dev)
-        x, y = flat % width, flat // width
-        idx = torch.zeros_like(flat)
-        rays_o, rays_d = pixel_rays(pose(idx), Kt.expand(len(flat), 3, 3), x, y)
-        out = render_rays(lambda p, d: st.fields.query(p, d), rays_o, rays_d,
-                          rcfg.samples_per_ray, rcfg.bound, st.grid, True, True)
-        assert out.rgb is not None
-        loss = torch.nn.functional.mse_loss(out.rgb, target[y, x])
-        optimizer.zero_grad()
-        loss.backward()
-        optimizer.step()
-    st.fields.requires_grad_(True)
-    with torch.no_grad():
-        return pose().double().cpu().numpy()[0]
-
-
-def refined_test_psnr(report: EvalReport, steps: int, align: str | None = None,
-                      device: str = DEVICE) -> float:
-    """Mean held-out PSNR after ``refine_test_pose``, started from the cameras and intrinsics
-    ``evaluate_dataset`` rendered the report's test PSNR with (same mapping, same focal
-    length, same size and background), so only the refinement differs. ``align``: the
-    mapping (``evaluation.frame_mapping``), when not the report's; ``steps`` 0: no
-    refinement; ``device``: where the model is loaded (the job's own)."""
-    from cadnerf_core.evaluation.dataset import load_dataset
-    from cadnerf_core.evaluation.evaluate import (
-        eval_intrinsics,
-        first_views,
-        frame_mapping,
-        read_job_cameras,
-        resize_view,
-    )
-    from cadnerf_core.evaluation.metrics import image_metrics
-    from cadnerf_core.nerf.model import TrainedModel
-
-    job = Path(report.job_dir)
-    model = TrainedModel.load(job, device)
-    data = first_views(load_dataset(report.dataset), report.n_views)
-    assert data.test is not None
-    cams = read_job_cameras(job, model)
-    to_nerf = frame_mapping(model, data, cams, align or report.align, report.intrinsics)
-    K = eval_intrinsics(data.test.K[0], cams, report.intrinsics)
-    if not math.isclose(float(K[0, 0]), report.focal_used, rel_tol=1e-9):
-        raise RuntimeError(f"focal {K[0, 0]} differs from the evaluation's {report.focal_used}")
-    scores = []
-    for c2w, image in zip(to_nerf.apply_to_poses(data.test.c2w), data.test.images,
-                          strict=True):
-        gt, K_eval = resize_view(image, K, report.eval_size)
-        height, width = gt.shape[:2]
-        better = refine_test_pose(model, c2w, K_eval, gt, steps) if steps else c2w
-        rgb, _ = model.render_image(better, K_eval, width, height, background=1.0)
-        scores.append(image_metrics(rgb, gt).psnr)
-    return float(np.mean(scores))
-
-
-def score_report(report: EvalReport, tta: bool, device: str = DEVICE) -> dict[str, Any]:
-    """The table's numbers for one evaluated job (its model loaded on ``device``)."""
-    metrics = json.loads((Path(report.job_dir) / "metrics.json").read_text())
-    return {"psnr": report.image.psnr,
-            # The same cameras mapped by the camera centres alone (the protocol before
-            # session 11): six noisy centres on a ring fix the frame only roughly.
-            "psnr_centred": refined_test_psnr(report, 0, "centred", device),
-            "psnr_tta": (refined_test_psnr(report, TTA_STEPS, device=device) if tta
-                         else float("nan")),
-            "rot_before": float(np.median(report.pose_retrieved.rotation_deg_per_view)),
-            "rot_after": float(np.median(report.pose_refined.rotation_deg_per_view)),
-            "kept": len(report.kept), "model_id": report.model_id,
-            "train_psnr": metrics["mean_psnr"],
-            # evaluate_dataset's wall time less the held-out renders: the whole job (writing
-            # its photos, retrieval, training, exports), loading its model and the frame fit.
-            "seconds": report.seconds - report.render_seconds}
 
 
 def run_one(mesh: Path, work: Path, library: Library, name: str, overrides: dict[str, Any],
@@ -273,68 +115,6 @@ def run_one(mesh: Path, work: Path, library: Library, name: str, overrides: dict
                                   intrinsics="estimated", align="photometric",
                                   exif_focal=exif_focal)
     return score_report(report, tta, device)
-
-
-def run_plan(meshes: list[Path], every_run_everywhere: bool,
-             only: list[str] | None = None) -> list[tuple[Path, list[str]]]:
-    """Which runs each mesh gets: every selected run (``only``, or all of ``ABLATIONS`` and
-    the oracle) on every mesh with ``every_run_everywhere`` (``--quick`` or ``--meshes``);
-    otherwise (the whole evaluation set, ``make bench``) the ablations and the oracle only on
-    ``QUICK_MESHES`` and the full method on every mesh, which keeps the run near two hours on
-    2 cores instead of five."""
-    selected = [name for name in (*ABLATIONS, ORACLE) if only is None or name in only]
-    plan = []
-    for mesh in meshes:
-        if every_run_everywhere or mesh.parent.name in QUICK_MESHES:
-            plan.append((mesh, selected))
-        elif "full" in selected:
-            plan.append((mesh, ["full"]))
-    return plan
-
-
-def _table(rows: list[tuple[str, str, dict[str, Any]]]) -> list[str]:
-    lines = ["| mesh | run | seed | retrieved | kept | job s | train PSNR | test PSNR | "
-             "(centres mapping) | + test-time pose | rot err retrieval (median deg) | "
-             "rot err refined |",
-             "|---|---|---|---|---|---|---|---|---|---|---|---|"]
-    for mesh, name, r in rows:
-        lines.append(f"| {mesh} | {name} | {r['seed']} | {r['model_id']} | {r['kept']} | "
-                     f"{r['seconds']:.0f} | "
-                     f"{r['train_psnr']:.2f} | {r['psnr']:.2f} | {r['psnr_centred']:.2f} | "
-                     f"{r['psnr_tta']:.2f} | "
-                     f"{r['rot_before']:.1f} | {r['rot_after']:.1f} |")
-    return lines
-
-
-def _summary(rows: list[tuple[str, str, dict[str, Any]]]) -> list[str]:
-    """Means over meshes and seeds; the per-seed means show how far a seed moves them."""
-    lines = ["", "| run | mean test PSNR | per seed | (centres mapping) | (+ test-time pose) | "
-             "mean rot err refined | mean job s |", "|---|---|---|---|---|---|---|"]
-    for name in (*ABLATIONS, ORACLE):
-        rs = [r for _, n, r in rows if n == name]
-        if rs:
-            seeds = sorted({r["seed"] for r in rs})
-            per_seed = " / ".join(f"{np.mean([r['psnr'] for r in rs if r['seed'] == s]):.2f}"
-                                  for s in seeds)
-            lines.append(f"| {name} | {np.mean([r['psnr'] for r in rs]):.2f} | {per_seed} | "
-                         f"{np.mean([r['psnr_centred'] for r in rs]):.2f} | "
-                         f"{np.mean([r['psnr_tta'] for r in rs]):.2f} | "
-                         f"{np.mean([r['rot_after'] for r in rs]):.1f} | "
-                         f"{np.mean([r['seconds'] for r in rs]):.0f} |")
-    return lines
-
-
-def _summaries(rows: list[tuple[str, str, dict[str, Any]]],
-               every_run_everywhere: bool) -> list[str]:
-    """``_summary`` of all rows, or (the whole evaluation set, see ``run_plan``) one over
-    ``QUICK_MESHES``, where every run was made, and one of the full method over every mesh."""
-    if every_run_everywhere:
-        return _summary(rows)
-    table5 = [row for row in rows if row[0] in QUICK_MESHES]
-    full = [row for row in rows if row[1] == "full"]
-    return ["", f"Means over {' and '.join(QUICK_MESHES)}, where every run was made:",
-            *_summary(table5), "",
-            f"The full method over every mesh ({len(full)}):", *_summary(full)]
 
 
 def save_orbit_frame(job: Path) -> None:
@@ -434,7 +214,7 @@ def run(quick: bool, threads: int | None = None, names: list[str] | None = None,
              "translation and scale shared by all cameras, `evaluation.fit_frame`; no held-out "
              "image is used), rendered at the NeRF's estimated focal length and scored "
              "(mean PSNR over views). Centres mapping: the same without the photometric "
-             "refinement (the protocol before session 11). + test-time pose: the same cameras "
+             "refinement. + test-time pose: the same cameras "
              "and intrinsics, then "
              f"{TTA_STEPS} steps of per-view pose refinement with the NeRF frozen (BARF's "
              f"protocol). Training seeds: {seed_text} (same datasets). Rotation errors "
@@ -446,7 +226,7 @@ def run(quick: bool, threads: int | None = None, names: list[str] | None = None,
              "retrieved camera replaced by the ground truth (pose mapped into the CAD model's "
              "frame, true intrinsics), poses fixed; its retrieval column reads 0 since the "
              "true cameras are written back as the job's.", "",
-             *_table(rows), *_summaries(rows, quick or names is not None), "",
+             *results_table(rows), *summaries(rows, quick or names is not None), "",
              orbit_note, ""]
     return "\n".join(lines)
 

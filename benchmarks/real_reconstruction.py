@@ -21,7 +21,7 @@ from pathlib import Path
 
 import numpy as np
 
-from benchmarks.bench_retrieval import real_set_photos
+from benchmarks.retrieval_real import real_set_photos
 
 ROOT = Path(__file__).resolve().parents[1]
 LIBRARY = ROOT / "library_data" / "build"

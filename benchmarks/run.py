@@ -27,8 +27,8 @@ log = logging.getLogger("benchmarks")
 
 AREAS = ("renderer", "library", "retrieval", "training", "service", "eval")
 # The preview-preset training benchmark (whole jobs at 128 px: the ablations on the two Table 5
-# meshes, about 65 min on 2 cores, and the full method on the other 11, about 45 min; session 15)
-# takes about 2 hours; QUICK covers training through the evaluation tables' shorter schedule.
+# meshes, about 65 min on 2 cores, and the full method on the other 11, about 45 min) takes
+# about 2 hours; QUICK covers training through the evaluation tables' shorter schedule.
 FULL_ONLY = {"training": "the preview-preset training benchmark (ablations on two meshes, the "
                          "full method on every mesh) takes about 2 hours on 2 cores; run "
                          "`make bench` (without QUICK) for it"}

@@ -8,6 +8,8 @@ import signal
 import sys
 import tempfile
 import threading
+import time
+import warnings
 from pathlib import Path
 from types import FrameType
 from typing import TYPE_CHECKING, Any
@@ -35,7 +37,10 @@ def _settings_or_exit() -> Settings:
 def serve(host: str = typer.Option("127.0.0.1", help="Address to listen on."),
           port: int = typer.Option(8000, help="Port to listen on."),
           demo: bool = typer.Option(False, "--demo", help="Run the demo once the API is up."),
-          demo_preset: str = typer.Option("preview", help="Preset of the demo job.")) -> None:
+          demo_preset: str = typer.Option("preview", help="Preset of the demo job."),
+          verbose: bool = typer.Option(False, "--verbose", "-v",
+                                       help="Show access logs, the worker's banner and logs.")
+          ) -> None:
     """Run the API; without CADNERF_REDIS_URL also an embedded Redis and one worker.
 
     SIGTERM or SIGINT (docker stop, systemd, Ctrl-C) stops the API, then the worker, then the
@@ -45,25 +50,42 @@ def serve(host: str = typer.Option("127.0.0.1", help="Address to listen on."),
 
     from app.main import create_app
 
+    verbose = verbose or logging.getLogger().level <= logging.DEBUG  # `cadnerf -v serve`
+    if not verbose:  # the service's address, the demo and warnings only
+        _quiet_logging()
     settings = _settings_or_exit()
     _exit_on_signals()
     embedded: EmbeddedRedis | None = None
     supervisor: Supervisor | None = None
+    client_host = "127.0.0.1" if host in ("0.0.0.0", "::") else host
+    url = f"http://{client_host}:{port}"
     try:
         if not settings.redis_url:
-            settings, embedded, supervisor = _start_backends(settings)
-        if demo:
-            client_host = "127.0.0.1" if host in ("0.0.0.0", "::") else host
-            threading.Thread(target=_demo_when_ready, args=(f"http://{client_host}:{port}",
-                                                            demo_preset), daemon=True).start()
+            settings, embedded, supervisor = _start_backends(settings, verbose)
+        typer.echo(f"starting the service on {url} (Ctrl-C stops it)")
+        if embedded is not None:
+            typer.echo(f"embedded Redis on {embedded.url} and one worker; "
+                       f"jobs in {settings.data_root}")
+        threading.Thread(target=_when_ready, args=(url, demo_preset if demo else None),
+                         daemon=True).start()
         # uvicorn handles the signals while it runs, then re-raises them: our handler turns
         # that into SystemExit, which runs the clean-up below. limit_concurrency is the last
         # resort on open connections; upload time limits and the upload cap live in the app
         # (app.multipart), since uvicorn has no request-body timeout.
-        uvicorn.run(create_app(settings), host=host, port=port, log_level="info",
+        uvicorn.run(create_app(settings), host=host, port=port,
+                    log_level="info" if verbose else "warning", access_log=verbose,
                     limit_concurrency=settings.max_connections or None)
     finally:
         _stop_backends(supervisor, embedded)
+
+
+def _quiet_logging() -> None:
+    """Warnings and errors only on the console; a job's own log file (at INFO) is unchanged,
+    which is why the console handlers are filtered rather than the loggers."""
+    root = logging.getLogger()
+    root.setLevel(logging.WARNING)
+    for handler in root.handlers:
+        handler.setLevel(logging.WARNING)
 
 
 def _exit_on_signals() -> None:
@@ -78,15 +100,18 @@ def _exit_on_signals() -> None:
         signal.signal(sig, _handler)
 
 
-def _start_backends(settings: Settings) -> tuple[Settings, EmbeddedRedis, Supervisor]:
-    """Start the embedded Redis and a supervised worker; returns the settings that use them."""
+def _start_backends(settings: Settings,
+                    verbose: bool) -> tuple[Settings, EmbeddedRedis, Supervisor]:
+    """Start the embedded Redis and a supervised worker (``--quiet`` unless ``verbose``);
+    returns the settings that use them."""
     from app.embedded import EmbeddedRedis, Supervisor
     from app.settings import load_settings
 
     embedded = EmbeddedRedis(settings.data_root.resolve().parent / "redis" / "cadnerf.rdb")
     try:
         os.environ["CADNERF_REDIS_URL"] = embedded.start()  # inherited by the worker
-        supervisor = Supervisor([sys.executable, "-m", "cadnerf_cli.main", "worker"],
+        command = [sys.executable, "-m", "cadnerf_cli.main", "worker"]
+        supervisor = Supervisor(command if verbose else [*command, "--quiet"],
                                 env=dict(os.environ))
         supervisor.start()
     except BaseException:
@@ -105,7 +130,8 @@ def _stop_backends(supervisor: Supervisor | None, embedded: EmbeddedRedis | None
             embedded.stop()
 
 
-def _demo_when_ready(url: str, preset: str) -> None:
+def _when_ready(url: str, demo_preset: str | None) -> None:
+    """Say where the service is once it is ready; then run the demo with ``demo_preset``."""
     import httpx
 
     from app.embedded import wait_until
@@ -117,16 +143,27 @@ def _demo_when_ready(url: str, preset: str) -> None:
             return False
 
     if not wait_until(ready, timeout_s=600):
-        log.error("the service did not become ready in 10 minutes; no demo")
+        if demo_preset is not None:
+            log.error("the service did not become ready in 10 minutes; no demo")
+        return
+    typer.echo(f"ready: web page {url}/ , API {url}/v1/jobs (docs at {url}/docs)")
+    if demo_preset is None:
         return
     try:
-        run_demo(url, preset=preset)
+        run_demo(url, preset=demo_preset)
+    except httpx.HTTPError as exc:  # the service stopped under the demo (Ctrl-C)
+        log.warning("the demo stopped: %s", exc)
     except Exception:  # the demo failing must not stop the server
         log.exception("the demo failed")
 
 
-def worker(loglevel: str = typer.Option("INFO", help="Celery log level.")) -> None:
+def worker(loglevel: str = typer.Option("INFO", help="Celery log level."),
+           quiet: bool = typer.Option(False, "--quiet", help="No banner, no superuser "
+                                      "warning, warnings and errors only (as under serve).")
+           ) -> None:
     """Run one Celery worker (solo pool, concurrency 1, queue `cadnerf`)."""
+    from celery.exceptions import SecurityWarning
+
     from app.queue import QUEUE
     from worker.celery_app import create_celery
 
@@ -136,9 +173,13 @@ def worker(loglevel: str = typer.Option("INFO", help="Celery log level.")) -> No
                    err=True)
         raise typer.Exit(2)
     celery = create_celery(settings)
-    celery.worker_main(["worker", "--pool", "solo", "--concurrency", "1", "--queues", QUEUE,
-                        "--loglevel", loglevel, "--hostname", f"cadnerf-{os.getpid()}@%h",
-                        "--without-gossip", "--without-mingle"])
+    options = ["worker", "--pool", "solo", "--concurrency", "1", "--queues", QUEUE,
+               "--loglevel", "WARNING" if quiet else loglevel,
+               "--hostname", f"cadnerf-{os.getpid()}@%h", "--without-gossip", "--without-mingle"]
+    if quiet:  # running as root in a container is how this service is deployed
+        warnings.filterwarnings("ignore", category=SecurityWarning)
+        _quiet_logging()
+    celery.worker_main(["--quiet", *options] if quiet else options)
 
 
 def demo_mesh(path: Path) -> Path:
@@ -178,13 +219,14 @@ def run_demo(url: str, preset: str = "preview", views: int = 6, size: int = 160,
         job = client.submit(photos, config={"preset": preset})
         typer.echo(f"demo job {job['id']}: {len(photos)} photos, preset {preset}")
         typer.echo(f"watch it at {url}/?job={job['id']}")
-        final = client.follow(job["id"], on_update=_print_status, poll_s=1.0)
+        final = client.follow(job["id"], on_update=_StatusPrinter(), poll_s=1.0)
         if final["state"] != "succeeded":
             typer.echo(f"demo job {final['state']}: {final.get('error')}", err=True)
             return final
         for warning in client.result(job["id"]).get("warnings", []):
             typer.echo(f"warning: {warning}")
         orbit = client.download(job["id"], "orbit.mp4", out / "orbit.mp4")
+        typer.echo(f"result (model, poses, metrics): {url}/v1/jobs/{job['id']}/result")
         typer.echo(f"orbit video: {url}/v1/jobs/{job['id']}/artifacts/orbit.mp4")
         typer.echo(f"downloaded to {orbit}")
         return final
@@ -192,12 +234,26 @@ def run_demo(url: str, preset: str = "preview", views: int = 6, size: int = 160,
         client.close()
 
 
-def _print_status(status: dict[str, Any]) -> None:
-    eta = status.get("eta_s")
-    running = status["state"] == "running" and isinstance(eta, int | float)
-    eta_text = f", about {eta:.0f} s left" if running else ""
-    typer.echo(f"  {status['state']:9s} {status.get('stage') or '-':9s} "
-               f"{100 * float(status.get('progress') or 0):5.1f}%{eta_text}")
+class _StatusPrinter:
+    """Prints a job's state, stage, progress and ETA when the state or stage changes, the
+    progress moves by ``step`` or ``every_s`` seconds pass (not once per poll)."""
+
+    def __init__(self, step: float = 0.05, every_s: float = 15.0) -> None:
+        self.step, self.every_s = step, every_s
+        self._last: tuple[str, str, float, float] | None = None
+
+    def __call__(self, status: dict[str, Any]) -> None:
+        state, stage = status["state"], status.get("stage") or "-"
+        progress, now = float(status.get("progress") or 0), time.monotonic()
+        last = self._last
+        if last is not None and (state, stage) == last[:2] and progress < last[2] + self.step \
+                and now < last[3] + self.every_s:
+            return
+        self._last = (state, stage, progress, now)
+        eta = status.get("eta_s")
+        running = state == "running" and isinstance(eta, int | float)
+        eta_text = f", about {eta:.0f} s left" if running else ""
+        typer.echo(f"  {state:9s} {stage:9s} {100 * progress:5.1f}%{eta_text}")
 
 
 def demo(url: str = typer.Option("http://127.0.0.1:8000", help="The service's base URL."),

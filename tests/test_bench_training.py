@@ -7,7 +7,7 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any
 
-from benchmarks import bench_training as bt
+from benchmarks import training_plan as bt
 
 MESHES = [Path(f"/eval/{name}/{name}.glb") for name in ("CesiumMilkTruck", "Duck", "spot")]
 EVERY_RUN = [*bt.ABLATIONS, bt.ORACLE]
@@ -39,8 +39,8 @@ def _row(mesh: str, name: str, psnr: float) -> tuple[str, str, dict[str, Any]]:
 def test_whole_set_summary_keeps_the_table5_means_apart_from_every_mesh() -> None:
     rows = [_row("Duck", "full", 24.0), _row("CesiumMilkTruck", "full", 20.0),
             _row("Duck", "no deformation", 23.0), _row("spot", "full", 14.0)]
-    text = "\n".join(bt._summaries(rows, every_run_everywhere=False))
+    text = "\n".join(bt.summaries(rows, every_run_everywhere=False))
     table5, everywhere = text.split("The full method over every mesh (3):")
     assert "| full | 22.00 |" in table5 and "| no deformation | 23.00 |" in table5
     assert "| full | 19.33 |" in everywhere and "no deformation" not in everywhere
-    assert "| full | 19.33 |" in "\n".join(bt._summaries(rows, every_run_everywhere=True))
+    assert "| full | 19.33 |" in "\n".join(bt.summaries(rows, every_run_everywhere=True))

@@ -10,7 +10,6 @@ import pytest
 
 pytestmark = [pytest.mark.slow, pytest.mark.browser]
 
-ROOT = Path(__file__).resolve().parents[2]
 CHROMIUM = shutil.which("chromium") or ("/usr/bin/chromium" if Path("/usr/bin/chromium").exists()
                                          else None)
 LAUNCH_ARGS = ["--headless", "--no-sandbox", "--disable-gpu", "--disable-background-networking",
@@ -18,7 +17,8 @@ LAUNCH_ARGS = ["--headless", "--no-sandbox", "--disable-gpu", "--disable-backgro
 
 
 @pytest.mark.skipif(CHROMIUM is None, reason="chromium is not installed (apt-get install chromium)")
-def test_upload_progress_video_and_screenshot(live_service, photo_set: list[Path]) -> None:
+def test_upload_progress_video_and_screenshot(live_service, photo_set: list[Path],
+                                              tmp_path: Path) -> None:
     from playwright.sync_api import sync_playwright
 
     with sync_playwright() as playwright:
@@ -63,8 +63,10 @@ def test_upload_progress_video_and_screenshot(live_service, photo_set: list[Path
             assert job_config["retrieval"]["focal_35mm"] == 42.0
             assert page.locator("#warnings").is_hidden()
             page.wait_for_timeout(500)
-            (ROOT / "docs").mkdir(exist_ok=True)
-            page.screenshot(path=str(ROOT / "docs" / "web_page.png"), full_page=True)
+            # A test writes no tracked file: the screenshot goes to a temporary folder.
+            shot = tmp_path / "web_page.png"
+            page.screenshot(path=str(shot), full_page=True)
+            assert shot.stat().st_size > 0
         finally:
             browser.close()
 

@@ -44,15 +44,17 @@ def _alive(pid: int) -> bool:
     return stat.rsplit(")", 1)[1].split()[0] != "Z"
 
 
-def _start_serve(tmp_path: Path, library: Path) -> tuple[subprocess.Popen[bytes], str, IO[bytes]]:
+def _start_serve(tmp_path: Path, library: Path,
+                 *extra: str) -> tuple[subprocess.Popen[bytes], str, IO[bytes]]:
     """`cadnerf serve` without a Redis URL (embedded Redis, its own worker); its log is open."""
     port = free_port()
     env = {k: v for k, v in os.environ.items() if k != "CADNERF_REDIS_URL"}
     env.update(CADNERF_DATA_ROOT=str(tmp_path / "data" / "jobs"),
-               CADNERF_LIBRARY_DIR=str(library), CADNERF_DEVICE="cpu")
+               CADNERF_LIBRARY_DIR=str(library), CADNERF_DEVICE="cpu", TMPDIR=str(tmp_path))
     log = (tmp_path / "serve.log").open("wb")
     serve = subprocess.Popen([sys.executable, "-m", "cadnerf_cli.main", "serve", "--port",
-                              str(port)], cwd=ROOT, env=env, stdout=log, stderr=subprocess.STDOUT)
+                              str(port), *extra], cwd=ROOT, env=env, stdout=log,
+                             stderr=subprocess.STDOUT)
     return serve, f"http://127.0.0.1:{port}", log
 
 
@@ -107,7 +109,42 @@ def test_serve_runs_everything_and_restarts_a_dead_worker(tmp_path: Path,
     time.sleep(1)
     text = (tmp_path / "serve.log").read_text()
     assert not _alive(new_pid), text[-3000:]
+    # Quiet by default (`--verbose` shows them): no access log of the /readyz polls above, no
+    # Celery banner, no superuser warning.
+    assert "GET /readyz" not in text and "[queues]" not in text and "superuser" not in text, \
+        text[-3000:]
     with pytest.raises(redis.ConnectionError):  # the embedded server is gone too
         redis.Redis.from_url(_embedded_redis_url(tmp_path / "serve.log"),
                              socket_connect_timeout=1).ping()
     assert list((tmp_path / "data" / "redis").glob("*.rdb"))  # and saved its data
+
+
+PROGRESS_LINE = re.compile(r"^  (queued|running|succeeded|failed) ", re.M)
+
+
+def test_the_demo_shows_its_progress_within_30_lines(tmp_path: Path,
+                                                      tiny_library_dir: Path) -> None:
+    """`make run`'s command: the address, Redis and the demo job, then its first progress line,
+    with nothing scrolling over them (no access log, Celery banner or superuser warning)."""
+    serve, url, log = _start_serve(tmp_path, tiny_library_dir, "--demo")
+    try:
+        deadline = time.monotonic() + 180
+        text = ""
+        while time.monotonic() < deadline and not PROGRESS_LINE.search(text):
+            assert serve.poll() is None, text[-3000:]
+            time.sleep(0.5)
+            text = (tmp_path / "serve.log").read_text()
+        found = PROGRESS_LINE.search(text)
+        assert found is not None, text[-3000:]
+        head = text[:found.start()]
+        assert len(head.splitlines()) <= 30, head
+        assert f"starting the service on {url}" in head and f"watch it at {url}/?job=" in head
+    finally:
+        serve.send_signal(signal.SIGTERM)
+        try:
+            serve.wait(60)
+        except subprocess.TimeoutExpired:
+            serve.kill()
+            raise
+        finally:
+            log.close()

@@ -1,0 +1,104 @@
+"""docs/architecture.md against the code: the library's numbers, the progress stages, the stage
+subpackages and every API name the document lists. Either side drifting fails here."""
+
+from __future__ import annotations
+
+import ast
+import importlib
+import re
+from pathlib import Path
+
+import pytest
+
+from cadnerf_core.intake.crop import DEFAULT_MARGIN
+from cadnerf_core.library.format import LibrarySpec
+
+ROOT = Path(__file__).resolve().parents[1]
+DOC = (ROOT / "docs" / "architecture.md").read_text()
+CORE = ROOT / "cadnerf_core"
+
+
+def _number(pattern: str, group: int = 1) -> float:
+    found = re.search(pattern, " ".join(DOC.split()))
+    assert found is not None, f"docs/architecture.md no longer says {pattern!r}"
+    return float(found.group(group))
+
+
+def test_the_library_numbers_are_the_code_defaults() -> None:
+    spec = LibrarySpec()
+    steps = {b - a for a, b in zip(spec.elevations, spec.elevations[1:], strict=False)}
+    assert _number(r"(\d+) azimuths x \d+ elevations") == spec.n_azimuths
+    assert _number(r"\d+ azimuths x (\d+) elevations") == len(spec.elevations)
+    assert _number(r"elevations \(0 to (\d+) degrees") == max(spec.elevations)
+    assert min(spec.elevations) == 0 and steps == {_number(r"([\d.]+)-degree steps\)")}
+    assert _number(r"= (\d+) views a model") == spec.n_views
+    assert _number(r"camera distance ([\d.]+)") == spec.distance
+    assert _number(r"view `a \* (\d+) \+ e`") == len(spec.elevations)
+    assert _number(r"renders (\d+) px") == spec.render_size
+    assert _number(r"at a (\d+)-degree horizontal field of view") == spec.fov_deg
+    assert _number(r"silhouettes (\d+) px") == spec.silhouette_size
+    assert _number(r"with margin ([\d.]+)") == spec.margin == DEFAULT_MARGIN
+    assert _number(r"occupancy grids (\d+) cells") == spec.grid_size
+    assert _number(r"Near set: distance ([\d.]+)") == spec.near_distance
+    assert _number(r"Near set: distance [\d.]+ at (\d+) degrees") == spec.near_fov_deg
+
+
+def _reported_stages() -> set[str]:
+    """Stage names the core passes to its progress calls (``.step("x", ...)`` and the phases'
+    ``_report(progress, "x", ...)``), read from the source."""
+    stages = set()
+    for path in CORE.rglob("*.py"):
+        for node in ast.walk(ast.parse(path.read_text())):
+            if not isinstance(node, ast.Call):
+                continue
+            name = getattr(node.func, "attr", None) or getattr(node.func, "id", None)
+            if name not in ("step", "_report"):
+                continue
+            for arg in node.args[:2]:
+                if isinstance(arg, ast.Constant) and isinstance(arg.value, str):
+                    stages.add(arg.value)
+    return stages
+
+
+def test_the_documented_stages_are_those_the_core_reports() -> None:
+    found = re.search(r"Stage names, in order: (.*?)\.\n", DOC, re.S)
+    assert found is not None
+    documented = re.findall(r"`(\w+)`", found.group(1))
+    assert documented[:2] == ["masks", "retrieval"] and len(set(documented)) == len(documented)
+    assert set(documented) == _reported_stages()
+
+
+def test_every_stage_subpackage_has_its_section() -> None:
+    packages = sorted(p.parent.name for p in CORE.glob("*/__init__.py"))
+    assert packages, "no subpackages found"
+    for name in packages:
+        assert f"### `cadnerf_core/{name}/`" in DOC, f"docs/architecture.md lacks {name}/"
+    for name in re.findall(r"### `cadnerf_core/(\w+)/`", DOC):
+        assert name in packages, f"docs/architecture.md documents a missing cadnerf_core/{name}/"
+
+
+def _api_names() -> list[str]:
+    """The dotted names that open each line of the document's python blocks."""
+    names = []
+    for block in re.findall(r"```python\n(.*?)```", DOC, re.S):
+        names += [m.group(1) for m in re.finditer(r"^([a-z_]+(?:\.\w+)+)", block, re.M)]
+    return names
+
+
+@pytest.mark.parametrize("dotted", _api_names())
+def test_every_documented_api_name_exists(dotted: str) -> None:
+    parts = dotted.split(".")
+    for cut in range(len(parts) - 1, 0, -1):
+        try:
+            obj: object = importlib.import_module("cadnerf_core." + ".".join(parts[:cut]))
+        except ModuleNotFoundError:
+            continue
+        for attribute in parts[cut:]:
+            assert hasattr(obj, attribute), f"{dotted}: no {attribute}"
+            obj = getattr(obj, attribute)
+        return
+    pytest.fail(f"{dotted}: no such module in cadnerf_core")
+
+
+def test_the_merge_sections_are_there() -> None:
+    assert "\n## Job folder\n" in DOC and "\n## Job state\n" in DOC
