@@ -162,9 +162,17 @@ def test_cli_reconstructs_into_the_output_folder(tmp_path: Path, tiny_library: A
     from cadnerf_cli.main import app
 
     write_job(tmp_path / "src", tiny_library, n=3)
-    photos = sorted(str(p) for p in (tmp_path / "src" / "inputs").iterdir())
+    photos = sorted(str(p.path) for p in JobFolder(tmp_path / "src").photos())
+    masks = []  # named unlike their photos, shrunk so they differ from the photos' alpha
+    for i, photo in enumerate(photos):
+        with Image.open(photo) as image:
+            alpha = np.asarray(image)[..., 3] > 127
+        shrunk = alpha & np.roll(alpha, 2, axis=1) & np.roll(alpha, 2, axis=0)
+        masks.append(tmp_path / f"mask_{i}.png")
+        Image.fromarray(shrunk.astype(np.uint8) * 255).save(masks[-1])
     out = tmp_path / "job"
     result = CliRunner().invoke(app, ["reconstruct", *photos, "--out", str(out),
+                                      *[arg for m in masks for arg in ("--masks", str(m))],
                                       *tiny_cli_options(), "--device", "cpu", "--library",
                                       str(tiny_library_dir), "--walk", "ccw", "--own-focal",
                                       "--perspective", "near", "--focal-35mm", "30"])
@@ -181,6 +189,11 @@ def test_cli_reconstructs_into_the_output_folder(tmp_path: Path, tiny_library: A
     assert sorted(p.name for p in (out / "inputs").iterdir()) == \
         ["000_000_p.png", "001_001_p.png", "002_002_p.png"]
     assert (out / "mesh.glb").is_file() and (out / "orbit.mp4").is_file()
+    used = JobFolder(out)
+    assert [m.source for m in used.read_mask_sources()] == ["uploaded"] * 3
+    for i, mask in enumerate(masks):
+        with Image.open(mask) as image:
+            assert np.array_equal(used.read_used_mask(i), np.asarray(image) > 127)
 
 
 def test_cli_retrieve_warns_of_a_guessed_direction_unless_given(tmp_path: Path,
