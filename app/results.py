@@ -1,27 +1,21 @@
-"""A succeeded job's outcome, read from its folder; artifact names and where they live.
+"""A succeeded job's outcome, read from its folder through the core's ``JobFolder``.
 
-Only names matching the allow-list are ever served, and the resolved path must stay inside the
-job folder (no ``..``, no symbolic links leading out).
+Only names on the folder's allow-list are ever served, and the resolved path must stay inside
+the job folder (no ``..``, no symbolic links leading out).
 """
 
 from __future__ import annotations
 
-import json
-import re
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
 from app.errors import ApiError
 from app.schemas import JobResult, ModelRef, PhotoResult
 from app.store import JobRecord
+from cadnerf_core.jobfolder import JobFolder, MaskRecord, media_type
 
-ARTIFACT_RE = re.compile(
-    r"^(orbit\.mp4|orbit\.gif|mesh\.glb|poses\.json|transforms\.json|metrics\.json"
-    r"|retrieval\.json|config\.json|log\.txt|views/\d{3}\.png)$")
-MEDIA_TYPES = {".mp4": "video/mp4", ".gif": "image/gif", ".glb": "model/gltf-binary",
-               ".json": "application/json", ".png": "image/png", ".txt": "text/plain"}
-LISTED = ("orbit.mp4", "orbit.gif", "mesh.glb", "poses.json", "transforms.json", "metrics.json",
-          "retrieval.json", "config.json", "log.txt")
+__all__ = ["artifact_path", "list_artifacts", "media_type", "read_result"]
 
 
 def artifact_path(job_dir: Path, name: str) -> Path:
@@ -37,35 +31,22 @@ def artifact_path(job_dir: Path, name: str) -> Path:
     Raises:
         ApiError: 404 for a name off the list, a missing file, or a path leaving the folder.
     """
-    missing = ApiError(404, "no_such_artifact", f"no artifact named {name[:80]!r}",
+    path = JobFolder(job_dir).artifact_path(name)
+    if path is None:
+        raise ApiError(404, "no_such_artifact", f"no artifact named {name[:80]!r}",
                        field="name", hint="see the result's `artifacts` for what exists")
-    if not ARTIFACT_RE.match(name):
-        raise missing
-    root = job_dir.resolve()
-    path = (root / name).resolve()
-    if not path.is_relative_to(root) or not path.is_file():
-        raise missing
     return path
-
-
-def media_type(path: Path) -> str:
-    """The Content-Type of an artifact."""
-    return MEDIA_TYPES.get(path.suffix, "application/octet-stream")
 
 
 def list_artifacts(job_dir: Path, job_id: str) -> dict[str, str]:
     """Artifact name -> download URL for every artifact present."""
-    names = [n for n in LISTED if (job_dir / n).is_file()]
-    views = job_dir / "views"
-    if views.is_dir():
-        names += sorted(f"views/{p.name}" for p in views.iterdir() if ARTIFACT_RE.match(
-            f"views/{p.name}") and p.is_file())
-    return {n: f"/v1/jobs/{job_id}/artifacts/{n}" for n in names}
+    return {n: f"/v1/jobs/{job_id}/artifacts/{n}" for n in JobFolder(job_dir).artifacts()}
 
 
-def _read_json(path: Path) -> Any:
+def _tolerant(read: Callable[[], Any]) -> Any:
+    """A reader's answer, None when the file is unreadable (a result shows what it can)."""
     try:
-        return json.loads(path.read_text())
+        return read()
     except (OSError, ValueError):
         return None
 
@@ -80,7 +61,8 @@ def _pose_entries(poses: Any) -> list[dict[str, Any]]:
     return []
 
 
-def _photo(index: int, name: str, match: dict[str, Any], pose: dict[str, Any]) -> PhotoResult:
+def _photo(index: int, name: str, match: dict[str, Any], pose: dict[str, Any],
+           mask: MaskRecord | None) -> PhotoResult:
     c2w = pose.get("c2w", match.get("c2w"))
     K = pose.get("K", pose.get("K_photo", match.get("K_photo")))
     discarded = bool(pose.get("discarded", match.get("discarded", c2w is None)))
@@ -89,7 +71,8 @@ def _photo(index: int, name: str, match: dict[str, Any], pose: dict[str, Any]) -
                        view=match.get("view", pose.get("view")),
                        azimuth=match.get("azimuth", pose.get("azimuth")),
                        elevation=match.get("elevation", pose.get("elevation")),
-                       c2w=None if discarded else c2w, K=None if discarded else K)
+                       c2w=None if discarded else c2w, K=None if discarded else K,
+                       mask_source=None if mask is None else mask.source)
 
 
 def _by_index(entries: list[dict[str, Any]]) -> dict[int, dict[str, Any]]:
@@ -102,7 +85,7 @@ def _by_index(entries: list[dict[str, Any]]) -> dict[int, dict[str, Any]]:
 
 
 def read_result(record: JobRecord, job_dir: Path) -> JobResult:
-    """Assemble a succeeded job's result from retrieval.json, poses.json and metrics.json.
+    """Assemble a succeeded job's result from its retrieval, poses, metrics and mask sources.
 
     Raises:
         ApiError: 409 before the job succeeded.
@@ -111,14 +94,14 @@ def read_result(record: JobRecord, job_dir: Path) -> JobResult:
         raise ApiError(409, "not_ready", f"the job is {record.state.value}; results exist once "
                        "it has succeeded", hint=f"poll /v1/jobs/{record.id} until state is "
                        "succeeded")
-    retrieval = _read_json(job_dir / "retrieval.json")
-    poses = _read_json(job_dir / "poses.json")
-    metrics = _read_json(job_dir / "metrics.json")
-    if not isinstance(retrieval, dict):
-        retrieval = {}
+    folder = JobFolder(job_dir)
+    retrieval = _tolerant(folder.read_retrieval) or {}
+    poses = _tolerant(folder.read_poses)
+    metrics = _tolerant(folder.read_metrics)
+    masks = {m.index: m for m in _tolerant(folder.read_mask_sources) or []}
     matches = _by_index(_pose_entries({"photos": retrieval.get("matches", [])}))
     pose_by_index = _by_index(_pose_entries(poses))
-    photos = [_photo(i, name, matches.get(i, {}), pose_by_index.get(i, {}))
+    photos = [_photo(i, name, matches.get(i, {}), pose_by_index.get(i, {}), masks.get(i))
               for i, name in enumerate(record.names)]
     pose_model = poses.get("model_id") if isinstance(poses, dict) else None
     model_id = retrieval.get("model_id") or pose_model or "unknown"

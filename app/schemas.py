@@ -8,7 +8,7 @@ succeeded job).
 from __future__ import annotations
 
 from enum import StrEnum
-from typing import Any
+from typing import Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field
 
@@ -107,6 +107,9 @@ class PhotoResult(BaseModel):
     elevation: float | None = None
     c2w: list[list[float]] | None = Field(None, description="4x4 camera-to-world, OpenCV axes.")
     K: list[list[float]] | None = Field(None, description="3x3 intrinsics in the photo's pixels.")
+    mask_source: Literal["uploaded", "alpha", "built-in"] | None = Field(
+        None, description="Where the photo's mask came from: the uploaded mask, the photo's "
+        "alpha, or built-in background removal (the mask used is artifact used_masks/NNN.png).")
 
 
 class ModelRef(BaseModel):

@@ -2,18 +2,16 @@
 
 Photos are checked by content (magic bytes), dimensions are read from the header without decoding
 (decompression bombs are refused before any pixel is decoded), masks must match their photos,
-and the config is validated with the core's torch-free ``resolve_config``. Stored names are
-``NNN_<sanitised>.<ext>``: the client's name never becomes a path.
+and the config is resolved once with the core's torch-free ``resolve_config``. The files are
+laid out by the core's ``JobFolder`` (stored names ``NNN_<sanitised>.<ext>``; each mask under
+its photo's name): the client's name never becomes a path.
 """
 
 from __future__ import annotations
 
-import json
-import re
 import warnings
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
 
 from PIL import Image
 from pydantic import AnyHttpUrl, TypeAdapter, ValidationError
@@ -22,6 +20,8 @@ from app.errors import ApiError
 from app.multipart import ReceivedForm, StoredPart
 from app.schemas import JobCreate
 from app.settings import Settings, non_public_reason
+from cadnerf_core.config import PipelineConfig, resolve_config
+from cadnerf_core.jobfolder import JobFolder
 
 _EXIF_ORIENTATION = 0x0112
 _PIL_FORMATS = {"jpg": "JPEG", "png": "PNG", "webp": "WEBP"}
@@ -43,9 +43,13 @@ class JobSpec:
     """A validated upload, laid out in its staging folder."""
 
     names: list[str]
-    preset: str
-    overrides: dict[str, Any]
+    config: PipelineConfig
     webhook_url: str | None
+
+    @property
+    def preset(self) -> str:
+        """The preset the config was resolved from."""
+        return self.config.preset
 
 
 def sniff_type(head: bytes) -> str | None:
@@ -57,14 +61,6 @@ def sniff_type(head: bytes) -> str | None:
     if len(head) >= 12 and head[:4] == b"RIFF" and head[8:12] == b"WEBP":
         return "webp"
     return None
-
-
-def safe_stem(filename: str) -> str:
-    """A file-name stem made of ``[A-Za-z0-9_-]`` only, at most 40 characters."""
-    base = filename.replace("\\", "/").rsplit("/", 1)[-1]
-    stem = base.rsplit(".", 1)[0] if "." in base.lstrip(".") else base
-    clean = re.sub(r"[^A-Za-z0-9_-]+", "_", stem).strip("_-")[:40]
-    return clean or "photo"
 
 
 def inspect_image(part: StoredPart, settings: Settings) -> ImageInfo:
@@ -176,27 +172,24 @@ def check_mask(mask: StoredPart, photo: StoredPart, photo_info: ImageInfo,
     return info
 
 
-def parse_config(raw: str | None, settings: Settings) -> tuple[str, dict[str, Any]]:
-    """Validate the `config` JSON field with the core's ``resolve_config``.
+def parse_config(raw: str | None, settings: Settings) -> PipelineConfig:
+    """Resolve the `config` JSON field (preset and overrides) into the job's one config.
 
     Returns:
-        (preset name, overrides) as given, once they resolve.
+        The resolved configuration, written to the job folder as it is.
     """
-    from cadnerf_core.config import resolve_config  # torch-free by contract
-
     try:
         create = JobCreate.model_validate_json(raw or "{}")
     except ValidationError as exc:
         raise _config_error(exc) from None
     preset = create.preset or settings.default_preset
     try:
-        resolve_config(preset, create.overrides)
+        return resolve_config(preset, create.overrides)
     except ValidationError as exc:
         raise _config_error(exc) from None
     except (ValueError, TypeError) as exc:
         raise ApiError(422, "invalid_config", str(exc)[:300], field="config",
                        hint='send JSON like {"preset": "preview", "overrides": {}}') from None
-    return preset, create.overrides
 
 
 def _config_error(exc: ValidationError) -> ApiError:
@@ -265,38 +258,29 @@ def lay_out(form: ReceivedForm, staging: Path, settings: Settings) -> JobSpec:
         settings: limits and the default preset.
 
     Returns:
-        The job's names, preset, overrides and webhook URL; ``staging`` now holds
-        ``inputs/``, optional ``masks/`` and ``config.json``.
+        The job's names, resolved config and webhook URL; ``staging`` now holds the photos,
+        their masks (each stored under its photo's name) and the resolved config.
     """
     check_counts(form, settings)
-    preset, overrides = parse_config(form.texts.get("config"), settings)
+    config = parse_config(form.texts.get("config"), settings)
     webhook = parse_webhook(form.texts.get("webhook_url"), settings.webhook_allow_private)
     images, masks = form.files["images"], form.files["masks"]
     infos = [inspect_image(part, settings) for part in images]
-    mask_infos = [check_mask(m, p, i, settings) for m, p, i in zip(masks, images, infos,
-                                                                    strict=False)]
-    (staging / "inputs").mkdir()
-    for index, (part, info) in enumerate(zip(images, infos, strict=True)):
-        part.path.rename(staging / "inputs" / f"{index:03d}_{safe_stem(part.filename)}.{info.ext}")
-    if masks:
-        (staging / "masks").mkdir()
-        for index, (part, info) in enumerate(zip(masks, mask_infos, strict=True)):
-            target = staging / "masks" / f"{index:03d}_{safe_stem(part.filename)}.png"
-            _store_mask(part, info, target)
-    config = {"preset": preset, "overrides": overrides}
-    (staging / "config.json").write_text(json.dumps(config, indent=1))
-    return JobSpec([p.filename for p in images], preset, overrides, webhook)
+    for mask, photo, info in zip(masks, images, infos, strict=False):
+        check_mask(mask, photo, info, settings)
+    folder = JobFolder(staging)
+    stored = [folder.add_photo(index, part.path, part.filename, info.ext, move=True)
+              for index, (part, info) in enumerate(zip(images, infos, strict=True))]
+    for mask_part, stored_photo in zip(masks, stored, strict=False):
+        _store_mask(folder, mask_part, stored_photo)
+    folder.write_config(config)
+    return JobSpec([p.filename for p in images], config, webhook)
 
 
-def _store_mask(part: StoredPart, info: ImageInfo, target: Path) -> None:
-    if info.ext == "png":
-        part.path.rename(target)
-        return
+def _store_mask(folder: JobFolder, part: StoredPart, photo: Path) -> None:
+    """Store an uploaded mask under its photo's name (size already checked: decoding is bounded)."""
     try:
-        with Image.open(part.path) as image:  # size already checked: decoding is bounded
-            keep = image.mode in ("1", "L", "LA", "P", "RGB", "RGBA")
-            (image if keep else image.convert("RGB")).save(target, format="PNG")
-    except Exception:  # a damaged body behind a good header
+        folder.add_mask(photo, part.path, move=True)
+    except Exception:  # a damaged body behind a good header; Pillow raises many types
         raise ApiError(422, "unreadable_image", "the mask cannot be decoded", photo=part.filename,
                        field="masks", hint="export the mask again as PNG") from None
-    part.path.unlink()

@@ -217,8 +217,9 @@ def save_pictures(name: str, report: Any, folder: Path) -> list[Path]:
     if not _ok(report):
         return []
     from cadnerf_core.evaluation.dataset import load_dataset
+    from cadnerf_core.jobfolder import JobFolder
 
-    inputs = [_read_rgb(p) for p in sorted((Path(report.job_dir) / "inputs").glob("*.png"))]
+    inputs = [_read_rgb(p.path) for p in JobFolder(report.job_dir).photos()]
     test = load_dataset(report.dataset).test
     assert test is not None
     picks = sorted({0, len(report.renders) // 2})

@@ -13,7 +13,6 @@ the model, the silhouette set, the training PSNR and the job's time.
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 import tempfile
 import time
@@ -59,18 +58,20 @@ def picture(job: Path, photos: list[Path], masks: list[Path], out: Path) -> None
 def run(preset: str, job: Path) -> str:
     """Run the job into ``job`` (an empty or absent folder) and write the picture."""
     from cadnerf_cli.reconstruct_cmd import stage_inputs
+    from cadnerf_core.config import resolve_config
+    from cadnerf_core.jobfolder import JobFolder
     from cadnerf_core.library.format import load_library
     from cadnerf_core.pipeline import run_job
 
     photos, masks, _ = real_set_photos(SET)
     stage_inputs(photos, masks, job)
-    (job / "config.json").write_text(json.dumps({"preset": preset, "overrides": {}}))
+    JobFolder(job).write_config(resolve_config(preset))
     start = time.perf_counter()
     run_job(job, load_library(LIBRARY), device="cpu")
     seconds = time.perf_counter() - start
     picture(job, photos, masks, PICTURE)
-    retrieval = json.loads((job / "retrieval.json").read_text())
-    metrics = json.loads((job / "metrics.json").read_text())
+    retrieval = JobFolder(job).read_retrieval() or {}
+    metrics = JobFolder(job).read_metrics() or {}
     return (f"{SET}, preset {preset}: model {retrieval['model_id']} ({retrieval['category']}), "
             f"silhouette set {retrieval['perspective']}, {len(photos)} photos, "
             f"{len(retrieval['discarded'])} discarded; training PSNR {metrics['mean_psnr']:.2f} "

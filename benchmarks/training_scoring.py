@@ -29,9 +29,9 @@ def true_cameras(dataset_dir: Path) -> Iterator[None]:
     the evaluation reads the true cameras back as the job's."""
     import cadnerf_core.pipeline as pipeline
     from cadnerf_core.evaluation.dataset import load_dataset
-    from cadnerf_core.evaluation.evaluate import centre_similarity
-    from cadnerf_core.export.artifacts import write_json
+    from cadnerf_core.evaluation.frame import centre_similarity
     from cadnerf_core.intake.crop import crop_intrinsics
+    from cadnerf_core.jobfolder import JobFolder
 
     truth = load_dataset(dataset_dir)
     original = pipeline.run_intake
@@ -48,7 +48,7 @@ def true_cameras(dataset_dir: Path) -> Iterator[None]:
                 m, c2w=poses[m.index], K_photo=truth.K[m.index].copy(),
                 K_canon=crop_intrinsics(truth.K[m.index], m.box))
             for m in intake.retrieval.matches]
-        write_json(Path(job_dir) / "retrieval.json", intake.retrieval.to_json())
+        JobFolder(job_dir).write_retrieval(intake.retrieval.to_json())
         return intake
 
     pipeline.run_intake = oracle_intake
@@ -102,13 +102,9 @@ def refined_test_psnr(report: EvalReport, steps: int, align: str | None = None,
     mapping (``evaluation.frame_mapping``), when not the report's; ``steps`` 0: no
     refinement; ``device``: where the model is loaded (the job's own)."""
     from cadnerf_core.evaluation.dataset import load_dataset
-    from cadnerf_core.evaluation.evaluate import (
-        eval_intrinsics,
-        first_views,
-        frame_mapping,
-        read_job_cameras,
-        resize_view,
-    )
+    from cadnerf_core.evaluation.evaluate import resize_view
+    from cadnerf_core.evaluation.frame import frame_mapping
+    from cadnerf_core.evaluation.jobio import eval_intrinsics, first_views, read_job_cameras
     from cadnerf_core.evaluation.metrics import image_metrics
     from cadnerf_core.nerf.model import TrainedModel
 

@@ -2,9 +2,7 @@
 
 from __future__ import annotations
 
-import json
 import logging
-import re
 import shutil
 from pathlib import Path
 from typing import Any
@@ -18,29 +16,23 @@ STAGES = ("masks", "retrieval", "phase1", "phase2", "phase3", "render", "export"
 DEFAULT_LIBRARY = Path("library_data/build")
 
 
-def _safe_name(name: str) -> str:
-    """A file name without path separators or odd characters."""
-    return re.sub(r"[^A-Za-z0-9._-]+", "_", name).strip("._") or "photo"
-
-
 def stage_inputs(photos: list[Path], masks: list[Path] | None, out: Path) -> None:
-    """Copy photos (and masks) into ``out/inputs`` and ``out/masks`` as NNN_<name>, in order."""
+    """Copy photos (and one mask each) into the job folder ``out``, in order, replacing any
+    earlier inputs; each mask is stored under its photo's name (``JobFolder``)."""
+    from cadnerf_core.jobfolder import INPUTS, MASKS, JobFolder
+
     if masks and len(masks) != len(photos):
         raise ValueError(f"{len(masks)} masks for {len(photos)} photos: give one per photo")
-    for folder in ("inputs", "masks"):
-        if (out / folder).exists():
-            shutil.rmtree(out / folder)
-    (out / "inputs").mkdir(parents=True)
+    for path in [*photos, *(masks or [])]:
+        if not path.is_file():
+            raise ValueError(f"{path}: no such file")
+    folder = JobFolder(out)
+    for name in (INPUTS, MASKS):
+        shutil.rmtree(folder.file(name), ignore_errors=True)
     for i, photo in enumerate(photos):
-        if not photo.is_file():
-            raise ValueError(f"{photo}: no such file")
-        stem = f"{i:03d}_{_safe_name(photo.stem)}"
-        shutil.copyfile(photo, out / "inputs" / f"{stem}{photo.suffix.lower()}")
+        stored = folder.add_photo(i, photo)
         if masks:
-            (out / "masks").mkdir(exist_ok=True)
-            if not masks[i].is_file():
-                raise ValueError(f"{masks[i]}: no such file")
-            shutil.copyfile(masks[i], out / "masks" / f"{stem}.png")
+            folder.add_mask(stored, masks[i])
 
 
 def reconstruct(
@@ -48,8 +40,6 @@ def reconstruct(
     out: Path = typer.Option(..., "--out", help="Job folder for the results."),
     masks: list[Path] | None = typer.Option(None, "--masks", help="One mask per photo."),
     preset: str = typer.Option("standard", "--preset", help="paper, standard or preview."),
-    settings: list[str] = typer.Option([], "--set", help="Config override key=value (dotted "
-                                       "keys, JSON values); repeatable."),
     device: str = typer.Option("auto", "--device", help="auto, cpu, cuda, cuda:N."),
     library_dir: Path = typer.Option(DEFAULT_LIBRARY, "--library", help="CAD library folder."),
     walk: Walk = typer.Option(Walk.auto, "--walk", help="Which way round the photos were "
@@ -62,31 +52,33 @@ def reconstruct(
                                             help=PERSPECTIVE_HELP),
     focal_35mm: float | None = typer.Option(None, "--focal-35mm", min=8.0, max=1200.0,
                                             help=FOCAL_HELP),
+    settings: list[str] = typer.Option([], "--set", help="Config override key=value (dotted "
+                                       "keys, JSON values, e.g. phase2.steps=300); repeatable."),
 ) -> None:
     """Poses, novel views, an orbit video and a mesh from ordered photos of an object."""
     from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
 
     from cadnerf_core.config import resolve_config
     from cadnerf_core.errors import CadNerfError
+    from cadnerf_core.jobfolder import MESH, ORBIT_VIDEO, POSES, VIEWS, JobFolder
     from cadnerf_core.library.format import load_library
     from cadnerf_core.pipeline import run_job
     from cadnerf_core.progress import Progress as CoreProgress
 
     try:
-        retrieval: dict[str, Any] = {} if walk == Walk.auto else {"walk": walk.value}
+        overrides: dict[str, Any] = parse_overrides(settings)
+        if walk != Walk.auto:
+            overrides["retrieval.walk"] = walk.value
         if own_focal:
-            retrieval["shared_focal"] = False
+            overrides["retrieval.shared_focal"] = False
         if perspective != Perspective.auto:
-            retrieval["perspective"] = perspective.value
+            overrides["retrieval.perspective"] = perspective.value
         if focal_35mm is not None:
-            retrieval["focal_35mm"] = focal_35mm
-        overrides = {**parse_overrides(settings),
-                     **{f"retrieval.{key}": value for key, value in retrieval.items()}}
-        resolve_config(preset, overrides)
+            overrides["retrieval.focal_35mm"] = focal_35mm
+        config = resolve_config(preset, overrides)
         library = load_library(library_dir)
         stage_inputs(photos, masks, out)
-        (out / "config.json").write_text(json.dumps({"preset": preset,
-                                                     "overrides": overrides}))
+        JobFolder(out).write_config(config)
         columns = (TextColumn("{task.description:<10}"), BarColumn(),
                    TextColumn("{task.percentage:>3.0f}%"), TimeElapsedColumn())
         with Progress(*columns) as bar:
@@ -105,12 +97,11 @@ def reconstruct(
     logging.getLogger(__name__).debug("summary: %s", summary)
     typer.echo(f"model: {summary['model_id']} ({summary['category']}); "
                f"mean training PSNR {metrics['mean_psnr']:.2f} dB")
-    retrieval = json.loads((out / "retrieval.json").read_text())
-    if retrieval.get("direction_ambiguous"):
+    if (JobFolder(out).read_retrieval() or {}).get("direction_ambiguous"):
         from cadnerf_core.config import AMBIGUOUS_HINT
 
         typer.echo(f"warning: {AMBIGUOUS_HINT} (--walk)")
-    typer.echo(f"results in {out.resolve()}: orbit.mp4, mesh.glb, poses.json, views/")
+    typer.echo(f"results in {out.resolve()}: {ORBIT_VIDEO}, {MESH}, {POSES}, {VIEWS}/")
 
 
 def register(app: typer.Typer) -> None:

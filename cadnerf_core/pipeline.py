@@ -1,14 +1,14 @@
 """One job, end to end: intake -> masks -> retrieval -> three training phases -> export.
 
-A job is a folder (see docs/architecture.md). ``run_job`` reads ``inputs/``, optional ``masks/``
-and ``config.json``, and writes every artifact into the same folder. A checkpoint is saved after
-each training phase; calling ``run_job`` again on the same folder continues after the last
-finished phase (intake and retrieval are re-run: they are deterministic and take seconds).
+A job is a folder whose layout ``cadnerf_core.jobfolder`` owns. ``run_job`` reads the photos,
+their uploaded masks and the resolved config through it, and writes every artifact there. A
+checkpoint is saved after each training phase; calling ``run_job`` again on the same folder
+continues after the last finished phase (intake and retrieval are re-run: they are
+deterministic and take seconds).
 """
 
 from __future__ import annotations
 
-import json
 import logging
 import resource
 import time
@@ -19,10 +19,10 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from cadnerf_core.config import PipelineConfig, resolve_config
+from cadnerf_core.config import PipelineConfig
 from cadnerf_core.errors import InputError
-from cadnerf_core.export.artifacts import write_json
 from cadnerf_core.intake.crop import apply_crop
+from cadnerf_core.jobfolder import CONFIG, INPUTS, InputPhoto, JobFolder, MaskSource
 from cadnerf_core.progress import Progress
 
 if TYPE_CHECKING:
@@ -30,12 +30,9 @@ if TYPE_CHECKING:
 
     from cadnerf_core.library.format import Library
     from cadnerf_core.nerf.state import TrainData, TrainState
-    from cadnerf_core.retrieval.retrieve import RetrievalResult
+    from cadnerf_core.retrieval.result import RetrievalResult
 
 log = logging.getLogger(__name__)
-
-IMAGE_SUFFIXES = {".jpg", ".jpeg", ".png", ".webp"}
-
 
 @dataclass
 class Intake:
@@ -48,39 +45,22 @@ class Intake:
 
 
 def read_job_config(job_dir: Path) -> PipelineConfig:
-    """The job's configuration: ``{"preset", "overrides"}`` as uploaded, or a resolved one
-    (what a finished or interrupted run wrote back). Missing file: the default preset.
+    """The job's resolved configuration (``JobFolder.read_config``; missing: the default preset).
 
     Raises:
-        InputError: unreadable JSON or an invalid configuration.
+        InputError: ``config.json`` is unreadable or not a valid configuration.
     """
-    path = job_dir / "config.json"
-    if not path.is_file():
-        return resolve_config(None, None)
     try:
-        data = json.loads(path.read_text(encoding="utf-8"))
-        if not isinstance(data, dict):
-            raise ValueError("config.json must hold a JSON object")
-        if set(data) <= {"preset", "overrides"}:
-            return resolve_config(data.get("preset"), data.get("overrides"))
-        return PipelineConfig.model_validate(data)
+        return JobFolder(job_dir).read_config()
     except ValueError as exc:  # json and pydantic errors are ValueErrors
-        raise InputError(f"invalid configuration: {exc}", item="config.json") from exc
+        raise InputError(f"invalid configuration: {exc}", item=CONFIG) from exc
 
 
-def _input_files(job_dir: Path) -> tuple[list[Path], list[Path | None]]:
-    """Photos in ``inputs/`` (sorted names = photo order) and the mask of each, if any."""
-    inputs = sorted(p for p in (job_dir / "inputs").glob("*")
-                    if p.is_file() and p.suffix.lower() in IMAGE_SUFFIXES)
-    if not inputs:
-        raise InputError("no photos in inputs/", item=str(job_dir / "inputs"),
-                         hint="add 3 to 10 ordered photos")
-    mask_dir = job_dir / "masks"
-    masks: list[Path | None] = []
-    for photo in inputs:
-        found = [mask_dir / f"{photo.stem}{s}" for s in (".png", ".jpg", ".jpeg", ".webp")]
-        masks.append(next((m for m in found if m.is_file()), None))
-    return inputs, masks
+def mask_sources(inputs: list[InputPhoto], photos: list[Any]) -> list[MaskSource]:
+    """Where each photo's mask comes from: an uploaded mask wins over the photo's alpha, and
+    background removal makes the rest."""
+    return ["uploaded" if entry.mask is not None else "alpha" if photo.mask is not None
+            else "built-in" for entry, photo in zip(inputs, photos, strict=True)]
 
 
 def run_intake(job_dir: Path, library: Library, config: PipelineConfig,
@@ -90,19 +70,23 @@ def run_intake(job_dir: Path, library: Library, config: PipelineConfig,
     from cadnerf_core.intake.photos import load_photo, with_focal
     from cadnerf_core.retrieval.retrieve import retrieve
 
-    inputs, mask_paths = _input_files(job_dir)
-    photos = [load_photo(p, i, m) for i, (p, m) in enumerate(zip(inputs, mask_paths,
-                                                                 strict=True))]
-    names = [p.name for p in inputs]
+    folder = JobFolder(job_dir)
+    inputs = folder.photos()
+    if not inputs:
+        raise InputError(f"no photos in {INPUTS}/", item=str(folder.file(INPUTS)),
+                         hint="add 3 to 10 ordered photos")
+    photos = [load_photo(entry.path, entry.index, entry.mask) for entry in inputs]
+    names = [entry.name for entry in inputs]
     masks = photo_masks(photos, progress=progress)
+    folder.write_used_masks(inputs, masks, mask_sources(inputs, photos))
     photos = with_focal(photos, config.retrieval.focal_35mm)  # where EXIF says nothing
     retrieval = retrieve(masks, names, library, config.retrieval, progress,
                          [p.rgb for p in photos], [p.focal_pixels for p in photos],
                          crop_size=config.image_size)
-    write_json(job_dir / "retrieval.json", retrieval.to_json())
+    folder.write_retrieval(retrieval.to_json())
     if len(retrieval.kept) < 2:
         raise InputError("fewer than two photos could be matched to the retrieved model",
-                         item="inputs", hint="use 3 to 10 photos walking around the object")
+                         item=INPUTS, hint="use 3 to 10 photos walking around the object")
     return Intake(names, photos, masks, retrieval)
 
 
@@ -222,7 +206,7 @@ def run_job(job_dir: Path, library: Library, progress: Progress | None = None,
     """Run (or resume) a whole job in its folder.
 
     Args:
-        job_dir: the job folder (``inputs/``, optional ``masks/`` and ``config.json``).
+        job_dir: the job folder (photos, optional masks and config; ``JobFolder``).
         library: the loaded CAD library.
         progress: progress reporter and cancel check (stages masks, retrieval, phase1-3,
             render, export); raises JobCancelled between steps when cancelled.
@@ -241,7 +225,8 @@ def run_job(job_dir: Path, library: Library, progress: Progress | None = None,
     handler = _attach_log(job_dir)
     try:
         config = read_job_config(job_dir)
-        write_json(job_dir / "config.json", config.model_dump(mode="json"))
+        if not JobFolder(job_dir).has_config():  # record what ran; an existing one is final
+            JobFolder(job_dir).write_config(config)
         dev = resolve_device(device)
         start = time.perf_counter()
         intake = run_intake(job_dir, library, config, progress)
@@ -257,7 +242,7 @@ def run_job(job_dir: Path, library: Library, progress: Progress | None = None,
 
 def _attach_log(job_dir: Path) -> logging.Handler:
     job_dir.mkdir(parents=True, exist_ok=True)
-    handler = logging.FileHandler(job_dir / "log.txt", encoding="utf-8")
+    handler = logging.FileHandler(JobFolder(job_dir).log_path, encoding="utf-8")
     handler.setFormatter(logging.Formatter("%(asctime)s %(levelname)s %(name)s: %(message)s"))
     handler.setLevel(logging.INFO)
     root = logging.getLogger("cadnerf_core")

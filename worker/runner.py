@@ -5,7 +5,6 @@ from __future__ import annotations
 import errno
 import logging
 import os
-import re
 import socket
 import threading
 import time
@@ -20,6 +19,7 @@ from app import recovery
 from app.schemas import ErrorDetail, JobState
 from app.settings import Settings
 from app.store import JobRecord, JobStore
+from cadnerf_core.jobfolder import CONFIG, INPUTS, MASKS, photo_index
 from worker.progress import EtaModel, JobProgress, expected_stage_seconds, record_stage_seconds
 from worker.webhook import send_webhook
 
@@ -29,8 +29,7 @@ if TYPE_CHECKING:
 log = logging.getLogger(__name__)
 
 FINISH_RETRY_S = 30.0  # how long the final state is retried while Redis is away
-STORED_PHOTO_RE = re.compile(r"^(\d{3})_")  # stored names are NNN_<name> (app.uploads.lay_out)
-UPLOAD_FIELDS = {"inputs": "images", "masks": "masks", "config.json": "config"}  # folder -> form
+UPLOAD_FIELDS = {INPUTS: "images", MASKS: "masks", CONFIG: "config"}  # job folder entry -> form
 TIME_LIMIT_HINT = "choose a faster preset, or ask the operator for a longer time limit"
 
 Outcome = tuple[JobState, str | None, ErrorDetail | None]  # final state, error, error detail
@@ -186,10 +185,10 @@ def _run(record: JobRecord, settings: Settings, store: JobStore, started: float,
 def uploaded_name(item: str, record: JobRecord) -> str | None:
     """The name a photo was uploaded under, from its stored name ``NNN_<name>`` (or a path to
     it); None when ``item`` names no stored photo of the job."""
-    match = STORED_PHOTO_RE.match(PurePath(item).name)
-    if match is None or int(match.group(1)) >= len(record.names):
+    index = photo_index(item)
+    if index is None or index >= len(record.names):
         return None
-    return record.names[int(match.group(1))]
+    return record.names[index]
 
 
 def input_error(text: str, item: str | None, hint: str | None, record: JobRecord,

@@ -135,7 +135,7 @@ def get_artifact(job: JobDep, store: StoreDep, name: str, request: Request) -> R
     except OSError:  # the job was deleted since the check
         raise ApiError(404, "no_such_artifact", f"no artifact named {name[:80]!r}",
                        field="name", hint="see the result's `artifacts` for what exists") from None
-    response = FileResponse(path, media_type=results.media_type(path), filename=download,
+    response = FileResponse(path, media_type=results.media_type(name), filename=download,
                             content_disposition_type="attachment", stat_result=stat,
                             headers={"Cache-Control": ARTIFACT_CACHE_CONTROL})
     if _etag_matches(request.headers.get("if-none-match"), response.headers["etag"]):

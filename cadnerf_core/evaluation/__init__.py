@@ -1,1 +1,3 @@
-"""Evaluation: synthetic datasets with true cameras, image and pose metrics, the protocol."""
+"""Evaluation: synthetic datasets with true cameras (``dataset``), image and pose metrics
+(``metrics``), the evaluation job's folder (``jobio``), the mapping of true cameras into the
+NeRF's frame (``frame``) and the protocol itself (``evaluate``)."""

@@ -1,16 +1,13 @@
 """Everything a user downloads: rendered views, the orbit video and GIF, the mesh, and JSON.
 
-Every file is written atomically (a temporary file beside it, then a rename), so a reader never
-sees half a file and a killed job leaves no truncated artifact.
+Names and places come from ``cadnerf_core.jobfolder``. Every file is written atomically (a
+temporary file beside it, then a rename), so a reader never sees half a file and a killed job
+leaves no truncated artifact.
 """
 
 from __future__ import annotations
 
-import json
-import os
-import tempfile
-from collections.abc import Iterator, Sequence
-from contextlib import contextmanager
+from collections.abc import Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -19,32 +16,26 @@ import trimesh
 from PIL import Image
 
 from cadnerf_core.cameras import look_at, rotation_angle_deg, spherical_position, to_transforms_json
+from cadnerf_core.jobfolder import (
+    CONFIG,
+    LOG,
+    MASK_SOURCES,
+    MESH,
+    METRICS,
+    ORBIT_GIF,
+    ORBIT_VIDEO,
+    POSES,
+    RETRIEVAL,
+    TRANSFORMS,
+    JobFolder,
+    atomic_path,
+)
 from cadnerf_core.progress import Progress
 
 if TYPE_CHECKING:
     from cadnerf_core.nerf.model import TrainedModel
     from cadnerf_core.nerf.state import TrainData
     from cadnerf_core.retrieval.result import RetrievalResult
-
-
-@contextmanager
-def atomic_path(path: Path) -> Iterator[Path]:
-    """Yield a temporary path beside ``path`` (same suffix); renamed onto it on success."""
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.stem}.", suffix=path.suffix)
-    os.close(fd)
-    try:
-        yield Path(tmp)
-        os.replace(tmp, path)
-    finally:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-
-
-def write_json(path: Path, data: Any) -> None:
-    """Write JSON atomically (indented, UTF-8)."""
-    with atomic_path(path) as tmp:
-        tmp.write_text(json.dumps(data, indent=2), encoding="utf-8")
 
 
 def to_uint8(rgb: np.ndarray) -> np.ndarray:
@@ -186,9 +177,9 @@ def render_views(job_dir: Path, model: TrainedModel, data: TrainData, progress: 
     gt = data.images.cpu().numpy()
     for i, pose in enumerate([*c2w, *novel]):
         rgb, _ = model.render_image(pose, K[i] if i < len(c2w) else K_novel, size, size)
-        name = f"views/{i:03d}.png"
-        write_png(job_dir / name, rgb)
-        names.append(name)
+        path = JobFolder(job_dir).view_path(i)
+        write_png(path, rgb)
+        names.append(path.relative_to(job_dir).as_posix())
         if i < len(c2w):
             scores.append({"psnr": psnr(rgb, gt[i]), "ssim": ssim(rgb, gt[i])})
         progress.step("render", i + 1, total)
@@ -207,9 +198,10 @@ def render_orbit(job_dir: Path, model: TrainedModel, data: TrainData, progress: 
         rgb, _ = model.render_image(pose, K, ecfg.orbit_size, ecfg.orbit_size)
         frames.append(to_uint8(rgb))
         progress.step("render", done + i + 1, total)
-    write_video(job_dir / "orbit.mp4", frames, ecfg.orbit_fps)
-    write_gif(job_dir / "orbit.gif", frames, ecfg.orbit_fps)
-    return ["orbit.mp4", "orbit.gif"]
+    folder = JobFolder(job_dir)
+    write_video(folder.file(ORBIT_VIDEO), frames, ecfg.orbit_fps)
+    write_gif(folder.file(ORBIT_GIF), frames, ecfg.orbit_fps)
+    return [ORBIT_VIDEO, ORBIT_GIF]
 
 
 def export_mesh(job_dir: Path, model: TrainedModel, progress: Progress | None = None) -> None:
@@ -223,7 +215,7 @@ def export_mesh(job_dir: Path, model: TrainedModel, progress: Progress | None = 
     mesh = extract_mesh(values, bound, cfg.export.mesh_level)
     normals = np.asarray(mesh.vertex_normals, dtype=np.float32)
     colors = model.colors(np.asarray(mesh.vertices, np.float32), -normals, check=check)
-    write_mesh(job_dir / "mesh.glb", mesh, colors)
+    write_mesh(JobFolder(job_dir).file(MESH), mesh, colors)
 
 
 def poses_json(model: TrainedModel, retrieval: RetrievalResult) -> list[dict[str, Any]]:
@@ -283,16 +275,16 @@ def export_job(job_dir: Path, model: TrainedModel, retrieval: RetrievalResult,
     kept = retrieval.kept
     sizes = [(photos[m.index].rgb.shape[1], photos[m.index].rgb.shape[0]) for m in kept]
     poses = poses_json(model, retrieval)
-    write_json(job_dir / "poses.json", {"model_id": retrieval.model_id, "photos": poses})
+    folder = JobFolder(job_dir)
+    folder.write_poses(retrieval.model_id, poses)
     K_photo = [np.asarray(p["K_photo"]) for p in poses if not p["discarded"]]
-    write_json(job_dir / "transforms.json", transforms_json(
-        model.c2w, K_photo, sizes, [f"inputs/{m.name}" for m in kept]))
+    folder.write_transforms(transforms_json(model.c2w, K_photo, sizes,
+                                            [folder.photo_ref(m.name) for m in kept]))
     model.extra.setdefault("timings", {})["export_s"] = time.perf_counter() - start
     metrics = metrics_json(model, retrieval, scores)
-    write_json(job_dir / "metrics.json", metrics)
+    folder.write_metrics(metrics)
     progress.step("export", 3, 3)
-    artifacts += ["mesh.glb", "poses.json", "transforms.json", "metrics.json",
-                  "retrieval.json", "config.json", "log.txt"]
+    artifacts += [MESH, POSES, TRANSFORMS, METRICS, RETRIEVAL, MASK_SOURCES, CONFIG, LOG]
     psnr_by_name = {p["name"]: p for p in metrics["photos"]}
     return {"model_id": retrieval.model_id, "category": retrieval.category,
             "photos": [{"name": p["name"], "iou": p["iou"], "discarded": p["discarded"],

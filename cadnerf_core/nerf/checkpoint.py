@@ -11,6 +11,7 @@ import numpy as np
 import torch
 
 from cadnerf_core.config import PipelineConfig
+from cadnerf_core.jobfolder import JobFolder
 from cadnerf_core.nerf.grid import SkipGrid
 from cadnerf_core.nerf.state import TrainState
 
@@ -18,8 +19,8 @@ PHASES = (1, 2, 3)
 
 
 def checkpoint_path(job_dir: Path, phase: int) -> Path:
-    """``job_dir/checkpoints/phase{phase}.pt``."""
-    return Path(job_dir) / "checkpoints" / f"phase{phase}.pt"
+    """``checkpoints/phase{phase}.pt`` in the job folder (``JobFolder.checkpoint_path``)."""
+    return JobFolder(job_dir).checkpoint_path(phase)
 
 
 def save_checkpoint(job_dir: Path, phase: int, state: TrainState,

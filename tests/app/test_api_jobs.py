@@ -7,6 +7,7 @@ import time
 import uuid
 from pathlib import Path
 
+import numpy as np
 import pytest
 import redis
 from fastapi.testclient import TestClient
@@ -16,6 +17,8 @@ from app import jobs
 from app.schemas import JobState
 from app.settings import Settings
 from app.store import JobStore, connect
+from cadnerf_core.config import resolve_config
+from cadnerf_core.jobfolder import JobFolder
 
 
 def _store(settings: Settings) -> JobStore:
@@ -30,11 +33,12 @@ def _submit(client: TestClient, photos, **data: str) -> dict:
 
 def _succeed(settings: Settings, job_id: str) -> Path:
     """Write what the pipeline writes into the job folder and mark the job succeeded."""
-    folder = settings.data_root / job_id
+    job = JobFolder(settings.data_root / job_id)
+    folder = job.root
     (folder / "views").mkdir()
     (folder / "orbit.mp4").write_bytes(bytes(range(256)) * 8)
     (folder / "mesh.glb").write_bytes(b"glTF" + bytes(60))
-    Image.new("RGB", (32, 32), "gray").save(folder / "views" / "000.png")
+    Image.new("RGB", (32, 32), "gray").save(job.view_path(0))
     eye = [[1.0, 0, 0, 0.5], [0, 1.0, 0, 0.2], [0, 0, 1.0, 3.9], [0, 0, 0, 1.0]]
     retrieval = {"model_id": "chair_01", "category": "chair", "matches": [
         {"index": i, "name": f"photo_{i}.png", "view": 3 * i, "azimuth": 18.0 * i,
@@ -43,9 +47,12 @@ def _succeed(settings: Settings, job_id: str) -> Path:
     poses = {"model_id": "chair_01", "photos": [
         {"index": i, "name": f"photo_{i}.png", "c2w": eye, "K": [[50, 0, 40], [0, 50, 32],
                                                                   [0, 0, 1]]} for i in range(2)]}
-    (folder / "retrieval.json").write_text(json.dumps(retrieval))
-    (folder / "poses.json").write_text(json.dumps(poses))
-    (folder / "metrics.json").write_text(json.dumps({"mask_iou": 0.91}))
+    job.write_retrieval(retrieval)
+    job.write_poses(poses["model_id"], poses["photos"])
+    job.write_metrics({"mask_iou": 0.91})
+    photos = job.photos()
+    job.write_used_masks(photos, [np.ones((64, 80), bool)] * len(photos),
+                         ["uploaded", "alpha", "built-in"])
     store = _store(settings)
     assert store.update(job_id, state=JobState.succeeded, progress=1.0, finished_at=time.time())
     store.mirror(job_id)
@@ -64,7 +71,7 @@ def test_submit_stores_the_job_and_queues_it_by_name(client: TestClient, setting
     folder = settings.data_root / body["id"]
     assert sorted(p.name for p in (folder / "inputs").iterdir()) == [
         "000_photo_0.png", "001_photo_1.png", "002_photo_2.png"]
-    assert json.loads((folder / "config.json").read_text()) == {"preset": "test", "overrides": {}}
+    assert JobFolder(folder).read_config() == resolve_config(body["preset"])
     assert json.loads((folder / "state.json").read_text())["state"] == "queued"
     messages = clean_redis.lrange("cadnerf", 0, -1)
     assert len(messages) == 1
@@ -119,10 +126,11 @@ def test_result_is_409_until_succeeded_then_complete(client: TestClient, setting
     assert result["artifacts"]["orbit.mp4"] == f"/v1/jobs/{job['id']}/artifacts/orbit.mp4"
     assert "views/000.png" in result["artifacts"] and "orbit.gif" not in result["artifacts"]
     assert result["warnings"] == []
+    assert [p["mask_source"] for p in result["photos"]] == ["uploaded", "alpha", "built-in"]
+    assert "used_masks/002.png" in result["artifacts"]
     # A walking direction the photos could not tell: the result says so and what to send.
-    retrieval_path = settings.data_root / job["id"] / "retrieval.json"
-    retrieval = json.loads(retrieval_path.read_text())
-    retrieval_path.write_text(json.dumps({**retrieval, "direction_ambiguous": True}))
+    folder = JobFolder(settings.data_root / job["id"])
+    folder.write_retrieval({**(folder.read_retrieval() or {}), "direction_ambiguous": True})
     warnings = client.get(f"/v1/jobs/{job['id']}/result").json()["warnings"]
     assert len(warnings) == 1 and "walking direction is a guess" in warnings[0]
     assert '"walk": "cw"' in warnings[0]

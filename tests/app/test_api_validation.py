@@ -13,6 +13,8 @@ from fastapi.testclient import TestClient
 
 from app.main import create_app
 from app.settings import Settings
+from cadnerf_core.config import resolve_config
+from cadnerf_core.jobfolder import JobFolder
 from tests.app.images import image_bytes
 
 
@@ -138,9 +140,8 @@ def test_masks_must_match_photos(client: TestClient, settings: Settings, photos)
     _assert_no_job_folder(settings)
     jpeg_mask = ("masks", ("m.jpg", image_bytes((80, 64), "JPEG", mode="L"), "image/jpeg"))
     job = client.post("/v1/jobs", files=photos(3) + [mask, jpeg_mask, mask]).json()
-    stored = sorted(p.name for p in (settings.data_root / job["id"] / "masks").iterdir())
-    assert stored == ["000_m.png", "001_m.png", "002_m.png"]
-    assert (settings.data_root / job["id"] / "masks" / "001_m.png").read_bytes()[:4] == b"\x89PNG"
+    stored = JobFolder(settings.data_root / job["id"]).photos()
+    assert all(p.mask is not None and p.mask.read_bytes()[:4] == b"\x89PNG" for p in stored)
 
 
 @pytest.mark.parametrize(("config", "fragment"), [
@@ -160,9 +161,10 @@ def test_config_is_validated_by_the_core(client: TestClient, settings: Settings,
 
 
 def test_overrides_are_kept_with_the_job(client: TestClient, settings: Settings, photos) -> None:
-    config = {"preset": "test", "overrides": {"phase2.steps": 3}}
+    config = {"preset": "preview", "overrides": {"phase2.steps": 3}}
     job = client.post("/v1/jobs", files=photos(), data={"config": json.dumps(config)}).json()
-    assert json.loads((settings.data_root / job["id"] / "config.json").read_text()) == config
+    resolved = JobFolder(settings.data_root / job["id"]).read_config()
+    assert resolved == resolve_config("preview", {"phase2.steps": 3})
 
 
 def test_other_form_problems(client: TestClient, settings: Settings, photos) -> None:

@@ -12,7 +12,8 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from cadnerf_core.cameras import orbit_pose
-from cadnerf_core.evaluation.evaluate import Similarity, centre_similarity
+from cadnerf_core.evaluation.frame import Similarity, centre_similarity
+from cadnerf_core.jobfolder import JobFolder
 from tests.configs import TINY_OVERRIDES, TINY_PRESET, tiny_request
 
 # ---------------------------------------------------------------- alignment on synthetic poses
@@ -117,7 +118,7 @@ class _Ball:
 
 def test_fit_frame_recovers_a_shared_offset() -> None:
     from cadnerf_core.cameras import intrinsics_from_fov
-    from cadnerf_core.evaluation.evaluate import fit_frame
+    from cadnerf_core.evaluation.frame import fit_frame
 
     ball = _Ball()
     gt = _gt_poses(5, seed=2)
@@ -153,7 +154,8 @@ def test_evaluate_tiny_box_has_all_fields(tmp_path: Path, tiny_library: Any) -> 
     dataset = render_dataset(mesh_path, tmp_path / "ds", n_views=4, size=64, seed=0,
                              test_views=2)
     library = tiny_library
-    report = evaluate_dataset(dataset, 3, library, **tiny_request(seed=0),
+    report = evaluate_dataset(dataset, 3, library, preset=TINY_PRESET,
+                              overrides=tiny_request(seed=3)["overrides"],
                               job_dir=tmp_path / "job")
     data = report.to_json()
     json.dumps(data)  # serialisable
@@ -170,6 +172,7 @@ def test_evaluate_tiny_box_has_all_fields(tmp_path: Path, tiny_library: Any) -> 
     assert all(Path(p).is_file() for p in report.renders)
     assert report.phases, "metrics.json phases missing"
     assert report.eval_size == 64 and report.align == "photometric"
+    assert report.seed == 3 and JobFolder(report.job_dir).read_config().seed == 3
     with pytest.raises(ValueError, match="not empty"):
         evaluate_dataset(dataset, 3, library, **tiny_request(), job_dir=tmp_path / "job")
 
@@ -204,7 +207,7 @@ def test_tables_mean_row_and_layout(monkeypatch: pytest.MonkeyPatch) -> None:
 
 
 def test_phase_costs_reads_both_layouts() -> None:
-    from cadnerf_core.evaluation.evaluate import phase_costs
+    from cadnerf_core.evaluation.jobio import phase_costs
 
     extra = {"timings": {"phase1_s": 1.0, "phase2_s": 2.0},
              "memory": {"phase1": {"rss_peak_mb": 100.0}}}
@@ -217,15 +220,15 @@ def test_phase_costs_reads_both_layouts() -> None:
 
 
 def test_read_job_cameras_and_intrinsics(tmp_path: Path) -> None:
-    from cadnerf_core.evaluation.evaluate import eval_intrinsics, read_job_cameras
+    from cadnerf_core.evaluation.jobio import eval_intrinsics, read_job_cameras
 
     poses = _gt_poses(4)
     K_photo = np.array([[150.0, 0, 64], [0, 150.0, 64], [0, 0, 1]])
     matches = [{"index": i, "name": f"p{i}", "discarded": i == 2, "c2w": poses[i].tolist(),
                 "K_photo": (K_photo * [[1 + 0.1 * i], [1 + 0.1 * i], [1]]).tolist()}
                for i in range(4)]
-    (tmp_path / "retrieval.json").write_text(json.dumps(
-        {"model_id": "chair_a", "category": "chair", "matches": matches[::-1]}))
+    JobFolder(tmp_path).write_retrieval(
+        {"model_id": "chair_a", "category": "chair", "matches": matches[::-1]})
 
     class FakeModel:
         c2w = poses[[0, 1, 3]] + 0.01
@@ -357,7 +360,7 @@ def test_a_job_written_with_exif_focal_gives_its_photos_the_true_focal(tmp_path:
     import trimesh
 
     from cadnerf_core.evaluation.dataset import load_dataset, render_dataset
-    from cadnerf_core.evaluation.evaluate import write_job
+    from cadnerf_core.evaluation.jobio import write_job
     from cadnerf_core.intake.photos import load_photos
 
     mesh_path = tmp_path / "box.ply"
@@ -366,8 +369,8 @@ def test_a_job_written_with_exif_focal_gives_its_photos_the_true_focal(tmp_path:
                                        fov_deg=55.0))
     write_job(tmp_path / "with", data, TINY_PRESET, TINY_OVERRIDES, exif_focal=True)
     write_job(tmp_path / "without", data, TINY_PRESET, TINY_OVERRIDES)
-    told = load_photos(sorted((tmp_path / "with" / "inputs").iterdir()))
-    plain = load_photos(sorted((tmp_path / "without" / "inputs").iterdir()))
+    told = load_photos([p.path for p in JobFolder(tmp_path / "with").photos()])
+    plain = load_photos([p.path for p in JobFolder(tmp_path / "without").photos()])
     for photo, K in zip(told, data.K, strict=True):
         # The tag holds whole millimetres: within half a mm of 35 mm-equivalent.
         assert photo.focal_pixels == pytest.approx(K[0, 0], rel=0.5 / photo.focal_35mm)

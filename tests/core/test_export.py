@@ -17,10 +17,10 @@ from cadnerf_core.export.artifacts import (
     orbit_poses,
     transforms_json,
     write_gif,
-    write_json,
     write_mesh,
     write_video,
 )
+from cadnerf_core.jobfolder import TRANSFORMS, JobFolder
 
 
 def _frames(n: int = 6, size: int = 32) -> list[np.ndarray]:
@@ -78,8 +78,8 @@ def test_transforms_round_trip_per_photo_sizes(tmp_path: Path) -> None:
     c2w = np.stack([orbit_pose(a, 20.0, 4.0) for a in (0, 120)])
     Ks = [intrinsics_from_fov(40.0, 64), intrinsics_from_fov(50.0, 64)]
     data = transforms_json(c2w, Ks, [(64, 64), (64, 64)], ["inputs/a.png", "inputs/b.png"])
-    write_json(tmp_path / "transforms.json", data)
-    back_c2w, back_K = from_transforms_json(json.loads((tmp_path / "transforms.json")
+    JobFolder(tmp_path).write_transforms(data)
+    back_c2w, back_K = from_transforms_json(json.loads(JobFolder(tmp_path).file(TRANSFORMS)
                                                        .read_text()), 64)
     assert np.allclose(back_c2w, c2w) and np.allclose(back_K, np.stack(Ks))
 

@@ -1,4 +1,5 @@
-"""The whole job on the tiny library with the tiny config: every artifact, resume, CLI errors."""
+"""The whole job on the tiny library with the suite's tiny config: every artifact, the masks and
+config it used, resume, CLI errors."""
 
 from __future__ import annotations
 
@@ -13,32 +14,35 @@ from PIL import Image
 
 from cadnerf_core.cameras import intrinsics_from_fov, orbit_pose
 from cadnerf_core.errors import JobCancelled
+from cadnerf_core.jobfolder import JobFolder
 from cadnerf_core.progress import Progress
-from tests.configs import TINY_PRESET, tiny_cli_options, tiny_request
+from tests.configs import tiny_cli_options, tiny_config
 
 pytestmark = pytest.mark.usefixtures("one_torch_thread")
 
 
 def write_job(job_dir: Path, library: Any, model_id: str = "mug", n: int = 4,
               overrides: dict[str, Any] | None = None) -> None:
-    """Render ``n`` RGBA photos of a library model walking around it into a job folder."""
+    """Render ``n`` RGBA photos of a library model walking around it into a job folder, with
+    the tiny config (plus ``overrides``)."""
     from cadnerf_core.mesh.renderer import MeshRenderer
 
     renderer = MeshRenderer(library.mesh(model_id))
     K = intrinsics_from_fov(40.0, 64)
-    (job_dir / "inputs").mkdir(parents=True)
+    folder = JobFolder(job_dir)
     for i in range(n):
         result = renderer.render(K, orbit_pose(20.0 + 50.0 * i, 20.0, 4.0), 64, 64)
         rgb = (result.rgb * 255).astype(np.uint8)
         alpha = result.mask.astype(np.uint8) * 255
-        Image.fromarray(np.dstack([rgb, alpha]), "RGBA").save(job_dir / "inputs" / f"{i:03d}_p.png")
-    (job_dir / "config.json").write_text(json.dumps(tiny_request(**(overrides or {}))))
+        Image.fromarray(np.dstack([rgb, alpha]), "RGBA").save(folder.new_photo_path(i, "p", "png"))
+    folder.write_config(tiny_config(**(overrides or {})))
 
 
 def test_run_job_writes_every_artifact(tmp_path: Path, tiny_library: Any) -> None:
     from cadnerf_core.pipeline import run_job
 
     write_job(tmp_path, tiny_library)
+    written = (tmp_path / "config.json").read_bytes()
     stages: list[str] = []
     summary = run_job(tmp_path, tiny_library, Progress(lambda s, d, t: stages.append(s)), "cpu")
     assert summary["model_id"] in {m.id for m in tiny_library.models}
@@ -46,9 +50,16 @@ def test_run_job_writes_every_artifact(tmp_path: Path, tiny_library: Any) -> Non
     for name in summary["artifacts"]:
         assert (tmp_path / name).is_file(), name
     for name in ("poses.json", "transforms.json", "metrics.json", "orbit.mp4", "orbit.gif",
-                 "mesh.glb", "retrieval.json", "config.json", "views/000.png", "log.txt",
-                 "checkpoints/phase1.pt", "checkpoints/phase2.pt", "checkpoints/phase3.pt"):
+                 "mesh.glb", "retrieval.json", "config.json", "masks.json", "views/000.png",
+                 "used_masks/003.png", "log.txt", "checkpoints/phase1.pt",
+                 "checkpoints/phase2.pt", "checkpoints/phase3.pt"):
         assert (tmp_path / name).is_file(), name
+    folder = JobFolder(tmp_path)
+    assert [m.source for m in folder.read_mask_sources()] == ["alpha"] * 4
+    for photo in folder.photos():  # the used mask is the photo's alpha
+        with Image.open(photo.path) as image:
+            alpha = np.asarray(image)[..., 3] > 127
+        assert np.array_equal(folder.read_used_mask(photo.index), alpha)
     assert {"masks", "retrieval", "phase1", "phase2", "phase3", "render", "export"} <= set(stages)
     mesh = trimesh.load(tmp_path / "mesh.glb", force="mesh")
     assert isinstance(mesh, trimesh.Trimesh)
@@ -62,8 +73,8 @@ def test_run_job_writes_every_artifact(tmp_path: Path, tiny_library: Any) -> Non
     assert {"phase1_s", "phase2_s", "phase3_s"} <= set(metrics["timings_s"])
     assert metrics["peak_memory_mb"]["phase3"]["rss_peak_mb"] > 0
     assert all(np.isfinite(p["psnr"]) and -1 <= p["ssim"] <= 1 for p in metrics["photos"])
-    config = json.loads((tmp_path / "config.json").read_text())
-    assert config["preset"] == TINY_PRESET and "phase2" in config
+    assert (tmp_path / "config.json").read_bytes() == written  # read, never rewritten
+    assert folder.read_config() == tiny_config()
 
     from cadnerf_core.nerf.model import TrainedModel
 
@@ -146,27 +157,38 @@ def test_cli_reconstructs_into_the_output_folder(tmp_path: Path, tiny_library: A
     from cadnerf_cli.main import app
 
     write_job(tmp_path / "src", tiny_library, n=3)
-    photos = sorted(str(p) for p in (tmp_path / "src" / "inputs").iterdir())
+    photos = sorted(str(p.path) for p in JobFolder(tmp_path / "src").photos())
+    masks = []  # named unlike their photos, shrunk so they differ from the photos' alpha
+    for i, photo in enumerate(photos):
+        with Image.open(photo) as image:
+            alpha = np.asarray(image)[..., 3] > 127
+        shrunk = alpha & np.roll(alpha, 2, axis=1) & np.roll(alpha, 2, axis=0)
+        masks.append(tmp_path / f"mask_{i}.png")
+        Image.fromarray(shrunk.astype(np.uint8) * 255).save(masks[-1])
     out = tmp_path / "job"
     result = CliRunner().invoke(app, ["reconstruct", *photos, "--out", str(out),
+                                      *[arg for m in masks for arg in ("--masks", str(m))],
                                       *tiny_cli_options(), "--device", "cpu", "--library",
                                       str(tiny_library_dir), "--walk", "ccw", "--own-focal",
                                       "--perspective", "near", "--focal-35mm", "30"])
     assert result.exit_code == 0, result.output
     assert "results in" in result.output
     # The walk write_job rendered is counter-clockwise (increasing azimuth), as told.
-    resolved = json.loads((out / "config.json").read_text())
-    assert resolved["retrieval"]["walk"] == "ccw"
-    assert resolved["image_size"] == 32  # the tiny config's --set options reached the job
-    assert resolved["retrieval"]["shared_focal"] is False
-    assert resolved["retrieval"]["perspective"] == "near"
-    assert resolved["retrieval"]["focal_35mm"] == 30.0
-    retrieval = json.loads((out / "retrieval.json").read_text())
+    resolved = JobFolder(out).read_config()
+    assert resolved == tiny_config(retrieval={"walk": "ccw", "shared_focal": False,
+                                              "perspective": "near", "focal_35mm": 30.0})
+    retrieval = JobFolder(out).read_retrieval()
+    assert retrieval is not None
     assert retrieval["perspective"] == "near"
     assert retrieval["direction"] == 1 and retrieval["direction_lead"] is None
     assert sorted(p.name for p in (out / "inputs").iterdir()) == \
         ["000_000_p.png", "001_001_p.png", "002_002_p.png"]
     assert (out / "mesh.glb").is_file() and (out / "orbit.mp4").is_file()
+    used = JobFolder(out)
+    assert [m.source for m in used.read_mask_sources()] == ["uploaded"] * 3
+    for i, mask in enumerate(masks):
+        with Image.open(mask) as image:
+            assert np.array_equal(used.read_used_mask(i), np.asarray(image) > 127)
 
 
 def test_cli_retrieve_warns_of_a_guessed_direction_unless_given(tmp_path: Path,

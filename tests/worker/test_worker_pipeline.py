@@ -1,9 +1,8 @@
-"""The runner around the real pipeline (preset `test`, tiny library), in this process."""
+"""The runner around the real pipeline (the suite's tiny config and library), in this process."""
 
 from __future__ import annotations
 
 import json
-import shutil
 from pathlib import Path
 
 import pytest
@@ -11,6 +10,8 @@ import pytest
 from app.schemas import JobState
 from app.settings import load_settings
 from app.store import JobStore
+from cadnerf_core.jobfolder import JobFolder
+from tests.configs import tiny_config
 from worker import runner
 from worker.progress import STAGES, stage_times_key
 
@@ -35,10 +36,10 @@ def test_a_job_runs_to_succeeded_with_progress_and_measured_stage_times(
         renders: list[Path]) -> None:
     record = new_job()
     folder = store.job_dir(record.id)
-    (folder / "inputs").mkdir()
+    job = JobFolder(folder)
     for index, path in enumerate(renders):
-        shutil.copy(path, folder / "inputs" / f"{index:03d}_{path.stem}.png")
-    (folder / "config.json").write_text(json.dumps({"preset": "test", "overrides": {}}))
+        job.add_photo(index, path)
+    job.write_config(tiny_config())
     settings = load_settings(redis_url=redis_url, data_root=store.data_root,
                              library_dir=tiny_library_dir, device="cpu")
     updates: list[dict] = []

@@ -1,0 +1,362 @@
+"""The job folder: its layout, its name rules, and typed readers and writers of every file in it.
+
+One job is one folder, written by the app at upload (or the CLI), then by the pipeline::
+
+    inputs/NNN_<stem>.<ext>   the photos; NNN (000, 001, ...) is the photo order
+    masks/NNN_<stem>.png      uploaded masks, each named after ITS PHOTO (not its own file name)
+    config.json               the resolved PipelineConfig, written once at the door
+    retrieval.json            model, matches and discarded photos (the retrieval stage)
+    masks.json                per photo: the mask's source (uploaded, alpha, built-in)
+    used_masks/NNN.png        the mask each photo actually used (NNN = photo index)
+    poses.json, transforms.json, metrics.json
+    views/NNN.png, orbit.mp4, orbit.gif, mesh.glb, results.zip
+    checkpoints/phaseN.pt, log.txt, eval/ (held-out renders of an evaluation)
+
+``state.json`` belongs to the service's job state, not to this module. Everything here is
+light (stdlib, pydantic, numpy, Pillow): the API imports it.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import re
+import shutil
+import tempfile
+from collections.abc import Iterator, Sequence
+from contextlib import contextmanager
+from dataclasses import dataclass
+from pathlib import Path, PurePosixPath
+from typing import Any, Literal
+
+import numpy as np
+from PIL import Image
+from pydantic import BaseModel, ConfigDict
+
+from cadnerf_core.config import PipelineConfig, resolve_config
+
+INPUTS = "inputs"
+MASKS = "masks"
+USED_MASKS = "used_masks"
+VIEWS = "views"
+CHECKPOINTS = "checkpoints"
+EVAL = "eval"
+CONFIG = "config.json"
+RETRIEVAL = "retrieval.json"
+MASK_SOURCES = "masks.json"
+POSES = "poses.json"
+TRANSFORMS = "transforms.json"
+METRICS = "metrics.json"
+ORBIT_VIDEO = "orbit.mp4"
+ORBIT_GIF = "orbit.gif"
+MESH = "mesh.glb"
+BUNDLE = "results.zip"
+LOG = "log.txt"
+
+PHOTO_SUFFIXES = (".jpg", ".jpeg", ".png", ".webp")
+"""Suffixes of the photos in ``inputs/`` (anything else there is ignored)."""
+
+MEDIA_TYPES: dict[str, str] = {
+    ORBIT_VIDEO: "video/mp4", ORBIT_GIF: "image/gif", MESH: "model/gltf-binary",
+    POSES: "application/json", TRANSFORMS: "application/json", METRICS: "application/json",
+    RETRIEVAL: "application/json", CONFIG: "application/json", MASK_SOURCES: "application/json",
+    LOG: "text/plain", BUNDLE: "application/zip",
+}
+"""The single files a user may download, in listing order, and their Content-Type."""
+
+_NUMBERED = re.compile(rf"^({VIEWS}|{USED_MASKS})/(\d{{3}})\.png$")
+_PHOTO_INDEX = re.compile(r"^(\d{3})_")
+
+MaskSource = Literal["uploaded", "alpha", "built-in"]
+"""Where a photo's mask came from: an uploaded mask, the photo's alpha, background removal."""
+
+
+def safe_stem(filename: str) -> str:
+    """A file-name stem of ``[A-Za-z0-9_-]`` only, at most 40 characters ("photo" if empty)."""
+    base = filename.replace("\\", "/").rsplit("/", 1)[-1]
+    stem = base.rsplit(".", 1)[0] if "." in base.lstrip(".") else base
+    clean = re.sub(r"[^A-Za-z0-9_-]+", "_", stem).strip("_-")[:40]
+    return clean or "photo"
+
+
+def photo_file_name(index: int, filename: str, ext: str) -> str:
+    """The stored name of photo ``index``: ``NNN_<safe stem>.<ext>`` (the client's name never
+    becomes a path; NNN keeps the upload order when sorted)."""
+    return f"{index:03d}_{safe_stem(filename)}.{ext.lower().lstrip('.')}"
+
+
+def photo_index(stored_name: str) -> int | None:
+    """The photo index of a stored name (``"002_b.jpg"`` -> 2), None for other names."""
+    match = _PHOTO_INDEX.match(PurePosixPath(stored_name.replace("\\", "/")).name)
+    return int(match.group(1)) if match else None
+
+
+def numbered_name(folder: str, index: int) -> str:
+    """``<folder>/NNN.png``: view (``VIEWS``) or used mask (``USED_MASKS``) number ``index``."""
+    return f"{folder}/{index:03d}.png"
+
+
+def is_artifact_name(name: str) -> bool:
+    """Whether ``name`` is one a user may download (a fixed file, a view or a used mask)."""
+    return name in MEDIA_TYPES or _NUMBERED.match(name) is not None
+
+
+def media_type(name: str) -> str:
+    """The Content-Type of an artifact name."""
+    return MEDIA_TYPES.get(name, "image/png" if _NUMBERED.match(name) else
+                           "application/octet-stream")
+
+
+@contextmanager
+def atomic_path(path: Path) -> Iterator[Path]:
+    """Yield a temporary path beside ``path`` (same suffix), renamed onto it on success, so a
+    reader never sees half a file and a killed job leaves no truncated one."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.stem}.", suffix=path.suffix)
+    os.close(fd)
+    try:
+        yield Path(tmp)
+        os.replace(tmp, path)
+    finally:
+        if os.path.exists(tmp):
+            os.unlink(tmp)
+
+
+def write_json(path: Path, data: Any) -> None:
+    """Write JSON atomically (indented, UTF-8)."""
+    with atomic_path(path) as tmp:
+        tmp.write_text(json.dumps(data, indent=2), encoding="utf-8")
+
+
+@dataclass(frozen=True)
+class InputPhoto:
+    """A photo in ``inputs/`` and the uploaded mask stored for it, if any."""
+
+    index: int
+    path: Path
+    mask: Path | None
+
+    @property
+    def name(self) -> str:
+        """The stored file name (``NNN_<stem>.<ext>``)."""
+        return self.path.name
+
+
+class MaskRecord(BaseModel):
+    """One photo's entry in ``masks.json``."""
+
+    model_config = ConfigDict(frozen=True, extra="ignore")
+
+    index: int
+    """Photo index (order in ``inputs/``)."""
+    name: str
+    """The photo's stored name."""
+    source: MaskSource
+    """Where the mask came from."""
+    mask: str
+    """The used mask, relative to the job folder (``used_masks/NNN.png``)."""
+
+
+class JobFolder:
+    """One job's folder: every path in it, and the readers and writers of its files."""
+
+    def __init__(self, root: Path | str) -> None:
+        self.root = Path(root)
+
+    def file(self, name: str) -> Path:
+        """The path of a file named by one of this module's constants (``METRICS``...)."""
+        return self.root / name
+
+    # Inputs: photos and uploaded masks.
+
+    def new_photo_path(self, index: int, filename: str, ext: str) -> Path:
+        """Where photo ``index`` (uploaded as ``filename``, of type ``ext``) is stored."""
+        (self.root / INPUTS).mkdir(parents=True, exist_ok=True)
+        return self.root / INPUTS / photo_file_name(index, filename, ext)
+
+    def add_photo(self, index: int, source: Path, filename: str | None = None,
+                  ext: str | None = None, move: bool = False) -> Path:
+        """Store a photo file as photo ``index`` (moved or copied). Returns its stored path."""
+        suffix = ext or source.suffix.lstrip(".") or "png"
+        target = self.new_photo_path(index, filename or source.name, suffix)
+        if move:
+            source.rename(target)
+        else:
+            shutil.copyfile(source, target)
+        return target
+
+    def mask_path(self, photo: Path | str) -> Path:
+        """Where the uploaded mask of a stored photo lives: ``masks/<photo's stem>.png``."""
+        return self.root / MASKS / f"{PurePosixPath(Path(photo).name).stem}.png"
+
+    def add_mask(self, photo: Path | str, source: Path, move: bool = False) -> Path:
+        """Store ``source`` as the uploaded mask of a stored photo, as PNG.
+
+        A PNG is moved or copied as it is; another format is decoded and saved as PNG.
+
+        Raises:
+            OSError, ValueError: a mask that cannot be decoded (nothing is stored then).
+        """
+        target = self.mask_path(photo)
+        target.parent.mkdir(parents=True, exist_ok=True)
+        with source.open("rb") as handle:
+            is_png = handle.read(8) == b"\x89PNG\r\n\x1a\n"
+        if is_png and move:
+            source.rename(target)
+        elif is_png:
+            shutil.copyfile(source, target)
+        if is_png:
+            return target
+        with Image.open(source) as image, atomic_path(target) as tmp:
+            keep = image.mode in ("1", "L", "LA", "P", "RGB", "RGBA")
+            (image if keep else image.convert("RGB")).save(tmp, format="PNG")
+        if move:
+            source.unlink()
+        return target
+
+    def photos(self) -> list[InputPhoto]:
+        """The photos in ``inputs/`` in order (sorted names) with their uploaded masks."""
+        folder = self.root / INPUTS
+        paths = sorted(p for p in folder.iterdir() if p.is_file()
+                       and p.suffix.lower() in PHOTO_SUFFIXES) if folder.is_dir() else []
+        return [InputPhoto(i, p, m if (m := self.mask_path(p)).is_file() else None)
+                for i, p in enumerate(paths)]
+
+    @staticmethod
+    def photo_ref(photo: Path | str) -> str:
+        """A photo's path relative to the job folder (``inputs/<name>``), for JSON files."""
+        return f"{INPUTS}/{Path(photo).name}"
+
+    # Config: written once, in one shape.
+
+    def write_config(self, config: PipelineConfig) -> None:
+        """Write the resolved configuration (the job runs with exactly this)."""
+        write_json(self.root / CONFIG, config.model_dump(mode="json"))
+
+    def has_config(self) -> bool:
+        """Whether ``config.json`` exists."""
+        return (self.root / CONFIG).is_file()
+
+    def read_config(self) -> PipelineConfig:
+        """The job's resolved configuration; the default preset when ``config.json`` is missing.
+
+        Raises:
+            ValueError: unreadable JSON or not a valid PipelineConfig.
+        """
+        if not self.has_config():
+            return resolve_config(None, None)
+        return PipelineConfig.model_validate_json((self.root / CONFIG).read_bytes())
+
+    # JSON results.
+
+    def _read(self, name: str) -> Any:
+        path = self.root / name
+        return json.loads(path.read_text(encoding="utf-8")) if path.is_file() else None
+
+    def _read_object(self, name: str) -> dict[str, Any] | None:
+        data = self._read(name)
+        if data is not None and not isinstance(data, dict):
+            raise ValueError(f"{name} does not hold a JSON object")
+        return data
+
+    def write_retrieval(self, data: dict[str, Any]) -> None:
+        """Write ``retrieval.json`` (``RetrievalResult.to_json()``)."""
+        write_json(self.root / RETRIEVAL, data)
+
+    def read_retrieval(self) -> dict[str, Any] | None:
+        """``retrieval.json``, None before retrieval ran. Raises ValueError on a broken file."""
+        return self._read_object(RETRIEVAL)
+
+    def write_poses(self, model_id: str, photos: list[dict[str, Any]]) -> None:
+        """Write ``poses.json``: the model id and one entry per photo."""
+        write_json(self.root / POSES, {"model_id": model_id, "photos": photos})
+
+    def read_poses(self) -> dict[str, Any] | None:
+        """``poses.json`` (``{"model_id", "photos"}``), None before export."""
+        return self._read_object(POSES)
+
+    def write_transforms(self, data: dict[str, Any]) -> None:
+        """Write ``transforms.json`` (NeRF-synthetic layout)."""
+        write_json(self.root / TRANSFORMS, data)
+
+    def write_metrics(self, data: dict[str, Any]) -> None:
+        """Write ``metrics.json``."""
+        write_json(self.root / METRICS, data)
+
+    def read_metrics(self) -> dict[str, Any] | None:
+        """``metrics.json``, None before export."""
+        return self._read_object(METRICS)
+
+    # Masks used, and where each came from.
+
+    def write_used_masks(self, photos: Sequence[InputPhoto], masks: Sequence[np.ndarray],
+                         sources: Sequence[MaskSource]) -> list[MaskRecord]:
+        """Keep each photo's mask (``used_masks/NNN.png``, 0/255) and its source (``masks.json``).
+
+        Args:
+            photos: the job's photos; masks: their [H_i, W_i] bool masks; sources: one each.
+        """
+        records = []
+        for photo, mask, source in zip(photos, masks, sources, strict=True):
+            name = numbered_name(USED_MASKS, photo.index)
+            with atomic_path(self.root / name) as tmp:
+                Image.fromarray(np.asarray(mask, bool).astype(np.uint8) * 255, "L").save(
+                    tmp, format="PNG")
+            records.append(MaskRecord(index=photo.index, name=photo.name, source=source,
+                                      mask=name))
+        write_json(self.root / MASK_SOURCES, {"photos": [r.model_dump() for r in records]})
+        return records
+
+    def read_mask_sources(self) -> list[MaskRecord]:
+        """The entries of ``masks.json`` (empty before the masks stage ran).
+
+        Raises:
+            ValueError: a broken file.
+        """
+        data = self._read_object(MASK_SOURCES) or {}
+        return [MaskRecord.model_validate(entry) for entry in data.get("photos", [])]
+
+    def read_used_mask(self, index: int) -> np.ndarray:
+        """The mask photo ``index`` used, [H, W] bool. Raises FileNotFoundError before masks."""
+        with Image.open(self.root / numbered_name(USED_MASKS, index)) as image:
+            return np.asarray(image.convert("L")) > 127
+
+    # Rendered outputs, checkpoints, log.
+
+    def view_path(self, index: int) -> Path:
+        """``views/NNN.png``: the photos' views at their refined poses, then new views."""
+        return self.root / numbered_name(VIEWS, index)
+
+    def checkpoint_path(self, phase: int) -> Path:
+        """``checkpoints/phase{phase}.pt``."""
+        return self.root / CHECKPOINTS / f"phase{phase}.pt"
+
+    @property
+    def log_path(self) -> Path:
+        """``log.txt``: the core's log of this job."""
+        return self.root / LOG
+
+    @property
+    def eval_dir(self) -> Path:
+        """``eval/``: held-out renders written by an evaluation."""
+        return self.root / EVAL
+
+    # Downloads.
+
+    def artifacts(self) -> list[str]:
+        """Names of the downloadable files present: fixed files, then views, then used masks."""
+        names = [n for n in MEDIA_TYPES if (self.root / n).is_file()]
+        for folder in (VIEWS, USED_MASKS):
+            if (self.root / folder).is_dir():
+                names += sorted(n for p in (self.root / folder).iterdir()
+                                if _NUMBERED.match(n := f"{folder}/{p.name}") and p.is_file())
+        return names
+
+    def artifact_path(self, name: str) -> Path | None:
+        """The file behind an artifact name; None for a name off the list, a missing file, or a
+        path that leaves the folder (a symbolic link pointing out)."""
+        if not is_artifact_name(name):
+            return None
+        root = self.root.resolve()
+        path = (root / name).resolve()
+        return path if path.is_relative_to(root) and path.is_file() else None

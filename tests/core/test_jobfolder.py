@@ -1,0 +1,146 @@
+"""The job folder's owner: name rules, masks found by construction, one config shape, readers and
+writers round-tripping, and the download allow-list."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+from PIL import Image
+
+from cadnerf_core.config import DEFAULT_PRESET, resolve_config
+from cadnerf_core.jobfolder import (
+    JobFolder,
+    is_artifact_name,
+    media_type,
+    photo_file_name,
+    photo_index,
+    safe_stem,
+)
+
+
+def _png(path: Path, size: tuple[int, int] = (8, 6), mode: str = "RGB") -> Path:
+    Image.new(mode, size, 200).save(path)
+    return path
+
+
+@pytest.mark.parametrize(("name", "stem"), [
+    ("IMG_01.jpg", "IMG_01"), ("../../etc/passwd", "passwd"), ("C:\\x\\my photo.png", "my_photo"),
+    (".hidden", "hidden"), ("é.png", "photo"), ("a" * 60 + ".png", "a" * 40), ("a.b.c", "a_b"),
+])
+def test_safe_stems_never_become_paths(name: str, stem: str) -> None:
+    assert safe_stem(name) == stem
+
+
+def test_stored_photo_names_keep_the_order() -> None:
+    assert photo_file_name(3, "IMG_01.JPG", "JPG") == "003_IMG_01.jpg"
+    assert photo_index("003_IMG_01.jpg") == 3
+    assert photo_index("/jobs/x/inputs/011_b.png") == 11
+    assert photo_index("photo.png") is None and photo_index("used_masks/001.png") is None
+    names = [photo_file_name(i, "p", "png") for i in (10, 2, 0)]
+    assert sorted(names) == ["000_p.png", "002_p.png", "010_p.png"]
+
+
+def test_a_mask_is_found_by_its_photo_whatever_its_own_name(tmp_path: Path) -> None:
+    folder = JobFolder(tmp_path / "job")
+    sources = tmp_path / "upload"
+    sources.mkdir()
+    photos = [folder.add_photo(i, _png(sources / f"IMG_0{i}.png"), f"IMG_0{i}.jpg", "jpg")
+              for i in range(3)]
+    folder.add_mask(photos[0], _png(sources / "IMG_00_mask.png", mode="L"))
+    jpeg_mask = sources / "whatever.jpg"
+    Image.new("L", (8, 6), 255).save(jpeg_mask, format="JPEG")
+    folder.add_mask(photos[2], jpeg_mask, move=True)
+    (folder.file("inputs") / "notes.txt").write_text("not a photo")
+    found = folder.photos()
+    assert [p.name for p in found] == ["000_IMG_00.jpg", "001_IMG_01.jpg", "002_IMG_02.jpg"]
+    assert [p.index for p in found] == [0, 1, 2]
+    assert found[1].mask is None
+    assert found[0].mask is not None and found[2].mask is not None
+    assert found[0].mask.read_bytes()[:4] == found[2].mask.read_bytes()[:4] == b"\x89PNG"
+    assert not jpeg_mask.exists()  # moved
+    with Image.open(found[2].mask) as stored:
+        assert stored.size == (8, 6)
+
+
+def test_a_mask_that_cannot_be_decoded_is_refused(tmp_path: Path) -> None:
+    folder = JobFolder(tmp_path)
+    photo = folder.add_photo(0, _png(tmp_path / "a.png"))
+    bad = tmp_path / "bad.jpg"
+    bad.write_bytes(b"\xff\xd8\xff" + bytes(20))
+    with pytest.raises((OSError, ValueError)):
+        folder.add_mask(photo, bad)
+    assert not folder.mask_path(photo).exists()
+
+
+def test_the_config_has_one_shape(tmp_path: Path) -> None:
+    folder = JobFolder(tmp_path)
+    assert not folder.has_config()
+    assert folder.read_config() == resolve_config(None, None)
+    assert folder.read_config().preset == DEFAULT_PRESET
+    config = resolve_config("preview", {"phase2.steps": 7, "seed": 4})
+    folder.write_config(config)
+    assert folder.read_config() == config
+    assert json.loads(folder.file("config.json").read_text())["phase2"]["steps"] == 7
+    folder.file("config.json").write_text(json.dumps({"preset": "preview", "overrides": {}}))
+    with pytest.raises(ValueError):  # the request's shape is not a job's config
+        folder.read_config()
+
+
+def test_json_files_round_trip_and_missing_ones_read_as_none(tmp_path: Path) -> None:
+    folder = JobFolder(tmp_path)
+    assert folder.read_retrieval() is None and folder.read_poses() is None
+    assert folder.read_metrics() is None and folder.read_mask_sources() == []
+    folder.write_retrieval({"model_id": "mug", "matches": []})
+    folder.write_poses("mug", [{"index": 0, "c2w": None}])
+    folder.write_metrics({"mean_psnr": 20.5})
+    assert folder.read_retrieval() == {"model_id": "mug", "matches": []}
+    assert folder.read_poses() == {"model_id": "mug", "photos": [{"index": 0, "c2w": None}]}
+    assert folder.read_metrics() == {"mean_psnr": 20.5}
+    folder.file("metrics.json").write_text("[1, 2]")
+    with pytest.raises(ValueError):
+        folder.read_metrics()
+    assert not list(tmp_path.glob(".*"))  # atomic writes leave no temporary files
+
+
+def test_used_masks_and_their_sources_round_trip(tmp_path: Path) -> None:
+    folder = JobFolder(tmp_path)
+    for i in range(3):
+        folder.add_photo(i, _png(tmp_path / f"p{i}.png"))
+    photos = folder.photos()
+    rng = np.random.default_rng(0)
+    masks = [rng.random((6, 8)) > 0.5 for _ in photos]
+    records = folder.write_used_masks(photos, masks, ["uploaded", "alpha", "built-in"])
+    assert [r.mask for r in records] == ["used_masks/000.png", "used_masks/001.png",
+                                         "used_masks/002.png"]
+    assert folder.read_mask_sources() == records
+    assert [r.source for r in records] == ["uploaded", "alpha", "built-in"]
+    assert [r.name for r in records] == [p.name for p in photos]
+    for i, mask in enumerate(masks):
+        assert np.array_equal(folder.read_used_mask(i), mask)
+
+
+def test_only_listed_artifacts_inside_the_folder_are_served(tmp_path: Path) -> None:
+    folder = JobFolder(tmp_path / "job")
+    folder.write_metrics({})
+    folder.write_config(resolve_config("preview"))
+    folder.file("views").mkdir()
+    _png(folder.view_path(1))
+    _png(folder.view_path(0))
+    folder.write_used_masks([], [], [])
+    (folder.file("views") / "notes.png").write_bytes(b"x")
+    folder.file("state.json").write_text("{}")
+    outside = _png(tmp_path / "secret.png")
+    (folder.file("views") / "002.png").symlink_to(outside)
+    assert folder.artifacts() == ["metrics.json", "config.json", "masks.json", "views/000.png",
+                                  "views/001.png", "views/002.png"]
+    assert folder.artifact_path("views/001.png") == folder.view_path(1).resolve()
+    for name in ("views/002.png", "state.json", "views/notes.png", "../secret.png",
+                 "views/../config.json", "inputs/000_a.png", "mesh.glb", "checkpoints/phase1.pt"):
+        assert folder.artifact_path(name) is None, name
+    assert is_artifact_name("used_masks/004.png") and not is_artifact_name("used_masks/4.png")
+    assert media_type("orbit.mp4") == "video/mp4" and media_type("views/003.png") == "image/png"
+    assert media_type("mesh.glb") == "model/gltf-binary"
+    assert folder.checkpoint_path(2) == tmp_path / "job" / "checkpoints" / "phase2.pt"

@@ -1,0 +1,102 @@
+"""The masks a job uses, checked from the outside: photos and masks go in over HTTP, a real worker
+runs the job with the suite's tiny config, and the result says (and shows) which mask each photo
+used."""
+
+from __future__ import annotations
+
+import io
+import time
+from pathlib import Path
+from typing import Any
+
+import httpx
+import numpy as np
+import pytest
+from PIL import Image
+
+from tests.configs import tiny_request_json
+
+pytestmark = pytest.mark.slow
+
+
+def _jpeg_on_white(path: Path) -> bytes:
+    """A photo without alpha: the RGBA render composited on white, as JPEG."""
+    with Image.open(path) as image:
+        rgba = image.convert("RGBA")
+    white = Image.new("RGBA", rgba.size, (255, 255, 255, 255))
+    out = io.BytesIO()
+    Image.alpha_composite(white, rgba).convert("RGB").save(out, format="JPEG", quality=95)
+    return out.getvalue()
+
+
+def _rectangle_mask(path: Path, shift: int) -> np.ndarray:
+    """A mask no background removal would find: the object's bounding box, shrunk by 3 px and
+    shifted right by ``shift`` px. Returns [H, W] bool."""
+    with Image.open(path) as image:
+        alpha = np.asarray(image.convert("RGBA"))[..., 3] > 127
+    rows, cols = np.nonzero(alpha)
+    mask = np.zeros_like(alpha)
+    mask[rows.min() + 3:rows.max() - 2, cols.min() + 3 + shift:cols.max() - 2 + shift] = True
+    return mask
+
+
+def _png(mask: np.ndarray) -> bytes:
+    out = io.BytesIO()
+    Image.fromarray(mask.astype(np.uint8) * 255, "L").save(out, format="PNG")
+    return out.getvalue()
+
+
+def _run(url: str, files: list[tuple[str, tuple[str, bytes, str]]],
+         log_tail: Any) -> dict[str, Any]:
+    """Submit a tiny job, wait for it to succeed, return its result."""
+    response = httpx.post(f"{url}/v1/jobs", files=files, data={"config": tiny_request_json()},
+                          timeout=30)
+    assert response.status_code == 202, response.text
+    job_id = response.json()["id"]
+    deadline = time.monotonic() + 300
+    status: dict[str, Any] = {}
+    while time.monotonic() < deadline:
+        status = httpx.get(f"{url}/v1/jobs/{job_id}", timeout=10).json()
+        if status["state"] in ("succeeded", "failed", "cancelled"):
+            break
+        time.sleep(0.3)
+    assert status.get("state") == "succeeded", f"{status}\n{log_tail()}"
+    result: dict[str, Any] = httpx.get(f"{url}/v1/jobs/{job_id}/result", timeout=10).json()
+    return result
+
+
+def _used_mask(url: str, result: dict[str, Any], index: int) -> np.ndarray:
+    """The mask photo ``index`` used, downloaded from the job's artifacts."""
+    link = result["artifacts"][f"used_masks/{index:03d}.png"]
+    response = httpx.get(f"{url}{link}", timeout=10)
+    assert response.status_code == 200 and response.headers["content-type"] == "image/png"
+    with Image.open(io.BytesIO(response.content)) as image:
+        return np.asarray(image.convert("L")) > 127
+
+
+def test_uploaded_masks_named_unlike_their_photos_are_the_masks_the_job_uses(
+        live_service, photo_set: list[Path]) -> None:
+    sources = photo_set[:3]
+    masks = [_rectangle_mask(path, shift) for path, shift in zip(sources, (2, -2, 1), strict=True)]
+    files = [("images", (f"{stem}.jpg", _jpeg_on_white(path), "image/jpeg"))
+             for stem, path in zip("abc", sources, strict=True)]
+    files += [("masks", (f"{stem}_mask.png", _png(mask), "image/png"))
+              for stem, mask in zip("abc", masks, strict=True)]
+    result = _run(live_service.url, files, live_service.log_tail)
+    assert [p["name"] for p in result["photos"]] == ["a.jpg", "b.jpg", "c.jpg"]
+    assert [p["mask_source"] for p in result["photos"]] == ["uploaded"] * 3
+    for index, mask in enumerate(masks):
+        assert np.array_equal(_used_mask(live_service.url, result, index), mask), index
+
+
+def test_without_uploaded_masks_a_photo_uses_its_alpha_else_background_removal(
+        live_service, photo_set: list[Path]) -> None:
+    sources = photo_set[:3]
+    files = [("images", ("a.png", sources[0].read_bytes(), "image/png"))]
+    files += [("images", (f"{stem}.jpg", _jpeg_on_white(path), "image/jpeg"))
+              for stem, path in zip("bc", sources[1:], strict=True)]
+    result = _run(live_service.url, files, live_service.log_tail)
+    assert [p["mask_source"] for p in result["photos"]] == ["alpha", "built-in", "built-in"]
+    with Image.open(sources[0]) as image:
+        alpha = np.asarray(image.convert("RGBA"))[..., 3] > 127
+    assert np.array_equal(_used_mask(live_service.url, result, 0), alpha)
