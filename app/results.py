@@ -13,7 +13,7 @@ from typing import Any
 
 from app.errors import ApiError
 from app.schemas import JobResult, ModelRef, PhotoResult
-from app.store import JobRecord
+from app.state import JobRecord
 
 ARTIFACT_RE = re.compile(
     r"^(orbit\.mp4|orbit\.gif|mesh\.glb|poses\.json|transforms\.json|metrics\.json"

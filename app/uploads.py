@@ -21,7 +21,7 @@ from pydantic import AnyHttpUrl, TypeAdapter, ValidationError
 from app.errors import ApiError
 from app.multipart import ReceivedForm, StoredPart
 from app.schemas import JobCreate
-from app.settings import Settings, non_public_reason
+from app.state import Settings, non_public_reason
 
 _EXIF_ORIENTATION = 0x0112
 _PIL_FORMATS = {"jpg": "JPEG", "png": "PNG", "webp": "WEBP"}

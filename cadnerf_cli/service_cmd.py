@@ -16,14 +16,14 @@ import typer
 
 if TYPE_CHECKING:
     from app.embedded import EmbeddedRedis, Supervisor
-    from app.settings import Settings
+    from app.state import Settings
 
 log = logging.getLogger(__name__)
 _STOP_SIGNALS = (signal.SIGTERM, signal.SIGINT)
 
 
 def _settings_or_exit() -> Settings:
-    from app.settings import SettingsError, load_settings
+    from app.state import SettingsError, load_settings
 
     try:
         return load_settings()
@@ -81,7 +81,7 @@ def _exit_on_signals() -> None:
 def _start_backends(settings: Settings) -> tuple[Settings, EmbeddedRedis, Supervisor]:
     """Start the embedded Redis and a supervised worker; returns the settings that use them."""
     from app.embedded import EmbeddedRedis, Supervisor
-    from app.settings import load_settings
+    from app.state import load_settings
 
     embedded = EmbeddedRedis(settings.data_root.resolve().parent / "redis" / "cadnerf.rdb")
     try:
