@@ -12,8 +12,9 @@ import pytest
 from fastapi.testclient import TestClient
 
 from app.main import create_app
-from app.settings import Settings
+from app.state.settings import Settings
 from tests.app.images import image_bytes
+from tests.configs import tiny_request, tiny_request_json
 
 
 def _png_header_only(width: int, height: int) -> bytes:
@@ -146,9 +147,9 @@ def test_masks_must_match_photos(client: TestClient, settings: Settings, photos)
 @pytest.mark.parametrize(("config", "fragment"), [
     ("{not json", "not valid JSON"),
     (json.dumps({"preset": "turbo"}), "turbo"),
-    (json.dumps({"preset": "test", "overrides": {"phase2.steps": -1}}), "steps"),
-    (json.dumps({"preset": "test", "overrides": {"phase9": {"x": 1}}}), "phase9"),
-    (json.dumps({"preset": "test", "colour": "red"}), "colour"),
+    (tiny_request_json(**{"phase2.steps": -1}), "steps"),
+    (tiny_request_json(phase9={"x": 1}), "phase9"),
+    (json.dumps({**tiny_request(), "colour": "red"}), "colour"),
     (json.dumps([1, 2]), ""),
 ])
 def test_config_is_validated_by_the_core(client: TestClient, settings: Settings, photos,
@@ -160,7 +161,7 @@ def test_config_is_validated_by_the_core(client: TestClient, settings: Settings,
 
 
 def test_overrides_are_kept_with_the_job(client: TestClient, settings: Settings, photos) -> None:
-    config = {"preset": "test", "overrides": {"phase2.steps": 3}}
+    config = tiny_request(phase2={"steps": 3})
     job = client.post("/v1/jobs", files=photos(), data={"config": json.dumps(config)}).json()
     assert json.loads((settings.data_root / job["id"] / "config.json").read_text()) == config
 

@@ -55,7 +55,7 @@ def plain_photos(photo_set: list[Path], tmp_path_factory: pytest.TempPathFactory
 @pytest.mark.parametrize("stage", STAGES)
 def test_cancel_in_each_stage(service: Live, photo_set: list[Path], plain_photos: list[Path],
                               stage: str) -> None:
-    from app.store import JobStore, connect
+    from app.state import JobStore, connect
 
     overrides, photos = PLANS[stage]
     job = jobs.submit(service.url, plain_photos if photos == "plain" else photo_set,

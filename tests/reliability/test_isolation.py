@@ -13,8 +13,8 @@ import pytest
 from fastapi.testclient import TestClient
 
 from app.main import create_app
-from app.schemas import JobState
-from app.store import JobStore, connect
+from app.state import JobState
+from app.state import JobStore, connect
 from tests.reliability.support import Live, photo_files
 
 KEY_A, KEY_B = "key-alpha-0123456789", "key-bravo-9876543210"

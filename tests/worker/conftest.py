@@ -15,8 +15,8 @@ if str(ROOT) not in sys.path:
     sys.path.insert(0, str(ROOT))
 
 
-from app.schemas import JobState  # noqa: E402
-from app.store import JobRecord, JobStore, connect  # noqa: E402
+from app.state import JobState  # noqa: E402
+from app.state import JobRecord, JobStore, connect  # noqa: E402
 
 
 @pytest.fixture()

@@ -12,9 +12,9 @@ from pathlib import Path
 import pytest
 
 from app import jobs
-from app.schemas import ErrorDetail, JobState
-from app.settings import load_settings
-from app.store import JobRecord, JobStore
+from app.state import ErrorDetail, JobState
+from app.state.settings import load_settings
+from app.state import JobRecord, JobStore
 from worker import runner
 
 HINT = "export or upload it again"

@@ -3,8 +3,8 @@
 from __future__ import annotations
 
 from app import recovery
-from app.schemas import JobState
-from app.store import JobStore
+from app.state import JobState
+from app.state import JobStore
 from worker import runner
 from worker.runner import _FixedClaim
 
@@ -39,7 +39,7 @@ def test_a_claim_is_exclusive_until_released(store: JobStore, new_job) -> None:
 
 def test_a_duplicate_delivery_of_a_claimed_job_is_dropped(store: JobStore, new_job,
                                                           redis_url) -> None:
-    from app.settings import load_settings
+    from app.state.settings import load_settings
 
     settings = load_settings(redis_url=redis_url, data_root=store.data_root)
     job = new_job()

@@ -8,9 +8,9 @@ from pathlib import Path
 
 import pytest
 
-from app.schemas import JobState
-from app.settings import load_settings
-from app.store import JobStore
+from app.state import JobState
+from app.state.settings import load_settings
+from app.state import JobStore
 from worker import runner
 from worker.progress import STAGES, stage_times_key
 

@@ -7,7 +7,7 @@ import time
 
 import pytest
 
-from app.store import JobStore
+from app.state import JobStore
 from worker.progress import (
     DEFAULT_STAGE_SECONDS,
     EtaModel,
@@ -120,7 +120,7 @@ def test_a_deleted_job_counts_as_cancelled_and_is_not_recreated(store: JobStore,
 
 def test_redis_going_away_does_not_stop_the_job(store: JobStore, new_job) -> None:
     from app.embedded import free_port
-    from app.store import connect
+    from app.state import connect
 
     record = new_job()
     down = JobStore(connect(f"redis://127.0.0.1:{free_port()}/0"), store.data_root)

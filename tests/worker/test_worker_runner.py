@@ -8,9 +8,9 @@ import uuid
 from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
 from pathlib import Path
 
-from app.schemas import JobState
-from app.settings import load_settings
-from app.store import JobStore
+from app.state import JobState
+from app.state.settings import load_settings
+from app.state import JobStore
 from worker import runner
 
 
@@ -75,7 +75,7 @@ def test_a_webhook_to_a_private_address_is_not_called_by_default(store: JobStore
 def test_the_final_state_reaches_state_json_while_redis_is_away(store: JobStore, new_job,
                                                                 redis_url) -> None:
     from app.embedded import free_port
-    from app.store import connect
+    from app.state import connect
 
     record = new_job()
     down = JobStore(connect(f"redis://127.0.0.1:{free_port()}/0"), store.data_root)
