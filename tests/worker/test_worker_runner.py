@@ -8,9 +8,7 @@ import uuid
 from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
 from pathlib import Path
 
-from app.state import JobState
-from app.state.settings import load_settings
-from app.state import JobStore
+from app.state import JobState, JobStore, keys, load_settings
 from worker import runner
 
 
@@ -19,11 +17,12 @@ def _settings(store: JobStore, redis_url: str, secret: str = "", **overrides: ob
                          library_dir=Path("/nonexistent"), webhook_secret=secret, **overrides)
 
 
-def test_unknown_and_finished_jobs_are_left_alone(store: JobStore, new_job, redis_url) -> None:
+def test_unknown_and_finished_jobs_are_left_alone(store: JobStore, new_job, redis_url,
+                                                 clean_redis) -> None:
     settings = _settings(store, redis_url)
     missing = str(uuid.uuid4())
     assert runner.execute(missing, settings, store)["state"] == "missing"
-    assert store.r.exists(store.job_key(missing)) == 0
+    assert clean_redis.exists(keys.job(missing)) == 0
     done = new_job(JobState.succeeded)
     assert runner.execute(done.id, settings, store)["state"] == "succeeded"
     unchanged = store.get(done.id)
@@ -86,15 +85,16 @@ def test_the_final_state_reaches_state_json_while_redis_is_away(store: JobStore,
 
 
 def test_a_final_state_lost_by_redis_is_reseeded_but_a_deleted_job_is_not(
-        store: JobStore, new_job, redis_url) -> None:
+        store: JobStore, new_job, redis_url, clean_redis) -> None:
     lost, deleted = new_job(), new_job()
-    store.r.delete(store.job_key(lost.id))  # Redis restarted empty
+    clean_redis.delete(keys.job(lost.id))  # Redis restarted empty
     store.delete(deleted)
     settings = _settings(store, redis_url)
     runner._finish(store, settings, lost, JobState.succeeded, None)
     runner._finish(store, settings, deleted, JobState.cancelled, None)
-    assert store.r.hget(store.job_key(lost.id), "state") == "succeeded"
-    assert store.r.exists(store.job_key(deleted.id)) == 0
+    assert clean_redis.hget(keys.job(lost.id), "state") == "succeeded"
+    assert clean_redis.exists(keys.job(deleted.id)) == 0
+    assert store.running_ids() == [] and store.queue_estimates([lost.id]) == {}
 
 
 def test_an_unwritable_job_folder_gives_a_clear_error(tmp_path: Path) -> None:
