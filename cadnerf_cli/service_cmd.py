@@ -127,7 +127,7 @@ def _demo_when_ready(url: str, preset: str) -> None:
 
 def worker(loglevel: str = typer.Option("INFO", help="Celery log level.")) -> None:
     """Run one Celery worker (solo pool, concurrency 1, queue `cadnerf`)."""
-    from app.queue import QUEUE
+    from app.state import QUEUE
     from worker.celery_app import create_celery
 
     settings = _settings_or_exit()
