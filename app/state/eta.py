@@ -22,10 +22,9 @@ DEVICES = ("cpu", "cuda")  # the kinds of device the tables and the history dist
 FALLBACK_PRESET = "standard"  # the table of a job whose preset has none (the default preset's)
 MEASURED_WEIGHT = 0.5  # exponential moving average of measured stage durations
 
-# CPU: `make run`'s demo (`preview`) on two cores, rounded up for slower cores; the larger
-# presets in proportion to their steps. CUDA: `standard` from docs/bench_training_gpu.md (about
-# 70 s a job on one H100); the others scaled by their step counts, as a GPU step costs about
-# the same whatever its size.
+# CPU: two cores (`preview` is `make run`'s demo), rounded up for slower cores. CUDA: `standard`
+# as in docs/bench_training_gpu.md (about 70 s a job on one H100); the others scaled by their
+# step counts, since a GPU step costs about the same whatever its size.
 DEFAULT_STAGE_SECONDS: dict[str, dict[str, dict[str, float]]] = {
     "cpu": {
         "preview": {"masks": 3, "retrieval": 3, "phase1": 6, "phase2": 20, "phase3": 150,
