@@ -5,7 +5,7 @@ from __future__ import annotations
 
 from celery import Celery
 
-from app.state import QUEUE, TASK_NAME, Settings, celery_config
+from app.state import QUEUE, SEND_RETRY_POLICY, TASK_NAME, Settings, celery_config
 
 
 def make_producer(settings: Settings) -> Celery:
@@ -18,5 +18,4 @@ def make_producer(settings: Settings) -> Celery:
 def enqueue(producer: Celery, job_id: str) -> None:
     """Queue a job for the workers (bounded retries so a dead broker fails fast)."""
     producer.send_task(TASK_NAME, args=[job_id], queue=QUEUE, retry=True,
-                       retry_policy={"max_retries": 2, "interval_start": 0.2,
-                                     "interval_step": 0.5, "interval_max": 1.0})
+                       retry_policy=SEND_RETRY_POLICY)

@@ -9,7 +9,7 @@ from typing import Any
 from celery import Celery
 from celery.signals import worker_ready, worker_shutdown
 
-from app.state import QUEUE, TASK_NAME, Settings, celery_config
+from app.state import QUEUE, SEND_RETRY_POLICY, TASK_NAME, Settings, celery_config
 from worker.liveness import Liveness, worker_name
 
 log = logging.getLogger(__name__)
@@ -36,7 +36,8 @@ def _connect_signals(celery: Celery, settings: Settings) -> None:
     name = worker_name()
 
     def send(job_id: str) -> None:  # re-queues a dead worker's job through this app
-        celery.send_task(TASK_NAME, args=[job_id], queue=QUEUE)
+        celery.send_task(TASK_NAME, args=[job_id], queue=QUEUE, retry=True,
+                         retry_policy=SEND_RETRY_POLICY)
 
     liveness = Liveness(settings, name, send)
     celery.conf.cadnerf_liveness = liveness  # the task claims its jobs through it

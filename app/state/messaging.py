@@ -11,6 +11,9 @@ from app.state.settings import Settings
 
 TASK_NAME = "cadnerf.run_job"
 QUEUE = "cadnerf"
+# Sending a job retries briefly, so that a dead broker fails the request (or the re-queue) fast.
+SEND_RETRY_POLICY = {"max_retries": 2, "interval_start": 0.2, "interval_step": 0.5,
+                     "interval_max": 1.0}
 
 
 def celery_config(settings: Settings) -> dict[str, Any]:
