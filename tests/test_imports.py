@@ -79,3 +79,23 @@ def test_the_worker_loads_no_other_part_of_app() -> None:
 def test_the_state_package_loads_no_web_queue_or_torch() -> None:
     modules = _top(_modules_after("import app.state\napp.state.load_settings()"))
     assert not modules & {"fastapi", "starlette", "celery", "kombu", "torch", "worker"}
+
+
+def _strings(path: Path) -> list[str]:
+    """String literals of a file, f-strings' literal parts included."""
+    tree = ast.parse(path.read_text(), str(path))
+    return [n.value for n in ast.walk(tree)
+            if isinstance(n, ast.Constant) and isinstance(n.value, str)]
+
+
+def test_redis_key_names_are_spelled_in_one_place() -> None:
+    keys_module = ROOT / "app" / "state" / "keys.py"
+    assert any("cadnerf:" in s or s == "cadnerf" for s in _strings(keys_module))
+    for folder in ("app", "worker", "cadnerf_cli"):
+        for path in (ROOT / folder).rglob("*.py"):
+            if path != keys_module:
+                assert not [s for s in _strings(path) if "cadnerf:" in s], path
+    # The Lua scripts build no key: every key comes in through KEYS.
+    for script in _strings(ROOT / "app" / "state" / "scripts.py"):
+        if "redis.call" in script:
+            assert "cadnerf" not in script and ".." not in script, script
