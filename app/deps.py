@@ -13,12 +13,11 @@ import redis
 from celery import Celery
 from fastapi import Depends, Path, Request, Response, Security
 from fastapi.security import HTTPAuthorizationCredentials, HTTPBearer
-from redis.asyncio import Redis as AsyncRedis
 from starlette.concurrency import run_in_threadpool
 
 from app.errors import ApiError, not_found, store_unavailable
-from app.settings import Settings, hash_key
-from app.store import ANON_OWNER, JobRecord, JobStore, is_job_id
+from app.state import ANON_OWNER, AsyncJobReader, JobRecord, JobStore, Settings, is_job_id
+from app.state.settings import hash_key
 
 log = logging.getLogger(__name__)
 
@@ -46,8 +45,15 @@ async def get_producer(request: Request) -> Celery:
     return producer
 
 
+async def get_reader(request: Request) -> AsyncJobReader:
+    """The polling route's asyncio reader."""
+    reader: AsyncJobReader = request.app.state.reader
+    return reader
+
+
 SettingsDep = Annotated[Settings, Depends(get_settings)]
 StoreDep = Annotated[JobStore, Depends(get_store)]
+ReaderDep = Annotated[AsyncJobReader, Depends(get_reader)]
 ProducerDep = Annotated[Celery, Depends(get_producer)]
 
 
@@ -118,16 +124,14 @@ JobDep = Annotated[JobRecord, Depends(get_job)]
 
 
 async def get_job_fast(job_id: Annotated[str, Path(max_length=64, description="The job's id.")],
-                       request: Request, store: StoreDep, owner: OwnerDep,
+                       reader: ReaderDep, store: StoreDep, owner: OwnerDep,
                        response: Response) -> JobRecord:
     """Like ``get_job``, but one asyncio HGETALL (no thread hop) when Redis has the job."""
     if not is_job_id(job_id):
         raise not_found()
-    client: AsyncRedis = request.app.state.aredis
     try:
-        raw = await client.hgetall(store.job_key(job_id))
-        record = (JobRecord.from_hash(raw) if raw  # type: ignore[arg-type]
-                  else await run_in_threadpool(store.get, job_id))  # state.json fallback
+        record = (await reader.get(job_id)
+                  or await run_in_threadpool(store.get, job_id))  # state.json fallback
     except redis.RedisError as exc:
         record = await run_in_threadpool(_from_disk, store, job_id, response, exc)
     return _check_owner(record, owner)

@@ -14,7 +14,8 @@ from fastapi.exceptions import RequestValidationError
 from fastapi.responses import JSONResponse
 from starlette.exceptions import HTTPException as StarletteHTTPException
 
-from app.schemas import ErrorBody, ErrorDetail
+from app.schemas import ErrorBody
+from app.state import ErrorDetail
 
 log = logging.getLogger(__name__)
 

@@ -14,27 +14,19 @@ from pathlib import Path
 
 import redis
 from celery import Celery
-from redis.asyncio import Redis as AsyncRedis
 from starlette.concurrency import run_in_threadpool
 from starlette.requests import Request
 
 from app.errors import ApiError, store_unavailable
 from app.multipart import Limits, receive_form
 from app.queue import enqueue
-from app.schemas import DeleteResult, JobLinks, JobState, JobStatus
-from app.settings import Settings
-from app.store import (
-    TMP_PREFIX,
-    JobRecord,
-    JobStore,
-    QueueEstimate,
-    history_devices,
-    queue_estimate_async,
-)
+from app.schemas import DeleteResult, JobLinks, JobStatus
+from app.state import AsyncJobReader, JobRecord, JobState, JobStore, QueueEstimate, Settings
 from app.uploads import lay_out
 
 log = logging.getLogger(__name__)
 
+TMP_PREFIX = ".upload-"  # staging folders of uploads in progress, inside the data root
 STAGING_MAX_AGE_S = 3600.0
 ACTIVE = (JobState.queued, JobState.running)
 
@@ -65,26 +57,23 @@ def to_status(record: JobRecord, queue: QueueEstimate | None = None) -> JobStatu
 
 
 def queue_estimate(store: JobStore, record: JobRecord, settings: Settings) -> QueueEstimate | None:
-    """Where a queued job stands (one Redis call; none for other states); None if unknown.
+    """Where a queued job stands (none for other states); None if unknown.
 
     Best effort: a Redis error leaves the status without a queue position rather than failing.
     """
     if record.state != JobState.queued:
         return None
     try:
-        return store.queue_estimate(record.id, history_devices(settings.device))
+        return store.queue_estimates([record.id], settings.device).get(record.id)
     except redis.RedisError as exc:
         log.warning("queue estimate of job %s failed: %s", record.id, exc)
         return None
 
 
-async def queue_estimate_fast(client: AsyncRedis, record: JobRecord,
-                              settings: Settings) -> QueueEstimate | None:
-    """``queue_estimate`` on the asyncio client of the polling route (no thread hop)."""
-    if record.state != JobState.queued:
-        return None
+async def queue_estimate_fast(reader: AsyncJobReader, record: JobRecord) -> QueueEstimate | None:
+    """``queue_estimate`` on the asyncio reader of the polling route (no thread hop)."""
     try:
-        return await queue_estimate_async(client, record.id, history_devices(settings.device))
+        return await reader.queue_estimate(record)
     except redis.RedisError as exc:
         log.warning("queue estimate of job %s failed: %s", record.id, exc)
         return None
@@ -97,7 +86,7 @@ def statuses(store: JobStore, records: Sequence[JobRecord], settings: Settings
     estimates: dict[str, QueueEstimate] = {}
     if queued:
         try:
-            estimates = store.queue_estimates(queued, history_devices(settings.device))
+            estimates = store.queue_estimates(queued, settings.device)
         except redis.RedisError as exc:
             log.warning("queue estimates failed: %s", exc)
     return [to_status(r, estimates.get(r.id)) for r in records]
@@ -181,9 +170,7 @@ def delete_job(store: JobStore, record: JobRecord, wait_s: float = 15.0) -> Dele
     previous = record.state
     stopped = True
     if previous in ACTIVE:
-        store.request_cancel(record.id)
-        store.update(record.id, allowed_from=(JobState.queued,), state=JobState.cancelled,
-                     finished_at=time.time())
+        store.cancel(record.id)
         stopped = wait_until_stopped(store, record.id, wait_s)
     store.delete(record)
     return DeleteResult(id=record.id, deleted=True, previous_state=previous,

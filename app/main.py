@@ -11,14 +11,20 @@ from fastapi import FastAPI
 from fastapi.staticfiles import StaticFiles
 from starlette.concurrency import run_in_threadpool
 
-from app import jobs, recovery
+from app import jobs
 from app.errors import install_handlers
 from app.queue import enqueue, make_producer
 from app.routes import health, library, pages
 from app.routes import jobs as job_routes
 from app.routes.pages import STATIC_DIR
-from app.settings import Settings, SettingsError, load_settings
-from app.store import JobStore, connect, connect_async
+from app.state import (
+    AsyncJobReader,
+    JobStore,
+    OrphanWatch,
+    Settings,
+    SettingsError,
+    load_settings,
+)
 
 log = logging.getLogger(__name__)
 API_VERSION = "1"
@@ -40,13 +46,13 @@ async def _cleanup_loop(app: FastAPI) -> None:
 
 
 async def _recovery_loop(app: FastAPI) -> None:
-    """Every few seconds, re-queue jobs left ``running`` by a worker that died (app.recovery).
+    """Every few seconds, re-queue jobs left ``running`` by a worker that died.
 
     Cheap while nothing runs: one SMEMBERS of the running set; else a heartbeat scan and one
     HGETALL + GET per running job.
     """
     producer = app.state.producer
-    watch = recovery.OrphanWatch(app.state.store, lambda job_id: enqueue(producer, job_id))
+    watch = OrphanWatch(app.state.store, lambda job_id: enqueue(producer, job_id))
     last_error = ""
     while True:
         try:
@@ -88,8 +94,8 @@ async def _lifespan(app: FastAPI) -> AsyncIterator[None]:
             task.cancel()
             with contextlib.suppress(asyncio.CancelledError):
                 await task
-        app.state.store.r.close()
-        await app.state.aredis.aclose()
+        app.state.store.close()
+        await app.state.reader.close()
 
 
 def create_app(settings: Settings | None = None) -> FastAPI:
@@ -112,8 +118,8 @@ def create_app(settings: Settings | None = None) -> FastAPI:
                   description="Camera poses, novel views, an orbit video and a mesh from 3-10 "
                               "ordered photos (CAD-NeRF).")
     app.state.settings = settings
-    app.state.store = JobStore(connect(settings.redis_url), settings.data_root)
-    app.state.aredis = connect_async(settings.redis_url)
+    app.state.store = JobStore.open(settings.redis_url, settings.data_root)
+    app.state.reader = AsyncJobReader(settings.redis_url, settings.device)
     app.state.producer = make_producer(settings)
     install_handlers(app)
     for router in (job_routes.router, library.router, health.router, pages.router):

@@ -1,59 +1,11 @@
-"""The Celery side the API needs: shared queue settings and sending a job by task name.
-
-The API never imports the worker package (it would pull in the core and torch); it sends the
-task by name, and the worker applies the same ``celery_config``.
-"""
+"""Sending a job to the workers by task name (the API never imports the worker package: it
+would pull in the core and torch). The queue settings are shared through ``app.state``."""
 
 from __future__ import annotations
 
-from typing import Any
-
 from celery import Celery
 
-from app.settings import Settings
-
-TASK_NAME = "cadnerf.run_job"
-QUEUE = "cadnerf"
-
-
-def celery_config(settings: Settings) -> dict[str, Any]:
-    """Queue settings shared by the API (producer) and the worker (consumer).
-
-    Args:
-        settings: deployment settings (broker URL, time limits).
-
-    Returns:
-        A mapping for ``Celery.conf.update``.
-    """
-    # The broker re-delivers an unacknowledged task after the visibility timeout: it must be
-    # longer than any job, or a long job would run twice.
-    visibility = settings.job_hard_time_limit_s + 600
-    return {
-        "broker_url": settings.redis_url,
-        "result_backend": settings.redis_url,
-        "task_serializer": "json",
-        "result_serializer": "json",
-        "accept_content": ["json"],
-        "result_accept_content": ["json"],
-        "task_default_queue": QUEUE,
-        "task_acks_late": True,
-        "task_reject_on_worker_lost": True,
-        "worker_prefetch_multiplier": 1,
-        "task_soft_time_limit": settings.job_soft_time_limit_s,
-        "task_time_limit": settings.job_hard_time_limit_s,
-        "result_expires": 24 * 3600,
-        "broker_transport_options": {"visibility_timeout": visibility},
-        # Progress goes to the result backend too: fail fast when Redis is away (the job goes
-        # on; the job store has the state), instead of Celery's default 20 retries.
-        "result_backend_transport_options": {
-            "visibility_timeout": visibility,
-            "retry_policy": {"max_retries": 1, "interval_start": 0, "interval_step": 0.5,
-                             "interval_max": 0.5}},
-        "broker_connection_retry_on_startup": True,
-        "worker_hijack_root_logger": False,
-        "task_track_started": True,
-        "enable_utc": True,
-    }
+from app.state import QUEUE, SEND_RETRY_POLICY, TASK_NAME, Settings, celery_config
 
 
 def make_producer(settings: Settings) -> Celery:
@@ -66,5 +18,4 @@ def make_producer(settings: Settings) -> Celery:
 def enqueue(producer: Celery, job_id: str) -> None:
     """Queue a job for the workers (bounded retries so a dead broker fails fast)."""
     producer.send_task(TASK_NAME, args=[job_id], queue=QUEUE, retry=True,
-                       retry_policy={"max_retries": 2, "interval_start": 0.2,
-                                     "interval_step": 0.5, "interval_max": 1.0})
+                       retry_policy=SEND_RETRY_POLICY)

@@ -12,7 +12,7 @@ from typing import Any
 
 from app.errors import ApiError
 from app.schemas import JobResult, ModelRef, PhotoResult
-from app.store import JobRecord
+from app.state import JobRecord
 from cadnerf_core.jobfolder import JobFolder, MaskRecord, media_type
 
 __all__ = ["artifact_path", "list_artifacts", "media_type", "read_result"]

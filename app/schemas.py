@@ -2,30 +2,16 @@
 
 ``JobCreate`` (the request's config) -> ``JobPublic`` (id, state, links) -> ``JobStatus``
 (stage, progress, ETA, queue position, timestamps, error) ; ``JobResult`` (the outcome of a
-succeeded job).
+succeeded job). ``JobState`` and ``ErrorDetail`` belong to the job state (``app.state``).
 """
 
 from __future__ import annotations
 
-from enum import StrEnum
 from typing import Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field
 
-
-class JobState(StrEnum):
-    """Where a job is in its life."""
-
-    queued = "queued"
-    running = "running"
-    succeeded = "succeeded"
-    failed = "failed"
-    cancelled = "cancelled"
-
-    @property
-    def terminal(self) -> bool:
-        """True once the job will not change any more."""
-        return self in (JobState.succeeded, JobState.failed, JobState.cancelled)
+from app.state import ErrorDetail, JobState
 
 
 class JobCreate(BaseModel):
@@ -44,16 +30,6 @@ class JobLinks(BaseModel):
     self: str
     result: str
     web: str
-
-
-class ErrorDetail(BaseModel):
-    """What went wrong and what to do about it."""
-
-    code: str
-    message: str
-    field: str | None = None
-    photo: str | None = None
-    hint: str | None = None
 
 
 class JobPublic(BaseModel):

@@ -19,7 +19,7 @@ from pydantic import AnyHttpUrl, TypeAdapter, ValidationError
 from app.errors import ApiError
 from app.multipart import ReceivedForm, StoredPart
 from app.schemas import JobCreate
-from app.settings import Settings, non_public_reason
+from app.state import Settings, non_public_reason
 from cadnerf_core.config import PipelineConfig, resolve_config
 from cadnerf_core.jobfolder import JobFolder
 

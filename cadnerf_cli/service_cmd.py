@@ -18,14 +18,14 @@ import typer
 
 if TYPE_CHECKING:
     from app.embedded import EmbeddedRedis, Supervisor
-    from app.settings import Settings
+    from app.state import Settings
 
 log = logging.getLogger(__name__)
 _STOP_SIGNALS = (signal.SIGTERM, signal.SIGINT)
 
 
 def _settings_or_exit() -> Settings:
-    from app.settings import SettingsError, load_settings
+    from app.state import SettingsError, load_settings
 
     try:
         return load_settings()
@@ -105,7 +105,7 @@ def _start_backends(settings: Settings,
     """Start the embedded Redis and a supervised worker (``--quiet`` unless ``verbose``);
     returns the settings that use them."""
     from app.embedded import EmbeddedRedis, Supervisor
-    from app.settings import load_settings
+    from app.state import load_settings
 
     embedded = EmbeddedRedis(settings.data_root.resolve().parent / "redis" / "cadnerf.rdb")
     try:
@@ -164,7 +164,7 @@ def worker(loglevel: str = typer.Option("INFO", help="Celery log level."),
     """Run one Celery worker (solo pool, concurrency 1, queue `cadnerf`)."""
     from celery.exceptions import SecurityWarning
 
-    from app.queue import QUEUE
+    from app.state import QUEUE
     from worker.celery_app import create_celery
 
     settings = _settings_or_exit()

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import ast
 import json
 import subprocess
 import sys
@@ -28,7 +29,7 @@ def _top(modules: set[str]) -> set[str]:
 @pytest.mark.parametrize("code", [
     "import app",
     "import app.main\napp.main.create_app()",
-    "import app.store, app.queue, app.uploads, app.results, app.embedded, app.client",
+    "import app.state, app.queue, app.uploads, app.results, app.embedded, app.client",
 ])
 def test_the_service_never_imports_torch(code: str) -> None:
     modules = _modules_after(code)
@@ -45,3 +46,57 @@ def test_the_core_never_imports_the_service_stack() -> None:
 def test_the_worker_task_module_stays_light_until_a_job_runs() -> None:
     modules = _top(_modules_after("import worker.tasks, worker.celery_app"))
     assert "torch" not in modules and "fastapi" not in modules
+
+
+def _app_imports(path: Path) -> list[str]:
+    """Modules of ``app`` a file imports (``from app import x`` counts as ``app.x``)."""
+    found = []
+    for node in ast.walk(ast.parse(path.read_text(), str(path))):
+        if isinstance(node, ast.Import):
+            found += [a.name for a in node.names if a.name.split(".")[0] == "app"]
+        elif isinstance(node, ast.ImportFrom) and node.level == 0 and node.module:
+            if node.module == "app":
+                found += [f"app.{a.name}" for a in node.names]
+            elif node.module.startswith("app."):
+                found.append(node.module)
+    return found
+
+
+def test_the_worker_imports_from_app_only_the_state_package() -> None:
+    imports = {str(p.relative_to(ROOT)): _app_imports(p) for p in (ROOT / "worker").glob("*.py")}
+    assert any(imports.values())  # the check sees the worker's imports at all
+    outside = {f: [m for m in mods if m != "app.state"] for f, mods in imports.items()}
+    assert not {f: mods for f, mods in outside.items() if mods}
+
+
+def test_the_worker_loads_no_other_part_of_app() -> None:
+    modules = _modules_after("import worker.tasks, worker.celery_app, worker.runner, "
+                             "worker.liveness, worker.progress, worker.webhook")
+    apps = {m for m in modules if m.split(".")[0] == "app"}
+    assert "app.state" in apps
+    assert not {m for m in apps if m != "app" and not m.startswith("app.state")}
+
+
+def test_the_state_package_loads_no_web_queue_or_torch() -> None:
+    modules = _top(_modules_after("import app.state\napp.state.load_settings()"))
+    assert not modules & {"fastapi", "starlette", "celery", "kombu", "torch", "worker"}
+
+
+def _strings(path: Path) -> list[str]:
+    """String literals of a file, f-strings' literal parts included."""
+    tree = ast.parse(path.read_text(), str(path))
+    return [n.value for n in ast.walk(tree)
+            if isinstance(n, ast.Constant) and isinstance(n.value, str)]
+
+
+def test_redis_key_names_are_spelled_in_one_place() -> None:
+    keys_module = ROOT / "app" / "state" / "keys.py"
+    assert any("cadnerf:" in s or s == "cadnerf" for s in _strings(keys_module))
+    for folder in ("app", "worker", "cadnerf_cli"):
+        for path in (ROOT / folder).rglob("*.py"):
+            if path != keys_module:
+                assert not [s for s in _strings(path) if "cadnerf:" in s], path
+    # The Lua scripts build no key: every key comes in through KEYS.
+    for script in _strings(ROOT / "app" / "state" / "scripts.py"):
+        if "redis.call" in script:
+            assert "cadnerf" not in script and ".." not in script, script

@@ -9,8 +9,7 @@ from typing import Any
 from celery import Celery
 from celery.signals import worker_ready, worker_shutdown
 
-from app.queue import QUEUE, celery_config
-from app.settings import Settings
+from app.state import QUEUE, SEND_RETRY_POLICY, TASK_NAME, Settings, celery_config
 from worker.liveness import Liveness, worker_name
 
 log = logging.getLogger(__name__)
@@ -35,7 +34,12 @@ def create_celery(settings: Settings) -> Celery:
 
 def _connect_signals(celery: Celery, settings: Settings) -> None:
     name = worker_name()
-    liveness = Liveness(settings, name)
+
+    def send(job_id: str) -> None:  # re-queues a dead worker's job through this app
+        celery.send_task(TASK_NAME, args=[job_id], queue=QUEUE, retry=True,
+                         retry_policy=SEND_RETRY_POLICY)
+
+    liveness = Liveness(settings, name, send)
     celery.conf.cadnerf_liveness = liveness  # the task claims its jobs through it
 
     @worker_ready.connect(weak=False)

@@ -1,8 +1,8 @@
 """The worker's heartbeat, the claim on the job it runs, and the start-up hunt for orphans.
 
-One thread refreshes ``cadnerf:worker:<name>`` (readiness) and, while a job runs, its claim
-``cadnerf:claim:<id>`` (so no other worker runs it at the same time). For the first seconds after
-start-up it also re-queues jobs left ``running`` by a worker that died (``app.recovery``).
+One thread refreshes the worker's heartbeat (readiness) and, while a job runs, its claim (so no
+other worker runs it at the same time). For the first seconds after start-up it also re-queues
+jobs left ``running`` by a worker that died (``app.state.OrphanWatch``).
 """
 
 from __future__ import annotations
@@ -12,14 +12,12 @@ import os
 import socket
 import threading
 import time
+from collections.abc import Callable
 from typing import Any
 
 import redis
 
-from app import recovery
-from app.queue import enqueue, make_producer
-from app.settings import Settings
-from app.store import JobStore, beat, connect, forget_worker
+from app.state import HEARTBEAT_EVERY_S, ORPHAN_GRACE_S, JobStore, OrphanWatch, Settings
 
 log = logging.getLogger(__name__)
 
@@ -35,14 +33,15 @@ class Liveness:
     Args:
         settings: deployment settings (Redis URL, data root).
         name: the heartbeat name recorded on the jobs this worker runs.
+        send: queues a job id again (an orphan of a dead worker).
         startup_watch_s: how long after start-up to look for orphaned jobs.
     """
 
-    def __init__(self, settings: Settings, name: str,
-                 startup_watch_s: float = 3 * recovery.ORPHAN_GRACE_S) -> None:
-        self.settings = settings
-        self.client = connect(settings.redis_url)
+    def __init__(self, settings: Settings, name: str, send: Callable[[str], Any],
+                 startup_watch_s: float = 3 * ORPHAN_GRACE_S) -> None:
+        self.store = JobStore.open(settings.redis_url, settings.data_root)
         self.name = name
+        self.send = send
         self.startup_watch_s = startup_watch_s
         self._job: str | None = None
         self._lock = threading.Lock()
@@ -56,7 +55,7 @@ class Liveness:
 
     def hold(self, job_id: str) -> bool:
         """Claim a job for this worker; False when another live worker holds it."""
-        if not recovery.claim(self.client, job_id, self.name):
+        if not self.store.claims.take(job_id, self.name):
             return False
         with self._lock:
             self._job = job_id
@@ -68,14 +67,14 @@ class Liveness:
             if self._job == job_id:
                 self._job = None
         try:
-            recovery.release(self.client, job_id, self.name)
+            self.store.claims.release(job_id, self.name)
         except redis.RedisError as exc:  # it expires by itself
             log.warning("could not release the claim on job %s: %s", job_id, exc)
 
     def _loop(self) -> None:
         info = {"pid": os.getpid(), "host": socket.gethostname()}
         started = time.monotonic()
-        watch = recovery.OrphanWatch(JobStore(self.client, self.settings.data_root), self._send)
+        watch = OrphanWatch(self.store, self.send)
         while not self._stop.is_set():
             try:
                 self._beat(info)
@@ -86,29 +85,22 @@ class Liveness:
                 if str(exc) != self._last_error:
                     log.warning("heartbeat failed: %s", exc)
                 self._last_error = str(exc)
-            self._stop.wait(recovery.HEARTBEAT_EVERY_S)
+            self._stop.wait(HEARTBEAT_EVERY_S)
 
     def _beat(self, info: dict[str, Any]) -> None:
-        beat(self.client, self.name, recovery.HEARTBEAT_TTL_S, info)
+        self.store.workers.beat(self.name, info=info)
         with self._lock:
             job = self._job
         if job is not None:
-            if not recovery.claim(self.client, job, self.name):
+            if not self.store.claims.take(job, self.name):
                 log.error("job %s is claimed by %s while this worker runs it", job,
-                          recovery.claim_holder(self.client, job))
-            recovery.mark_running(self.client, job, True)
-
-    def _send(self, job_id: str) -> None:
-        producer = make_producer(self.settings)
-        try:
-            enqueue(producer, job_id)
-        finally:
-            producer.close()
+                          self.store.claims.holder(job))
+            self.store.mark_running(job, True)
 
     def stop(self) -> None:
         """Stop beating and remove the key (readiness drops at once)."""
         self._stop.set()
         try:
-            forget_worker(self.client, self.name)
+            self.store.workers.forget(self.name)
         except redis.RedisError as exc:
             log.debug("could not remove heartbeat: %s", exc)

@@ -15,12 +15,18 @@ from typing import TYPE_CHECKING, Any, Protocol
 
 import redis
 
-from app import recovery
-from app.schemas import ErrorDetail, JobState
-from app.settings import Settings
-from app.store import JobRecord, JobStore
+from app.state import (
+    FINISH_RETRY_S,
+    ErrorDetail,
+    EtaModel,
+    JobRecord,
+    JobState,
+    JobStore,
+    Settings,
+    finish_job,
+)
 from cadnerf_core.jobfolder import CONFIG, INPUTS, MASKS, photo_index
-from worker.progress import EtaModel, JobProgress, expected_stage_seconds, record_stage_seconds
+from worker.progress import JobProgress
 from worker.webhook import send_webhook
 
 if TYPE_CHECKING:
@@ -28,7 +34,6 @@ if TYPE_CHECKING:
 
 log = logging.getLogger(__name__)
 
-FINISH_RETRY_S = 30.0  # how long the final state is retried while Redis is away
 UPLOAD_FIELDS = {INPUTS: "images", MASKS: "masks", CONFIG: "config"}  # job folder entry -> form
 TIME_LIMIT_HINT = "choose a faster preset, or ask the operator for a longer time limit"
 
@@ -73,10 +78,10 @@ class _FixedClaim:
         self.name = f"{socket.gethostname()}-{os.getpid()}"
 
     def hold(self, job_id: str) -> bool:
-        return recovery.claim(self.store.r, job_id, self.name, self.ttl_s)
+        return self.store.claims.take(job_id, self.name, self.ttl_s)
 
     def drop(self, job_id: str) -> None:
-        recovery.release(self.store.r, job_id, self.name)
+        self.store.claims.release(job_id, self.name)
 
 
 def execute(job_id: str, settings: Settings, store: JobStore,
@@ -103,7 +108,7 @@ def execute(job_id: str, settings: Settings, store: JobStore,
     claims = claims or _FixedClaim(store, settings.job_hard_time_limit_s)
     if not claims.hold(job_id):
         log.warning("job %s is being run by %s; duplicate delivery dropped", job_id,
-                    recovery.claim_holder(store.r, job_id))
+                    store.claims.holder(job_id))
         return {"id": job_id, "state": "duplicate", "error": None}
     try:
         return _execute_claimed(job_id, settings, store, celery_update, claims.name)
@@ -121,14 +126,8 @@ def _execute_claimed(job_id: str, settings: Settings, store: JobStore,
     if store.cancel_requested(job_id):
         return _finish(store, settings, record, JobState.cancelled, None)
     started = record.started_at or time.time()
-    if not store.update(job_id, allowed_from=(JobState.queued, JobState.running),
-                        state=JobState.running, started_at=started, error=None,
-                        error_detail=None, worker=worker):
-        store.leave_queue(job_id)  # cancelled or deleted meanwhile: not waiting any more
+    if not store.start(job_id, worker, started):  # cancelled or deleted meanwhile
         return {"id": job_id, "state": "skipped", "error": None}
-    recovery.mark_running(store.r, job_id, True)
-    store.leave_queue(job_id)  # after joining the running set: always counted ahead of others
-    store.mirror(job_id)
     state, error, detail = _run(record, settings, store, started, celery_update)
     return _finish(store, settings, record, state, error, detail=detail)
 
@@ -140,10 +139,10 @@ def _run(record: JobRecord, settings: Settings, store: JobStore, started: float,
     from cadnerf_core.progress import Progress
 
     device = device_kind(settings.device)
-    eta = EtaModel(expected_stage_seconds(store.r, record.preset, device))
+    eta = EtaModel(store.history.expected(record.preset, device))
     adapter = JobProgress(store, record.id, eta, celery_update=celery_update,
                           deadline=started + settings.job_soft_time_limit_s)
-    watchdog = _hard_limit_watchdog(store, record.id, settings.job_hard_time_limit_s)
+    watchdog = _hard_limit_watchdog(store, record, settings.job_hard_time_limit_s)
     try:
         run_job(store.job_dir(record.id), get_library(str(settings.library_dir)),
                 Progress(adapter, adapter.cancelled), settings.device)
@@ -173,10 +172,8 @@ def _run(record: JobRecord, settings: Settings, store: JobStore, started: float,
             code="internal", message=message, hint="the error was logged in the worker log")
     finally:
         watchdog.cancel()
-    if eta.stage is not None:
-        eta.durations[eta.stage] = time.monotonic() - eta.stage_started
     try:
-        record_stage_seconds(store.r, record.preset, device, eta.durations)
+        store.history.record(record.preset, device, eta.finish(time.monotonic()))
     except redis.RedisError as exc:  # only the ETA of later jobs suffers
         log.warning("could not record stage times: %s", exc)
     return JobState.succeeded, None, None
@@ -260,20 +257,19 @@ def _storage_detail(exc: OSError, folder: Path) -> ErrorDetail:
                        hint=hint)
 
 
-def _hard_limit_watchdog(store: JobStore, job_id: str, limit_s: float) -> threading.Timer:
+def _hard_limit_watchdog(store: JobStore, record: JobRecord, limit_s: float) -> threading.Timer:
     """Fail the job and end the process if a step hangs past the hard limit.
 
     The solo pool cannot interrupt a task; exiting is the only way to free the worker (the
     supervisor or the container restarts it; the re-delivered task sees a final state).
     """
     def expire() -> None:
-        log.error("job %s passed the hard time limit (%s s); exiting", job_id, limit_s)
+        log.error("job %s passed the hard time limit (%s s); exiting", record.id, limit_s)
         message = f"the job passed the hard time limit of {limit_s:.0f} s"
         try:
-            store.update(job_id, state=JobState.failed, finished_at=time.time(), error=message,
-                         error_detail=ErrorDetail(code="time_limit", message=message,
-                                                  hint=TIME_LIMIT_HINT))
-            store.mirror(job_id)
+            finish_job(store, record, JobState.failed, message,
+                       ErrorDetail(code="time_limit", message=message, hint=TIME_LIMIT_HINT),
+                       redis_wait_s=0.0)
         finally:
             os._exit(70)
 
@@ -286,64 +282,15 @@ def _hard_limit_watchdog(store: JobStore, job_id: str, limit_s: float) -> thread
 def _finish(store: JobStore, settings: Settings, record: JobRecord, state: JobState,
             error: str | None, redis_wait_s: float = FINISH_RETRY_S,
             detail: ErrorDetail | None = None) -> dict[str, Any]:
-    """Write the final state: state.json first (it survives Redis), then Redis, retried for
-    ``redis_wait_s`` (after that the API re-seeds it from state.json). The job leaves the queue
-    order (it may end without starting, e.g. cancelled)."""
-    fields: dict[str, Any] = {"state": state, "finished_at": time.time(), "error": error,
-                              "error_detail": detail, "worker": None}
-    if state == JobState.succeeded:
-        fields.update(progress=1.0, eta_s=0.0)
-    else:
-        fields.update(eta_s=None)
-    final = _latest(store, record).model_copy(update=fields)
-    store.write_state_file(final)
-    in_redis = _update_redis(store, final, fields, redis_wait_s)
+    """Write the final state (``app.state.finish_job``), then call the job's webhook."""
+    final, in_redis = finish_job(store, record, state, error, detail, redis_wait_s)
     log.info("job %s %s%s", record.id, state.value, f": {error}" if error else "")
     if record.webhook_url and (in_redis or store.job_dir(record.id).is_dir()):
         payload = {"id": record.id, "state": state.value, "error": error,
                    "error_detail": (None if detail is None
                                     else detail.model_dump(mode="json", exclude_none=True)),
-                   "finished_at": fields["finished_at"], "status_url": f"/v1/jobs/{record.id}",
+                   "finished_at": final.finished_at, "status_url": f"/v1/jobs/{record.id}",
                    "result_url": f"/v1/jobs/{record.id}/result"}
         send_webhook(record.webhook_url, payload, settings.webhook_secret,
                      allow_private=settings.webhook_allow_private)
     return {"id": record.id, "state": state.value, "error": error}
-
-
-def _latest(store: JobStore, record: JobRecord) -> JobRecord:
-    """The newest record we can read: Redis, else state.json, else the one we started with."""
-    try:
-        raw = store.r.hgetall(store.job_key(record.id))
-        if raw:
-            return JobRecord.from_hash(raw)  # type: ignore[arg-type]
-    except redis.RedisError as exc:
-        log.debug("job %s: Redis unreadable (%s); using state.json", record.id, exc)
-    return store.read_state_file(record.id) or record
-
-
-def _update_redis(store: JobStore, final: JobRecord, fields: dict[str, Any],
-                  wait_s: float = FINISH_RETRY_S) -> bool:
-    """Put the final fields in Redis, retrying for ``wait_s`` while it is away.
-
-    A job Redis has lost (restarted empty) is re-seeded from the final record when its folder is
-    still there (a deleted job is not brought back). Returns True once Redis has the job.
-    """
-    deadline = time.monotonic() + wait_s
-    delay = 0.2
-    while True:
-        try:
-            if not store.update(final.id, **fields):
-                if store.was_deleted(final.id):
-                    return False
-                store.reseed(final)
-            recovery.mark_running(store.r, final.id, False)
-            store.leave_queue(final.id)
-            return True
-        except redis.RedisError as exc:
-            if time.monotonic() + delay > deadline:
-                log.error("job %s: Redis unavailable (%s); its final state is in state.json and "
-                          "is read back from there", final.id, exc)
-                return False
-            log.warning("job %s: Redis unavailable (%s); retrying", final.id, exc)
-            time.sleep(delay)
-            delay = min(delay * 2, 2.0)

@@ -6,8 +6,7 @@ from typing import Any
 
 from celery import Task, shared_task
 
-from app.settings import Settings
-from app.store import JobStore, connect
+from app.state import JobStore, Settings
 from worker import runner
 
 PROGRESS_STATE = "PROGRESS"
@@ -18,7 +17,7 @@ PROGRESS_STATE = "PROGRESS"
 def run_job(self: Task, job_id: str) -> dict[str, Any]:
     """Run the job whose folder is ``<data root>/<job_id>``; returns its final state."""
     settings: Settings = self.app.conf.cadnerf_settings
-    store = JobStore(connect(settings.redis_url), settings.data_root)
+    store = JobStore.open(settings.redis_url, settings.data_root)
 
     def celery_update(meta: dict[str, Any]) -> None:
         self.update_state(state=PROGRESS_STATE, meta=meta)
@@ -27,4 +26,4 @@ def run_job(self: Task, job_id: str) -> dict[str, Any]:
     try:
         return runner.execute(job_id, settings, store, celery_update, liveness)
     finally:
-        store.r.close()
+        store.close()

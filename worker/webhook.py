@@ -26,7 +26,7 @@ from typing import Any
 
 import httpx
 
-from app.settings import non_public_reason
+from app.state import non_public_reason
 
 log = logging.getLogger(__name__)
 
@@ -148,35 +148,45 @@ def send_webhook(url: str, payload: dict[str, Any], secret: str, *, allow_privat
     except httpx.InvalidURL as exc:
         log.warning("webhook of job %s not sent: invalid URL (%s)", payload.get("id"), exc)
         return False
-    host = target.raw_host.decode("ascii")  # IDNA-encoded, as the resolver wants it
-    if not host:
+    if not target.raw_host:
         log.warning("webhook of job %s not sent: the URL has no host", payload.get("id"))
         return False
     for attempt in range(tries):
-        try:
-            addresses = _resolve(host)
-            reason = None if allow_private else _first_refusal(host, addresses)
-            if reason:
-                log.warning("webhook of job %s not sent: %s (set CADNERF_WEBHOOK_ALLOW_PRIVATE="
-                            "true to allow it on a closed network)", payload.get("id"), reason)
-                return False
-            # An explicit transport: no proxy from the environment (it would resolve the name
-            # itself); SSL_CERT_FILE / SSL_CERT_DIR still apply to certificate verification.
-            with httpx.Client(transport=httpx.HTTPTransport(), timeout=timeout_s,
-                              follow_redirects=False) as client:
-                response = _post_pinned(client, target, addresses, body, headers)
-            if response.is_success:
-                return True
-            if response.is_redirect:  # its target was never checked: not followed
-                log.warning("webhook %s redirects (%d); redirects are not followed",
-                            url, response.status_code)
-                return False
-            if response.status_code < 500 and response.status_code != 429:
-                log.warning("webhook %s refused with %d; not retried", url, response.status_code)
-                return False
-            log.warning("webhook %s answered %d", url, response.status_code)
-        except (httpx.HTTPError, OSError) as exc:  # OSError: the name did not resolve
-            log.warning("webhook %s failed: %s", url, exc)
+        outcome = _attempt(url, target, body, headers, allow_private, timeout_s,
+                           payload.get("id"))
+        if outcome is not None:
+            return outcome
         if attempt + 1 < tries:
             sleep(base_delay_s * 2**attempt)
     return False
+
+
+def _attempt(url: str, target: httpx.URL, body: bytes, headers: dict[str, str],
+             allow_private: bool, timeout_s: float, job_id: Any) -> bool | None:
+    """One delivery: True when done, False when refused (no retry), None to try again."""
+    host = target.raw_host.decode("ascii")  # IDNA-encoded, as the resolver wants it
+    try:
+        addresses = _resolve(host)
+        reason = None if allow_private else _first_refusal(host, addresses)
+        if reason:
+            log.warning("webhook of job %s not sent: %s (set CADNERF_WEBHOOK_ALLOW_PRIVATE="
+                        "true to allow it on a closed network)", job_id, reason)
+            return False
+        # An explicit transport: no proxy from the environment (it would resolve the name
+        # itself); SSL_CERT_FILE / SSL_CERT_DIR still apply to certificate verification.
+        with httpx.Client(transport=httpx.HTTPTransport(), timeout=timeout_s,
+                          follow_redirects=False) as client:
+            response = _post_pinned(client, target, addresses, body, headers)
+        if response.is_success:
+            return True
+        if response.is_redirect:  # its target was never checked: not followed
+            log.warning("webhook %s redirects (%d); redirects are not followed",
+                        url, response.status_code)
+            return False
+        if response.status_code < 500 and response.status_code != 429:
+            log.warning("webhook %s refused with %d; not retried", url, response.status_code)
+            return False
+        log.warning("webhook %s answered %d", url, response.status_code)
+    except (httpx.HTTPError, OSError) as exc:  # OSError: the name did not resolve
+        log.warning("webhook %s failed: %s", url, exc)
+    return None

@@ -10,7 +10,6 @@ from fastapi.responses import JSONResponse
 
 from app.deps import StoreDep
 from app.schemas import Readiness
-from app.store import live_workers
 
 router = APIRouter(tags=["health"])
 log = logging.getLogger(__name__)
@@ -27,8 +26,8 @@ def healthz() -> dict[str, str]:
 def readyz(store: StoreDep) -> JSONResponse:
     """Redis answers a ping and at least one worker's heartbeat is fresh."""
     try:
-        redis_ok = bool(store.r.ping())
-        workers = live_workers(store.r) if redis_ok else []
+        redis_ok = store.ping()
+        workers = store.workers.live() if redis_ok else []
     except redis.RedisError as exc:
         log.warning("readiness: Redis does not answer: %s", exc)
         redis_ok, workers = False, []

@@ -10,7 +10,15 @@ from fastapi.responses import FileResponse, JSONResponse
 from starlette.responses import MalformedRangeHeader, RangeNotSatisfiable
 
 from app import jobs, results
-from app.deps import FastJobDep, JobDep, OwnerDep, ProducerDep, SettingsDep, StoreDep
+from app.deps import (
+    FastJobDep,
+    JobDep,
+    OwnerDep,
+    ProducerDep,
+    ReaderDep,
+    SettingsDep,
+    StoreDep,
+)
 from app.errors import ApiError
 from app.schemas import DeleteResult, ErrorBody, JobList, JobResult, JobStatus
 
@@ -42,10 +50,10 @@ _UPLOAD_BODY: dict[str, Any] = {
 @router.post("", status_code=202, response_model=JobStatus, responses=_UPLOAD_ERRORS,
              openapi_extra=_UPLOAD_BODY, summary="Submit ordered photos as a new job")
 async def create_job(request: Request, settings: SettingsDep, store: StoreDep,
-                     producer: ProducerDep, owner: OwnerDep) -> JSONResponse:
+                     producer: ProducerDep, reader: ReaderDep, owner: OwnerDep) -> JSONResponse:
     """Accept 3-10 ordered photos (and optional masks and config); queue the job."""
     record = await jobs.submit(request, settings, store, producer, owner)
-    queue = await jobs.queue_estimate_fast(request.app.state.aredis, record, settings)
+    queue = await jobs.queue_estimate_fast(reader, record)
     body = jobs.to_status(record, queue).model_dump(mode="json")
     return JSONResponse(body, status_code=202, headers={"Location": body["links"]["self"]})
 
@@ -55,7 +63,7 @@ def list_jobs(store: StoreDep, owner: OwnerDep, settings: SettingsDep,
               limit: Annotated[int, Query(ge=1, le=100)] = 20,
               offset: Annotated[int, Query(ge=0, le=1_000_000)] = 0) -> JobList:
     """Jobs newest first, one page at a time."""
-    records, total = store.list(owner, offset, limit)
+    records, total = store.page(owner, offset, limit)
     following = offset + limit
     next_url = f"/v1/jobs?limit={limit}&offset={following}" if following < total else None
     return JobList(items=jobs.statuses(store, records, settings), total=total, limit=limit,
@@ -63,9 +71,9 @@ def list_jobs(store: StoreDep, owner: OwnerDep, settings: SettingsDep,
 
 
 @router.get("/{job_id}", response_model=JobStatus, responses=_ERRORS, summary="Job status")
-async def get_job(job: FastJobDep, request: Request, settings: SettingsDep) -> JobStatus:
+async def get_job(job: FastJobDep, reader: ReaderDep) -> JobStatus:
     """State, stage, progress, ETA, queue position, timestamps and error of one job."""
-    queue = await jobs.queue_estimate_fast(request.app.state.aredis, job, settings)
+    queue = await jobs.queue_estimate_fast(reader, job)
     return jobs.to_status(job, queue)
 
 

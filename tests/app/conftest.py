@@ -16,8 +16,9 @@ if str(ROOT) not in sys.path:
 
 
 from app.main import create_app  # noqa: E402
-from app.settings import Settings, load_settings  # noqa: E402
+from app.state.settings import Settings, load_settings  # noqa: E402
 from tests.app.images import image_bytes  # noqa: E402
+from tests.configs import TINY_PRESET  # noqa: E402
 
 MakeSettings = Callable[..., Settings]
 
@@ -36,7 +37,7 @@ def make_settings(tmp_path: Path, redis_url: str, clean_redis: object) -> MakeSe
 
     def make(**overrides: object) -> Settings:
         values: dict[str, object] = {"redis_url": redis_url, "data_root": tmp_path / "jobs",
-                                     "library_dir": library, "default_preset": "test"}
+                                     "library_dir": library, "default_preset": TINY_PRESET}
         values.update(overrides)
         return load_settings(**values)
 

@@ -13,8 +13,8 @@ from PIL import Image
 
 from app import jobs
 from app.embedded import free_port
+from app.jobs import TMP_PREFIX
 from app.main import create_app
-from app.store import TMP_PREFIX
 
 
 def _error(response, status: int, code: str) -> dict:

@@ -6,12 +6,12 @@ import schemathesis
 from hypothesis import HealthCheck, given, settings
 
 from app.main import create_app
-from app.store import beat
+from app.state import Workers
 
 
 def test_no_generated_request_makes_a_server_error(make_settings,  # type: ignore[no-untyped-def]
                                                    clean_redis) -> None:
-    beat(clean_redis, "fuzz-worker", 600, {})  # readiness answers 200, as with a live worker
+    Workers(clean_redis).beat("fuzz-worker", 600)  # readiness answers 200, as with a worker
     schema = schemathesis.openapi.from_asgi("/openapi.json", create_app(make_settings()))
     checked = []
     for result in schema.get_all_operations():

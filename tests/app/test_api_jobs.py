@@ -14,11 +14,10 @@ from fastapi.testclient import TestClient
 from PIL import Image
 
 from app import jobs
-from app.schemas import JobState
-from app.settings import Settings
-from app.store import JobStore, connect
-from cadnerf_core.config import resolve_config
+from app.state import JobState, JobStore, connect, keys
+from app.state.settings import Settings
 from cadnerf_core.jobfolder import JobFolder
+from tests.configs import TINY_PRESET, tiny_config, tiny_request_json
 
 
 def _store(settings: Settings) -> JobStore:
@@ -62,16 +61,16 @@ def _succeed(settings: Settings, job_id: str) -> Path:
 def test_submit_stores_the_job_and_queues_it_by_name(client: TestClient, settings: Settings,
                                                      photos, clean_redis: redis.Redis) -> None:
     response = client.post("/v1/jobs", files=photos(3),
-                           data={"config": json.dumps({"preset": "test"})})
+                           data={"config": tiny_request_json()})
     assert response.status_code == 202
     body = response.json()
     assert uuid.UUID(body["id"]).version == 4
     assert response.headers["location"] == f"/v1/jobs/{body['id']}"
-    assert body["state"] == "queued" and body["n_photos"] == 3 and body["preset"] == "test"
+    assert body["state"] == "queued" and body["n_photos"] == 3 and body["preset"] == TINY_PRESET
     folder = settings.data_root / body["id"]
     assert sorted(p.name for p in (folder / "inputs").iterdir()) == [
         "000_photo_0.png", "001_photo_1.png", "002_photo_2.png"]
-    assert JobFolder(folder).read_config() == resolve_config(body["preset"])
+    assert JobFolder(folder).read_config() == tiny_config()
     assert json.loads((folder / "state.json").read_text())["state"] == "queued"
     messages = clean_redis.lrange("cadnerf", 0, -1)
     assert len(messages) == 1
@@ -96,7 +95,7 @@ def test_status_survives_a_redis_flush_through_state_json(client: TestClient, ph
     clean_redis.flushdb()
     response = client.get(f"/v1/jobs/{job['id']}")
     assert response.status_code == 200 and response.json()["state"] == "queued"
-    assert clean_redis.hget(f"cadnerf:job:{job['id']}", "state") == "queued"  # re-seeded
+    assert clean_redis.hget(keys.job(job["id"]), "state") == "queued"  # re-seeded
     assert [j["id"] for j in client.get("/v1/jobs").json()["items"]] == [job["id"]]
 
 
@@ -166,7 +165,7 @@ def test_delete_cancels_a_queued_job_and_removes_everything(client: TestClient,
                                "worker_stopped": True}
     assert not (settings.data_root / job["id"]).exists()
     assert client.get(f"/v1/jobs/{job['id']}").status_code == 404
-    assert clean_redis.exists(f"cadnerf:job:{job['id']}") == 0
+    assert clean_redis.exists(keys.job(job["id"])) == 0
     assert client.delete(f"/v1/jobs/{job['id']}").status_code == 404
 
 
@@ -181,9 +180,9 @@ def test_delete_of_a_running_job_waits_for_the_worker(settings: Settings) -> Non
 
 def _record(settings: Settings, state: JobState = JobState.queued, created_at: float | None = None,
             finished_at: float | None = None):
-    from app.store import JobRecord
+    from app.state import JobRecord
 
-    record = JobRecord(id=str(uuid.uuid4()), preset="test", n_photos=3, state=state,
+    record = JobRecord(id=str(uuid.uuid4()), preset=TINY_PRESET, n_photos=3, state=state,
                        created_at=created_at or time.time(), finished_at=finished_at)
     (settings.data_root / record.id).mkdir(parents=True)
     _store(settings).create(record)

@@ -8,7 +8,8 @@ import redis
 from fastapi.testclient import TestClient
 
 from app.main import create_app
-from app.store import beat
+from app.state import Workers
+from tests.configs import TINY_PRESET
 
 
 def test_api_keys_guard_every_v1_route_and_separate_owners(make_settings, photos) -> None:
@@ -47,8 +48,9 @@ def test_library_lists_manifest_models(client: TestClient, make_settings) -> Non
 
 def test_info_tells_presets_and_limits(client: TestClient) -> None:
     info = client.get("/v1/info").json()
-    assert {"test", "preview", "standard", "paper"} <= set(info["presets"])
-    assert info["default_preset"] == "test" and info["min_photos"] == 3 and info["max_photos"] == 10
+    assert {"preview", "standard", "paper"} <= set(info["presets"])
+    assert info["default_preset"] == TINY_PRESET
+    assert info["min_photos"] == 3 and info["max_photos"] == 10
 
 
 def test_readiness_needs_redis_and_a_worker_heartbeat(client: TestClient,
@@ -56,7 +58,7 @@ def test_readiness_needs_redis_and_a_worker_heartbeat(client: TestClient,
     assert client.get("/healthz").json() == {"status": "ok"}
     not_ready = client.get("/readyz")
     assert not_ready.status_code == 503 and not_ready.json()["redis"] is True
-    beat(clean_redis, "host-1", 5, {"pid": 1})
+    Workers(clean_redis).beat("host-1", 5, {"pid": 1})
     ready = client.get("/readyz")
     assert ready.status_code == 200 and ready.json()["workers"] == ["host-1"]
 
@@ -77,7 +79,7 @@ def test_the_page_and_its_assets_are_served(client: TestClient) -> None:
     script = client.get("/static/app.js")
     assert script.status_code == 200 and "/v1/jobs" in script.text
     assert client.get("/static/style.css").status_code == 200
-    assert client.get("/static/../settings.py").status_code == 404
+    assert client.get("/static/../schemas.py").status_code == 404
 
 
 def test_openapi_describes_the_multipart_upload(client: TestClient) -> None:

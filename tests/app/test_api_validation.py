@@ -12,10 +12,11 @@ import pytest
 from fastapi.testclient import TestClient
 
 from app.main import create_app
-from app.settings import Settings
+from app.state.settings import Settings
 from cadnerf_core.config import resolve_config
 from cadnerf_core.jobfolder import JobFolder
 from tests.app.images import image_bytes
+from tests.configs import tiny_request, tiny_request_json
 
 
 def _png_header_only(width: int, height: int) -> bytes:
@@ -147,9 +148,9 @@ def test_masks_must_match_photos(client: TestClient, settings: Settings, photos)
 @pytest.mark.parametrize(("config", "fragment"), [
     ("{not json", "not valid JSON"),
     (json.dumps({"preset": "turbo"}), "turbo"),
-    (json.dumps({"preset": "test", "overrides": {"phase2.steps": -1}}), "steps"),
-    (json.dumps({"preset": "test", "overrides": {"phase9": {"x": 1}}}), "phase9"),
-    (json.dumps({"preset": "test", "colour": "red"}), "colour"),
+    (tiny_request_json(**{"phase2.steps": -1}), "steps"),
+    (tiny_request_json(phase9={"x": 1}), "phase9"),
+    (json.dumps({**tiny_request(), "colour": "red"}), "colour"),
     (json.dumps([1, 2]), ""),
 ])
 def test_config_is_validated_by_the_core(client: TestClient, settings: Settings, photos,

@@ -14,16 +14,16 @@ from fastapi.testclient import TestClient
 
 from app.main import create_app
 from app.routes.jobs import ARTIFACT_CACHE_CONTROL
-from app.schemas import JobState
-from app.settings import Settings
-from app.store import JobRecord, JobStore, connect
+from app.state import JobRecord, JobState, JobStore, connect
+from app.state.settings import Settings
+from tests.configs import TINY_PRESET
 
 VIDEO = bytes(range(256)) * 8  # 2048 bytes
 
 
 def _job(settings: Settings, state: JobState = JobState.succeeded) -> str:
     """A job in Redis and on disk with an orbit.mp4 and a mesh.glb; returns its artifacts URL."""
-    record = JobRecord(id=str(uuid.uuid4()), state=state, preset="test", n_photos=3,
+    record = JobRecord(id=str(uuid.uuid4()), state=state, preset=TINY_PRESET, n_photos=3,
                        created_at=time.time())
     folder = settings.data_root / record.id
     folder.mkdir(parents=True)

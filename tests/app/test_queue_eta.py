@@ -16,20 +16,21 @@ import redis
 from fastapi.testclient import TestClient
 
 from app import jobs
-from app.schemas import JobState
-from app.settings import Settings
-from app.store import (
-    DEFAULT_STAGE_SECONDS,
-    QUEUE_KEY,
+from app.state import (
+    STAGES,
+    AsyncJobReader,
     JobRecord,
+    JobState,
     JobStore,
-    beat,
+    Settings,
+    StageHistory,
+    Workers,
     connect,
-    connect_async,
-    stage_times_key,
+    keys,
 )
+from tests.configs import TINY_PRESET, tiny_request_json
 
-TEST_JOB_S = 2.0 * len(DEFAULT_STAGE_SECONDS["test"])  # the fake history: 2 s per stage
+TEST_JOB_S = 2.0 * len(STAGES)  # the fake history: 2 s per stage
 
 
 def _store(settings: Settings) -> JobStore:
@@ -37,7 +38,7 @@ def _store(settings: Settings) -> JobStore:
 
 
 def _job(store: JobStore, created_at: float, state: JobState = JobState.queued,
-         preset: str = "test") -> JobRecord:
+         preset: str = TINY_PRESET) -> JobRecord:
     record = JobRecord(id=str(uuid.uuid4()), preset=preset, n_photos=3, state=state,
                        names=["a.png", "b.png", "c.png"], created_at=created_at)
     store.job_dir(record.id).mkdir(parents=True)
@@ -45,10 +46,9 @@ def _job(store: JobStore, created_at: float, state: JobState = JobState.queued,
     return record
 
 
-def _history(client: redis.Redis, preset: str = "test", device: str = "cpu") -> None:
+def _history(client: redis.Redis, preset: str = TINY_PRESET, device: str = "cpu") -> None:
     """What workers would have measured: 2 s for every stage of ``preset``."""
-    client.hset(stage_times_key(preset, device),
-                mapping={stage: "2.0" for stage in DEFAULT_STAGE_SECONDS[preset]})
+    StageHistory(client).record(preset, device, {stage: 2.0 for stage in STAGES})
 
 
 def _status(store: JobStore, settings: Settings, record: JobRecord) -> dict:
@@ -63,20 +63,20 @@ def test_two_queued_jobs_show_their_position_and_eta(settings: Settings,
     now = time.time()
     first, second = _job(store, now), _job(store, now + 1)
     _history(clean_redis)
-    beat(clean_redis, "worker-a", 30, {})
-    beat(clean_redis, "worker-b", 30, {})
+    Workers(clean_redis).beat("worker-a", 30)
+    Workers(clean_redis).beat("worker-b", 30)
     a, b = _status(store, settings, first), _status(store, settings, second)
     assert a["queue_position"] == 0 and a["eta_s"] == pytest.approx(TEST_JOB_S)
     # One job ahead, shared by two workers, then its own run.
     assert b["queue_position"] == 1 and b["eta_s"] == pytest.approx(TEST_JOB_S / 2 + TEST_JOB_S)
-    # The polling route's asyncio client gives the same answer, in one call.
+    # The polling route's asyncio reader gives the same answer.
 
     async def fast() -> tuple[int, float | None]:
-        client = connect_async(settings.redis_url)
+        reader = AsyncJobReader(settings.redis_url, settings.device)
         try:
-            estimate = await jobs.queue_estimate_fast(client, second, settings)
+            estimate = await jobs.queue_estimate_fast(reader, second)
         finally:
-            await client.aclose()
+            await reader.close()
         assert estimate is not None
         return estimate.position, estimate.eta_s
 
@@ -93,7 +93,7 @@ def test_running_jobs_count_ahead_and_no_worker_counts_as_one(settings: Settings
     now = time.time()
     running = _job(store, now - 5, JobState.running)
     store.update(running.id, eta_s=10.0)
-    clean_redis.sadd("cadnerf:running", running.id)
+    store.mark_running(running.id, True)
     queued = _job(store, now)
     _history(clean_redis)
     status = _status(store, settings, queued)
@@ -106,13 +106,13 @@ def test_without_measured_history_the_eta_stays_null(settings: Settings,
                                                      clean_redis: redis.Redis) -> None:
     store = _store(settings)
     now = time.time()
-    _job(store, now, preset="preview")
+    _job(store, now, preset="standard")
     second = _job(store, now + 1)
-    _history(clean_redis, "test")  # this job's preset is known, the one ahead is not
+    _history(clean_redis)  # this job's preset is known, the one ahead is not
     status = _status(store, settings, second)
     assert status["queue_position"] == 1 and status["eta_s"] is None
     # A worker configured for one device does not use the other device's history.
-    _history(clean_redis, "preview", "cuda")
+    _history(clean_redis, "standard", "cuda")
     assert _status(store, settings, second)["eta_s"] is not None
     cpu_only = settings.model_copy(update={"device": "cpu"})
     assert _status(store, cpu_only, second)["eta_s"] is None
@@ -126,7 +126,7 @@ def test_a_job_leaves_the_queue_when_it_is_cancelled_or_deleted(settings: Settin
     assert _status(store, settings, second)["queue_position"] == 1
     result = jobs.delete_job(store, first, wait_s=0.5)
     assert result.deleted and result.worker_stopped
-    assert clean_redis.zscore(QUEUE_KEY, first.id) is None
+    assert clean_redis.zscore(keys.QUEUE, first.id) is None
     assert _status(store, settings, second)["queue_position"] == 0
     # Cancelled but not yet deleted: no longer counted ahead.
     third = _job(store, now + 2)
@@ -145,7 +145,7 @@ def test_a_job_leaves_the_queue_when_a_worker_starts_it(settings: Settings,
     seen: dict[str, object] = {}
 
     def run_job(job_dir: Path, library: object, progress: object, device: str) -> None:
-        seen["first_queued"] = clean_redis.zscore(QUEUE_KEY, first.id)
+        seen["first_queued"] = clean_redis.zscore(keys.QUEUE, first.id)
         seen["second"] = _status(store, settings, second)["queue_position"]
         seen["first"] = _status(store, settings, first)["queue_position"]
 
@@ -159,7 +159,7 @@ def test_a_job_leaves_the_queue_when_a_worker_starts_it(settings: Settings,
     # Cancelled before it starts: it leaves the queue too.
     store.request_cancel(second.id)
     assert runner.execute(second.id, cpu, store)["state"] == "cancelled"
-    assert clean_redis.zcard(QUEUE_KEY) == 0
+    assert clean_redis.zcard(keys.QUEUE) == 0
 
 
 def test_a_queued_job_rejoins_the_queue_when_redis_lost_it(settings: Settings,
@@ -176,8 +176,8 @@ def test_the_api_reports_queue_position_and_eta(client: TestClient, clean_redis:
                                                  photos: Callable[..., list[Any]]) -> None:
     """Through the routes: POST, GET and the list carry the position; a delete moves up."""
     _history(clean_redis)
-    beat(clean_redis, "worker-a", 30, {})
-    config = {"config": '{"preset": "test"}'}
+    Workers(clean_redis).beat("worker-a", 30)
+    config = {"config": tiny_request_json()}
     first = client.post("/v1/jobs", files=photos(), data=config)
     second = client.post("/v1/jobs", files=photos(), data=config)
     assert first.status_code == 202 and second.status_code == 202, second.text

@@ -12,9 +12,10 @@ from fastapi.testclient import TestClient
 from app.deps import STATE_SOURCE_HEADER
 from app.embedded import free_port
 from app.main import create_app
-from app.schemas import JobState
-from app.settings import Settings, hash_key
-from app.store import ANON_OWNER, STATE_FILE, JobRecord, JobStore, connect
+from app.state import ANON_OWNER, JobRecord, JobState, JobStore, connect
+from app.state.settings import Settings, hash_key
+from app.state.store import STATE_FILE
+from tests.configs import TINY_PRESET
 
 VIDEO = bytes(range(256)) * 4
 
@@ -22,7 +23,7 @@ VIDEO = bytes(range(256)) * 4
 def _on_disk(settings: Settings, state: JobState, owner: str = ANON_OWNER,
              **fields: object) -> JobRecord:
     """A job folder with its state.json (and, once succeeded, its artifacts); no Redis."""
-    record = JobRecord(id=str(uuid.uuid4()), state=state, preset="test", n_photos=3,
+    record = JobRecord(id=str(uuid.uuid4()), state=state, preset=TINY_PRESET, n_photos=3,
                        names=[f"photo_{i}.png" for i in range(3)], owner=owner,
                        created_at=time.time() - 60, **fields)
     folder = settings.data_root / record.id
@@ -142,7 +143,7 @@ def test_without_a_readable_state_file_the_answer_stays_503(make_settings) -> No
 
 def test_with_redis_up_the_state_source_header_is_absent(client: TestClient,
                                                          settings: Settings) -> None:
-    record = JobRecord(id=str(uuid.uuid4()), state=JobState.succeeded, preset="test",
+    record = JobRecord(id=str(uuid.uuid4()), state=JobState.succeeded, preset=TINY_PRESET,
                        n_photos=3, created_at=time.time())
     Path(settings.data_root / record.id).mkdir(parents=True)
     JobStore(connect(settings.redis_url), settings.data_root).create(record)

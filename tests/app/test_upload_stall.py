@@ -22,10 +22,11 @@ import httpx
 import pytest
 
 from app.embedded import free_port
+from app.jobs import TMP_PREFIX
 from app.main import create_app
-from app.settings import Settings, SettingsError, load_settings
-from app.store import TMP_PREFIX
+from app.state.settings import Settings, SettingsError, load_settings
 from tests.app.conftest import MakeSettings
+from tests.configs import tiny_request_json
 
 BOUNDARY = "stallboundary0123456789"
 PHOTOS = Callable[..., list[tuple[str, tuple[str, bytes, str]]]]
@@ -181,7 +182,7 @@ def test_normal_upload_still_works(serve: Callable[..., Server], photos: PHOTOS)
     server = serve(upload_idle_timeout_s=0.5, upload_deadline_s=10, max_concurrent_uploads=1)
     for _ in range(2):  # the slot is given back after a success too
         response = httpx.post(f"{server.url}/v1/jobs", files=photos(3),
-                              data={"config": json.dumps({"preset": "test"})}, timeout=30)
+                              data={"config": tiny_request_json()}, timeout=30)
         assert response.status_code == 202, response.text
     assert server.staging() == []
 

@@ -9,6 +9,7 @@ import json
 from collections.abc import Callable
 from dataclasses import dataclass
 
+from tests.configs import TINY_PRESET, tiny_request
 from tests.reliability.support import FileEntry, image_bytes, noisy_jpeg, photo_files, png_bomb
 
 
@@ -71,14 +72,14 @@ CASES: dict[str, Callable[[], Case]] = {
     "mask_not_an_image": lambda: Case(
         photo_files(3) + [_mask((80, 64)), ("masks", ("m.png", b"nope", "image/png")),
                           _mask((80, 64))], {}, 415, "unsupported_image_type", "m.png"),
-    "config_not_json": lambda: Case(photo_files(3), _config("{preset: test"), 422,
+    "config_not_json": lambda: Case(photo_files(3), _config("{preset: preview"), 422,
                                     "invalid_config", "config"),
     "config_unknown_preset": lambda: Case(photo_files(3), _config({"preset": "warp9"}), 422,
                                           "invalid_config", "config"),
     "config_negative_steps": lambda: Case(
-        photo_files(3), _config({"preset": "test", "overrides": {"phase2.steps": -5}}), 422,
+        photo_files(3), _config(tiny_request(phase2={"steps": -5})), 422,
         "invalid_config", "config"),
-    "config_unknown_key": lambda: Case(photo_files(3), _config({"preset": "test", "gpu": 8}),
+    "config_unknown_key": lambda: Case(photo_files(3), _config({**tiny_request(), "gpu": 8}),
                                        422, "invalid_config", "config"),
     "config_unknown_override": lambda: Case(
         photo_files(3), _config({"overrides": {"phase2": {"__class__": 1}}}), 422,
@@ -92,7 +93,7 @@ CASES: dict[str, Callable[[], Case]] = {
     "config_deep_nesting": lambda: Case(photo_files(3), _config("[" * 20000 + "]" * 20000),
                                         422, "invalid_config", "config"),
     "config_wrong_types": lambda: Case(
-        photo_files(3), _config({"preset": ["test"], "overrides": "all"}), 422,
+        photo_files(3), _config({"preset": [TINY_PRESET], "overrides": "all"}), 422,
         "invalid_config", "config"),
     "config_10_mb_string": lambda: Case(photo_files(3), _config('"' + "x" * 10_000_000 + '"'),
                                         413, "field_too_large", "config"),

@@ -17,7 +17,8 @@ if str(ROOT) not in sys.path:
     sys.path.insert(0, str(ROOT))
 
 from app.main import create_app  # noqa: E402
-from app.settings import Settings, load_settings  # noqa: E402
+from app.state.settings import Settings, load_settings  # noqa: E402
+from tests.configs import TINY_PRESET  # noqa: E402
 from tests.redis_fixture import (  # noqa: E402,F401  (helpers and the session hook)
     _answers,
     _embedded_url,
@@ -63,7 +64,7 @@ def make_settings(sandbox: Path, rel_redis_url: str, rel_redis: redis.Redis) -> 
     def make(**overrides: object) -> Settings:
         values: dict[str, object] = {"redis_url": rel_redis_url, "data_root": sandbox / "jobs",
                                      "library_dir": sandbox / "library",
-                                     "default_preset": "test"}
+                                     "default_preset": TINY_PRESET}
         values.update(overrides)
         return load_settings(**values)
 

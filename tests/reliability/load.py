@@ -16,11 +16,11 @@ from typing import Any
 
 import httpx
 
+from tests.configs import tiny_request
 from tests.reliability.support import photo_files, rss_mib
 
-SMALL_JOB = {"preset": "test", "overrides": {"phase1.steps": 2, "phase2.steps": 2,
-                                             "phase3.steps": 2, "export.orbit_frames": 2,
-                                             "export.novel_views": 0}}
+SMALL_JOB = tiny_request(phase1={"steps": 2}, phase2={"steps": 2}, phase3={"steps": 2},
+                         export={"orbit_frames": 2, "novel_views": 0})
 
 
 @dataclass

@@ -22,6 +22,8 @@ from pathlib import Path
 import httpx
 from PIL import Image
 
+from tests.configs import TINY_PRESET
+
 ROOT = Path(__file__).resolve().parents[2]
 RELIABILITY_DB = 13  # its own Redis database: other suites flush theirs (15) while we run
 LIVE_DB = 12  # the session's live API + worker (a worker would take in-process tests' jobs)
@@ -197,11 +199,11 @@ class Proc:
 
 def service_env(redis_url: str, data_root: Path, library_dir: Path,
                 **extra: str) -> dict[str, str]:
-    """Environment of an API or worker child process (CPU, one thread, preset `test`)."""
+    """Environment of an API or worker child process (CPU, one thread, the tiny config's preset)."""
     env = {key: value for key, value in os.environ.items() if not key.startswith("CADNERF_")}
     env.update({"CADNERF_REDIS_URL": redis_url, "CADNERF_DATA_ROOT": str(data_root),
                 "CADNERF_LIBRARY_DIR": str(library_dir), "CADNERF_DEVICE": "cpu",
-                "CADNERF_DEFAULT_PRESET": "test", "OMP_NUM_THREADS": "1",
+                "CADNERF_DEFAULT_PRESET": TINY_PRESET, "OMP_NUM_THREADS": "1",
                 "PYTHONPATH": str(ROOT)})
     env.update({f"CADNERF_{k.upper()}": v for k, v in extra.items()})
     return env

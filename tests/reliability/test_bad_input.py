@@ -11,6 +11,7 @@ import pytest
 from fastapi.testclient import TestClient
 
 from app.main import create_app
+from tests.configs import tiny_request_json
 from tests.reliability.cases import CASES, with_photo
 from tests.reliability.support import (
     Live,
@@ -100,7 +101,7 @@ def test_upload_cut_off_mid_body_leaves_nothing(live_api: Live) -> None:
     sandbox = live_api.folder
     before = tree(sandbox)
     port = int(live_api.url.rsplit(":", 1)[1])
-    body = multipart_body(photo_files(3, size=(256, 256)), {"config": '{"preset": "test"}'})
+    body = multipart_body(photo_files(3, size=(256, 256)), {"config": tiny_request_json()})
     for fraction in (0.1, 0.5, 0.95):
         send_truncated_upload(port, body, fraction)
     jobs_root = live_api.data_root

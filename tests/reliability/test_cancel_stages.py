@@ -11,6 +11,7 @@ from typing import Any
 import httpx
 import pytest
 
+from tests.configs import tiny_request
 from tests.reliability import jobs
 from tests.reliability.support import NEEDS_PIPELINE, Live, pipeline_ready, wait_for
 
@@ -22,15 +23,15 @@ LONG = 100_000  # progress (and so the cancel check) comes every LONG / 50 steps
 PLANS: dict[str, tuple[dict[str, Any], str]] = {
     "masks": ({}, "plain"),  # ten photos without alpha: background removal per photo
     "retrieval": ({}, "plain"),
-    "phase1": ({"phase1.steps": LONG}, "rgba"),
-    "phase2": ({"phase2.steps": 3000}, "rgba"),
-    "phase3": ({"phase3.steps": 3000}, "rgba"),
-    "render": ({"image_size": 256, "export.novel_views": 64}, "rgba"),
-    "export": ({"export.mesh_resolution": 192}, "rgba"),  # marching cubes on 192^3 points
+    "phase1": ({"phase1": {"steps": LONG}}, "rgba"),
+    "phase2": ({"phase2": {"steps": 3000}}, "rgba"),
+    "phase3": ({"phase3": {"steps": 3000}}, "rgba"),
+    "render": ({"image_size": 256, "export": {"novel_views": 64}}, "rgba"),
+    "export": ({"export": {"mesh_resolution": 192}}, "rgba"),  # marching cubes on 192^3 points
 }
 CANCEL_WITHIN_S = 5.0
 # Stages too short to be caught every time (under a second on the tiny library): the cancel may
-# land in a later stage (phase one of preset `test` is a few steps too); the job must still end
+# land in a later stage (phase one of the tiny config is a few steps too); the job must still end
 # cancelled within the bound, at the latest in phase two.
 SHORT = ("masks", "retrieval")
 
@@ -55,11 +56,11 @@ def plain_photos(photo_set: list[Path], tmp_path_factory: pytest.TempPathFactory
 @pytest.mark.parametrize("stage", STAGES)
 def test_cancel_in_each_stage(service: Live, photo_set: list[Path], plain_photos: list[Path],
                               stage: str) -> None:
-    from app.store import JobStore, connect
+    from app.state import JobStore, connect
 
     overrides, photos = PLANS[stage]
     job = jobs.submit(service.url, plain_photos if photos == "plain" else photo_set,
-                      {"preset": "test", "overrides": overrides})
+                      tiny_request(**overrides))
     seen, _ = jobs.wait_state(service.url, job["id"], 240, until=("running",), stage=stage,
                               every_s=0.02)
     store = JobStore(connect(service.env["CADNERF_REDIS_URL"]), service.data_root)
@@ -69,7 +70,7 @@ def test_cancel_in_each_stage(service: Live, photo_set: list[Path], plain_photos
         final, _ = jobs.wait_state(service.url, job["id"], 30, every_s=0.05)
         took = time.monotonic() - asked
     finally:
-        store.r.close()
+        store.close()
         if jobs.status(service.url, job["id"])["state"] == "running":  # free the worker
             httpx.delete(f"{service.url}/v1/jobs/{job['id']}", timeout=60)
     assert final["state"] == "cancelled", f"{final}\n{service.logs()}"

@@ -18,7 +18,8 @@ import redis
 from fastapi.testclient import TestClient
 
 from app.main import create_app
-from app.settings import Settings, load_settings
+from app.state.settings import Settings, load_settings
+from tests.configs import TINY_PRESET, tiny_request
 from tests.reliability import jobs
 from tests.reliability.support import (
     NEEDS_PIPELINE,
@@ -81,7 +82,7 @@ def _assert_unavailable(response: httpx.Response) -> None:
 def _settings(redis_url: str, tmp_path: Path) -> Settings:
     """API settings on the test's own Redis, with jobs and library under ``tmp_path``."""
     return load_settings(redis_url=redis_url, data_root=tmp_path / "jobs",
-                         library_dir=tmp_path / "library", default_preset="test")
+                         library_dir=tmp_path / "library", default_preset=TINY_PRESET)
 
 
 def test_redis_down_gives_503_with_retry_after(own_redis: tuple[str, int, Path],
@@ -190,8 +191,7 @@ def test_redis_restart_during_a_job(own_redis: tuple[str, int, Path], tiny_libra
     live = start_live(tmp_path / "service", url, tiny_library_dir)
     try:
         photos = render_photo_set(tmp_path / "photos")
-        job = jobs.submit(live.url, photos, {"preset": "test",
-                                             "overrides": {"phase3.steps": 4000}})
+        job = jobs.submit(live.url, photos, tiny_request(phase3={"steps": 4000}))
         jobs.wait_state(live.url, job["id"], 240, until=("running",), stage="phase3")
         _kill_redis(port)
         # while down, the status is read from state.json: the last mirrored state, marked

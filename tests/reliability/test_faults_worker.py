@@ -15,6 +15,7 @@ from pathlib import Path
 import httpx
 import pytest
 
+from tests.configs import tiny_request
 from tests.reliability import jobs
 from tests.reliability.support import (
     NEEDS_PIPELINE,
@@ -32,7 +33,7 @@ pytestmark = pytest.mark.slow
 needs_pipeline = pytest.mark.skipif(not pipeline_ready(), reason=NEEDS_PIPELINE)
 
 # Phase two long enough to be caught and killed (a few seconds on two cores), the rest tiny.
-LONG_PHASE2 = {"preset": "test", "overrides": {"phase2.steps": 800}}
+LONG_PHASE2 = tiny_request(phase2={"steps": 800})
 REDELIVERY_S = 45.0  # a new worker is ready in ~10 s and the rest of the job takes seconds
 
 
@@ -49,7 +50,7 @@ def _restart_worker(service: Live) -> None:
 @needs_pipeline
 def test_killed_worker_job_resumes_from_its_checkpoint(service: Live,
                                                        photo_set: list[Path]) -> None:
-    reference = jobs.submit(service.url, photo_set, {"preset": "test"})
+    reference = jobs.submit(service.url, photo_set, tiny_request())
     done, _ = jobs.wait_state(service.url, reference["id"], 240)
     assert done["state"] == "succeeded", f"{done}\n{service.logs()}"
     expected_kinds = jobs.artifact_names(service.url, reference["id"])
@@ -86,7 +87,7 @@ def test_killed_worker_job_resumes_from_its_checkpoint(service: Live,
 
 def _send_again(service: Live, job_id: str) -> None:
     from app.queue import enqueue, make_producer
-    from app.settings import load_settings
+    from app.state import load_settings
 
     settings = load_settings(redis_url=service.env["CADNERF_REDIS_URL"],
                              data_root=service.data_root)
@@ -99,7 +100,7 @@ def test_unwritable_job_folder_fails_the_job_clearly(service: Live,
     """Files where the pipeline needs folders: the job fails with a clear error, no hang."""
     assert service.worker is not None
     service.worker.stop()  # the job must wait in the queue while its folder is spoiled
-    job = jobs.submit(service.url, photo_set, {"preset": "test"})
+    job = jobs.submit(service.url, photo_set, tiny_request())
     folder = service.data_root / job["id"]
     for name in ("checkpoints", "views"):
         (folder / name).write_text("not a folder")
@@ -110,7 +111,7 @@ def test_unwritable_job_folder_fails_the_job_clearly(service: Live,
     words = ("write", "storage", "disk", "space", "read-only", "permission", "not a directory",
              "file exists", "folder")
     assert any(w in error for w in words), f"the error does not say what is wrong: {error!r}"
-    follow = jobs.submit(service.url, photo_set, {"preset": "test"})  # the worker is free
+    follow = jobs.submit(service.url, photo_set, tiny_request())  # the worker is free
     assert jobs.wait_state(service.url, follow["id"], 180)[0]["state"] == "succeeded"
 
 

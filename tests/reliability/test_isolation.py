@@ -13,8 +13,7 @@ import pytest
 from fastapi.testclient import TestClient
 
 from app.main import create_app
-from app.schemas import JobState
-from app.store import JobStore, connect
+from app.state import JobState, JobStore, connect
 from tests.reliability.support import Live, photo_files
 
 KEY_A, KEY_B = "key-alpha-0123456789", "key-bravo-9876543210"
@@ -140,4 +139,4 @@ def test_raw_dot_segments_over_a_real_socket(live_api: Live, tmp_path: Path) -> 
         assert status == 404, (path, data[:300])
         assert SECRET.encode() not in data and b"root:" not in data
     assert _raw_get(live_api, f"{base}/views/000.png")[0] == 200
-    store.r.close()
+    store.close()

@@ -52,7 +52,7 @@ def test_no_server_error_and_responses_match_the_schema(make_settings: Any, labe
     try:
         fuzz()
     finally:
-        app.state.store.r.close()
+        app.state.store.close()
     assert seen and all(status < 500 or label == "GET /readyz" for status in seen), seen
 
 
@@ -60,7 +60,7 @@ def test_the_description_covers_the_contract(make_settings: Any) -> None:
     """The fuzzer saw every route of the HTTP contract (an empty schema would pass trivially)."""
     app = create_app(make_settings())
     spec = app.openapi()
-    app.state.store.r.close()
+    app.state.store.close()
     expected = {("/v1/jobs", "post"), ("/v1/jobs", "get"), ("/v1/jobs/{job_id}", "get"),
                 ("/v1/jobs/{job_id}", "delete"), ("/v1/jobs/{job_id}/result", "get"),
                 ("/v1/jobs/{job_id}/artifacts/{name}", "get"), ("/v1/library", "get"),

@@ -15,8 +15,8 @@ if str(ROOT) not in sys.path:
     sys.path.insert(0, str(ROOT))
 
 
-from app.schemas import JobState  # noqa: E402
-from app.store import JobRecord, JobStore, connect  # noqa: E402
+from app.state import JobRecord, JobState, JobStore, connect  # noqa: E402
+from tests.configs import TINY_PRESET  # noqa: E402
 
 
 @pytest.fixture()
@@ -29,7 +29,7 @@ def store(tmp_path: Path, redis_url: str, clean_redis: object) -> JobStore:
 @pytest.fixture()
 def new_job(store: JobStore) -> Callable[..., JobRecord]:
     """Create a job record and its (empty) folder."""
-    def make(state: JobState = JobState.queued, preset: str = "test",
+    def make(state: JobState = JobState.queued, preset: str = TINY_PRESET,
              webhook_url: str | None = None) -> JobRecord:
         record = JobRecord(id=str(uuid.uuid4()), preset=preset, n_photos=3, state=state,
                            names=["a.png", "b.png", "c.png"], created_at=time.time(),

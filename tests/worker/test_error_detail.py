@@ -12,9 +12,8 @@ from pathlib import Path
 import pytest
 
 from app import jobs
-from app.schemas import ErrorDetail, JobState
-from app.settings import load_settings
-from app.store import JobRecord, JobStore
+from app.state import ErrorDetail, JobRecord, JobState, JobStore, keys, load_settings
+from tests.configs import TINY_PRESET
 from worker import runner
 
 HINT = "export or upload it again"
@@ -23,7 +22,7 @@ HINT = "export or upload it again"
 def _failing_job(store: JobStore, monkeypatch: pytest.MonkeyPatch, redis_url: str,
                  exc: Exception) -> JobRecord:
     """Run a job whose pipeline raises ``exc``; returns its final record."""
-    record = JobRecord(id=str(uuid.uuid4()), preset="test", n_photos=3,
+    record = JobRecord(id=str(uuid.uuid4()), preset=TINY_PRESET, n_photos=3,
                        names=["IMG_0001.JPG", "foo.jpg", "side view.png"], created_at=time.time())
     store.job_dir(record.id).mkdir()
     store.create(record)
@@ -45,7 +44,7 @@ def _failing_job(store: JobStore, monkeypatch: pytest.MonkeyPatch, redis_url: st
 
 
 def test_an_input_error_names_the_uploaded_photo_and_its_hint(
-        store: JobStore, monkeypatch: pytest.MonkeyPatch, redis_url: str) -> None:
+        store: JobStore, monkeypatch: pytest.MonkeyPatch, redis_url: str, clean_redis) -> None:
     from cadnerf_core.errors import InputError
 
     exc = InputError("the photo is damaged or truncated", item="001_foo.jpg", hint=HINT)
@@ -62,7 +61,7 @@ def test_an_input_error_names_the_uploaded_photo_and_its_hint(
     # It survives a Redis restart (state.json) like the rest of the record.
     saved = json.loads((store.job_dir(final.id) / "state.json").read_text())
     assert saved["error_detail"]["photo"] == "foo.jpg"
-    store.r.delete(store.job_key(final.id))
+    clean_redis.delete(keys.job(final.id))
     reseeded = store.get(final.id)
     assert reseeded is not None and reseeded.error_detail == expected
 
@@ -84,8 +83,8 @@ def test_an_input_error_on_a_job_folder_path_shows_the_field_not_the_path(
 
 
 def test_an_input_error_inside_the_job_folder_maps_to_its_form_field(tmp_path: Path) -> None:
-    record = JobRecord(id=str(uuid.uuid4()), preset="test", n_photos=2, names=["a.jpg", "b.jpg"],
-                       created_at=time.time())
+    record = JobRecord(id=str(uuid.uuid4()), preset=TINY_PRESET, n_photos=2,
+                       names=["a.jpg", "b.jpg"], created_at=time.time())
     folder = tmp_path / record.id
     error, detail = runner.input_error(f"{folder / 'inputs'}: no photos", str(folder / "inputs"),
                                        None, record, folder)

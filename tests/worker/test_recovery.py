@@ -2,9 +2,7 @@
 
 from __future__ import annotations
 
-from app import recovery
-from app.schemas import JobState
-from app.store import JobStore
+from app.state import MAX_ATTEMPTS, JobState, JobStore, OrphanWatch, find_orphans, requeue
 from worker import runner
 from worker.runner import _FixedClaim
 
@@ -23,27 +21,27 @@ def _orphan(store: JobStore, new_job, worker: str = "host-1", attempts: int = 0)
     record = new_job()
     store.update(record.id, state=JobState.running, worker=worker, attempts=attempts)
     store.mirror(record.id)
-    recovery.mark_running(store.r, record.id, True)
+    store.mark_running(record.id, True)
     return store.get(record.id)
 
 
 def test_a_claim_is_exclusive_until_released(store: JobStore, new_job) -> None:
     job = new_job()
-    assert recovery.claim(store.r, job.id, "a") and recovery.claim(store.r, job.id, "a")
-    assert not recovery.claim(store.r, job.id, "b")
-    recovery.release(store.r, job.id, "b")  # not b's to release
-    assert recovery.claim_holder(store.r, job.id) == "a"
-    recovery.release(store.r, job.id, "a")
-    assert recovery.claim(store.r, job.id, "b")
+    assert store.claims.take(job.id, "a") and store.claims.take(job.id, "a")
+    assert not store.claims.take(job.id, "b")
+    store.claims.release(job.id, "b")  # not b's to release
+    assert store.claims.holder(job.id) == "a"
+    store.claims.release(job.id, "a")
+    assert store.claims.take(job.id, "b")
 
 
 def test_a_duplicate_delivery_of_a_claimed_job_is_dropped(store: JobStore, new_job,
                                                           redis_url) -> None:
-    from app.settings import load_settings
+    from app.state import load_settings
 
     settings = load_settings(redis_url=redis_url, data_root=store.data_root)
     job = new_job()
-    assert recovery.claim(store.r, job.id, "other-worker")
+    assert store.claims.take(job.id, "other-worker")
     assert runner.execute(job.id, settings, store)["state"] == "duplicate"
     after = store.get(job.id)
     assert after is not None and after.state == JobState.queued and after.started_at is None
@@ -53,8 +51,8 @@ def test_an_orphan_is_requeued_once_after_the_grace_period(store: JobStore, new_
     record = _orphan(store, new_job)
     sent: list[str] = []
     clock = Clock()
-    watch = recovery.OrphanWatch(store, sent.append, grace_s=5.0, clock=clock)
-    other = recovery.OrphanWatch(store, sent.append, grace_s=5.0, clock=clock)
+    watch = OrphanWatch(store, sent.append, grace_s=5.0, clock=clock)
+    other = OrphanWatch(store, sent.append, grace_s=5.0, clock=clock)
     assert watch.check() == [] and other.check() == []  # first sighting: wait
     clock.now += 5.0
     assert watch.check() == [record.id]
@@ -64,7 +62,8 @@ def test_an_orphan_is_requeued_once_after_the_grace_period(store: JobStore, new_
     assert after is not None and after.state == JobState.queued
     assert after.attempts == 1 and after.worker is None
     assert store.read_state_file(record.id).state == JobState.queued  # type: ignore[union-attr]
-    assert not store.r.sismember(recovery.RUNNING_KEY, record.id)
+    assert record.id not in store.running_ids()
+    assert store.queue_estimates([record.id])[record.id].position == 0  # back in the queue
 
 
 def test_a_claimed_job_is_not_an_orphan_and_a_flicker_is_forgiven(store: JobStore,
@@ -72,21 +71,22 @@ def test_a_claimed_job_is_not_an_orphan_and_a_flicker_is_forgiven(store: JobStor
     record = _orphan(store, new_job)
     sent: list[str] = []
     clock = Clock()
-    watch = recovery.OrphanWatch(store, sent.append, grace_s=5.0, clock=clock)
+    watch = OrphanWatch(store, sent.append, grace_s=5.0, clock=clock)
     watch.check()  # orphaned for a moment (say Redis restarted)...
-    recovery.claim(store.r, record.id, "host-1")  # ...then its worker's heartbeat re-claims it
+    store.claims.take(record.id, "host-1")  # ...then its worker's heartbeat re-claims it
     clock.now += 10.0
     assert watch.check() == [] and sent == []
     assert store.get(record.id).state == JobState.running  # type: ignore[union-attr]
 
 
 def test_the_attempts_are_bounded(store: JobStore, new_job) -> None:
-    record = _orphan(store, new_job, attempts=recovery.MAX_ATTEMPTS - 1)
+    record = _orphan(store, new_job, attempts=MAX_ATTEMPTS - 1)
     sent: list[str] = []
-    assert recovery.requeue(store, record, sent.append) == "failed"
+    assert requeue(store, record, sent.append) == "failed"
     after = store.get(record.id)
     assert after is not None and after.state == JobState.failed and sent == []
-    assert str(recovery.MAX_ATTEMPTS) in (after.error or "")
+    assert str(MAX_ATTEMPTS) in (after.error or "")
+    assert record.id not in store.running_ids() and store.queue_estimates([record.id]) == {}
 
 
 def test_a_final_state_json_wins_over_a_stale_running_record(store: JobStore, new_job) -> None:
@@ -94,7 +94,7 @@ def test_a_final_state_json_wins_over_a_stale_running_record(store: JobStore, ne
     running = store.get(record.id)
     assert running is not None and running.state == JobState.running
     store.write_state_file(running.model_copy(update={"state": JobState.succeeded}))
-    assert recovery.find_orphans(store) == []  # Redis still said running
+    assert find_orphans(store) == []  # Redis still said running
     assert store.get(record.id).state == JobState.succeeded  # type: ignore[union-attr]
 
 
@@ -105,14 +105,15 @@ def test_a_failed_send_fails_the_job_instead_of_leaving_it_queued(store: JobStor
     def broken(_: str) -> None:
         raise ConnectionError("broker away")
 
-    assert recovery.requeue(store, record, broken) == "failed"
+    assert requeue(store, record, broken) == "failed"
     assert store.get(record.id).state == JobState.failed  # type: ignore[union-attr]
+    assert store.queue_estimates([record.id]) == {}  # not left in the queue order
 
 
 def test_the_fixed_claim_blocks_other_workers(store: JobStore, new_job) -> None:
     job = new_job()
     mine = _FixedClaim(store, ttl_s=60)
     assert mine.hold(job.id)
-    assert not recovery.claim(store.r, job.id, "someone-else")
+    assert not store.claims.take(job.id, "someone-else")
     mine.drop(job.id)
-    assert recovery.claim_holder(store.r, job.id) is None
+    assert store.claims.holder(job.id) is None

@@ -7,13 +7,10 @@ from pathlib import Path
 
 import pytest
 
-from app.schemas import JobState
-from app.settings import load_settings
-from app.store import JobStore
+from app.state import STAGES, JobState, JobStore, keys, load_settings
 from cadnerf_core.jobfolder import JobFolder
-from tests.configs import tiny_config
+from tests.configs import TINY_PRESET, tiny_config
 from worker import runner
-from worker.progress import STAGES, stage_times_key
 
 pytestmark = pytest.mark.slow
 
@@ -33,7 +30,7 @@ def renders(tmp_path_factory: pytest.TempPathFactory) -> list[Path]:
 
 def test_a_job_runs_to_succeeded_with_progress_and_measured_stage_times(
         store: JobStore, new_job, redis_url: str, tiny_library_dir: Path,
-        renders: list[Path]) -> None:
+        renders: list[Path], clean_redis) -> None:
     record = new_job()
     folder = store.job_dir(record.id)
     job = JobFolder(folder)
@@ -52,8 +49,11 @@ def test_a_job_runs_to_succeeded_with_progress_and_measured_stage_times(
     assert stages and set(stages) <= set(STAGES) and "phase1" in stages
     fractions = [u["progress"] for u in updates]
     assert fractions == sorted(fractions)
-    measured = store.r.hgetall(stage_times_key("test", "cpu"))
-    assert set(measured) >= {"retrieval", "phase1"} and all(float(v) > 0 for v in
-                                                             measured.values())
+    measured = clean_redis.hgetall(keys.stage_seconds("cpu"))  # this device's history only
+    assert set(measured) >= {f"{TINY_PRESET}/retrieval", f"{TINY_PRESET}/phase1"}
+    assert all(float(v) > 0 for v in measured.values())
+    assert clean_redis.hgetall(keys.stage_seconds("cuda")) == {}
+    assert store.history.expected(TINY_PRESET, "cpu")["phase1"] == pytest.approx(
+        float(measured[f"{TINY_PRESET}/phase1"]))
     assert json.loads((folder / "state.json").read_text())["state"] == "succeeded"
     assert (folder / "orbit.mp4").is_file() and (folder / "poses.json").is_file()

@@ -1,4 +1,5 @@
-"""Progress adapter: weighted fraction, ETA, throttled writes to Redis, cancel checks."""
+"""Progress: the ETA tables and model (app.state), the adapter's throttled writes to Redis,
+cancel checks."""
 
 from __future__ import annotations
 
@@ -7,14 +8,17 @@ import time
 
 import pytest
 
-from app.store import JobStore
-from worker.progress import (
+from app.state import (
     DEFAULT_STAGE_SECONDS,
+    STAGES,
     EtaModel,
-    JobProgress,
-    expected_stage_seconds,
-    record_stage_seconds,
+    JobStore,
+    StageHistory,
+    connect,
+    default_stage_seconds,
+    keys,
 )
+from worker.progress import JobProgress
 
 EXPECTED = {"masks": 1.0, "retrieval": 1.0, "phase1": 2.0, "phase2": 4.0, "phase3": 8.0,
             "render": 2.0, "export": 2.0}  # 20 s in all
@@ -56,14 +60,38 @@ def test_finished_stages_scale_the_plan_of_the_next_one() -> None:
     assert later > (8 / 4) * 0.5 + (2 + 2) / 4
 
 
-def test_measured_stage_times_replace_the_defaults(clean_redis) -> None:
-    defaults = DEFAULT_STAGE_SECONDS["test"]
-    assert expected_stage_seconds(clean_redis, "test", "cpu") == defaults
-    record_stage_seconds(clean_redis, "test", "cpu", {"phase2": 10.0})
-    record_stage_seconds(clean_redis, "test", "cpu", {"phase2": 20.0})
-    table = expected_stage_seconds(clean_redis, "test", "cpu")
+def test_measured_stage_times_replace_the_defaults_of_their_device(clean_redis) -> None:
+    history = StageHistory(clean_redis)
+    defaults = default_stage_seconds("preview", "cpu")
+    assert history.expected("preview", "cpu") == defaults
+    history.record("preview", "cpu", {"phase2": 10.0})
+    history.record("preview", "cpu", {"phase2": 20.0})
+    table = history.expected("preview", "cpu")
     assert table["phase2"] == pytest.approx(15.0) and table["masks"] == defaults["masks"]
-    assert expected_stage_seconds(clean_redis, "test", "cuda") == defaults
+    assert history.expected("preview", "cuda") == default_stage_seconds("preview", "cuda")
+    assert history.expected("standard", "cpu") == default_stage_seconds("standard", "cpu")
+
+
+def test_the_default_tables_know_the_device_and_every_stage() -> None:
+    for device in ("cpu", "cuda"):
+        for preset, table in DEFAULT_STAGE_SECONDS[device].items():
+            assert set(table) == set(STAGES), (device, preset)
+    # A standard job on a GPU takes about a minute; on two CPU cores, hours.
+    assert 50 < sum(default_stage_seconds("standard", "cuda").values()) < 100
+    assert sum(default_stage_seconds("standard", "cpu").values()) > 3600
+    for preset in ("preview", "standard", "paper"):
+        assert (sum(default_stage_seconds(preset, "cuda").values())
+                < sum(default_stage_seconds(preset, "cpu").values()))
+
+
+def test_an_unknown_preset_still_gets_an_estimate() -> None:
+    assert "test" not in DEFAULT_STAGE_SECONDS["cpu"]
+    for device in ("cpu", "cuda"):
+        table = default_stage_seconds("custom", device)
+        assert table == default_stage_seconds("standard", device)
+        eta = EtaModel(table)
+        _, left = eta.update("masks", 0, 1, now=0.0)
+        assert left == pytest.approx(sum(table.values()))
 
 
 class Clock:
@@ -75,23 +103,24 @@ class Clock:
 
 
 def test_reports_reach_redis_throttled_and_state_json_on_stage_changes(store: JobStore,
-                                                                       new_job) -> None:
+                                                                       new_job,
+                                                                       clean_redis) -> None:
     record = new_job()
     clock = Clock()
     sent: list[dict] = []
     progress = JobProgress(store, record.id, EtaModel(dict(EXPECTED)), clock=clock,
                            celery_update=sent.append, throttle_s=0.5, mirror_every_s=5.0)
     progress("phase1", 1, 4)
-    first = store.r.hgetall(store.job_key(record.id))
+    first = clean_redis.hgetall(keys.job(record.id))
     assert first["stage"] == "phase1" and float(first["progress"]) == pytest.approx(2.5 / 20)
     state = json.loads((store.job_dir(record.id) / "state.json").read_text())
     assert state["stage"] == "phase1"
     clock.now += 0.1
     progress("phase1", 2, 4)  # within the throttle window: not written
-    assert float(str(store.r.hget(store.job_key(record.id), "progress"))) == pytest.approx(2.5 / 20)
+    assert float(clean_redis.hget(keys.job(record.id), "progress")) == pytest.approx(2.5 / 20)
     clock.now += 0.5
     progress("phase1", 3, 4)
-    assert float(str(store.r.hget(store.job_key(record.id), "progress"))) == pytest.approx(3.5 / 20)
+    assert float(clean_redis.hget(keys.job(record.id), "progress")) == pytest.approx(3.5 / 20)
     assert [s["done"] for s in sent] == [1, 3] and sent[-1]["eta_s"] > 0
 
 
@@ -108,19 +137,18 @@ def test_cancel_flag_and_deadline(store: JobStore, new_job) -> None:
     assert late.cancelled() is True and late.timed_out is True
 
 
-def test_a_deleted_job_counts_as_cancelled_and_is_not_recreated(store: JobStore,
-                                                                 new_job) -> None:
+def test_a_deleted_job_counts_as_cancelled_and_is_not_recreated(store: JobStore, new_job,
+                                                                 clean_redis) -> None:
     record = new_job()
     store.delete(record)
     progress = JobProgress(store, record.id, EtaModel(dict(EXPECTED)))
     progress("phase1", 1, 2)
-    assert store.r.exists(store.job_key(record.id)) == 0
+    assert clean_redis.exists(keys.job(record.id)) == 0
     assert progress.cancelled() is True
 
 
-def test_redis_going_away_does_not_stop_the_job(store: JobStore, new_job) -> None:
+def test_redis_going_away_does_not_stop_the_job(store: JobStore, new_job, clean_redis) -> None:
     from app.embedded import free_port
-    from app.store import connect
 
     record = new_job()
     down = JobStore(connect(f"redis://127.0.0.1:{free_port()}/0"), store.data_root)
@@ -140,5 +168,5 @@ def test_redis_going_away_does_not_stop_the_job(store: JobStore, new_job) -> Non
     progress.store = store  # Redis is back
     clock.now += 2.1
     progress("phase2", 1, 4)
-    assert store.r.hget(store.job_key(record.id), "stage") == "phase2"
+    assert clean_redis.hget(keys.job(record.id), "stage") == "phase2"
     assert [s["stage"] for s in sent] == ["phase2"]

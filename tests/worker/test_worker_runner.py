@@ -8,9 +8,7 @@ import uuid
 from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
 from pathlib import Path
 
-from app.schemas import JobState
-from app.settings import load_settings
-from app.store import JobStore
+from app.state import JobState, JobStore, keys, load_settings
 from worker import runner
 
 
@@ -19,11 +17,12 @@ def _settings(store: JobStore, redis_url: str, secret: str = "", **overrides: ob
                          library_dir=Path("/nonexistent"), webhook_secret=secret, **overrides)
 
 
-def test_unknown_and_finished_jobs_are_left_alone(store: JobStore, new_job, redis_url) -> None:
+def test_unknown_and_finished_jobs_are_left_alone(store: JobStore, new_job, redis_url,
+                                                 clean_redis) -> None:
     settings = _settings(store, redis_url)
     missing = str(uuid.uuid4())
     assert runner.execute(missing, settings, store)["state"] == "missing"
-    assert store.r.exists(store.job_key(missing)) == 0
+    assert clean_redis.exists(keys.job(missing)) == 0
     done = new_job(JobState.succeeded)
     assert runner.execute(done.id, settings, store)["state"] == "succeeded"
     unchanged = store.get(done.id)
@@ -75,7 +74,7 @@ def test_a_webhook_to_a_private_address_is_not_called_by_default(store: JobStore
 def test_the_final_state_reaches_state_json_while_redis_is_away(store: JobStore, new_job,
                                                                 redis_url) -> None:
     from app.embedded import free_port
-    from app.store import connect
+    from app.state import connect
 
     record = new_job()
     down = JobStore(connect(f"redis://127.0.0.1:{free_port()}/0"), store.data_root)
@@ -86,15 +85,16 @@ def test_the_final_state_reaches_state_json_while_redis_is_away(store: JobStore,
 
 
 def test_a_final_state_lost_by_redis_is_reseeded_but_a_deleted_job_is_not(
-        store: JobStore, new_job, redis_url) -> None:
+        store: JobStore, new_job, redis_url, clean_redis) -> None:
     lost, deleted = new_job(), new_job()
-    store.r.delete(store.job_key(lost.id))  # Redis restarted empty
+    clean_redis.delete(keys.job(lost.id))  # Redis restarted empty
     store.delete(deleted)
     settings = _settings(store, redis_url)
     runner._finish(store, settings, lost, JobState.succeeded, None)
     runner._finish(store, settings, deleted, JobState.cancelled, None)
-    assert store.r.hget(store.job_key(lost.id), "state") == "succeeded"
-    assert store.r.exists(store.job_key(deleted.id)) == 0
+    assert clean_redis.hget(keys.job(lost.id), "state") == "succeeded"
+    assert clean_redis.exists(keys.job(deleted.id)) == 0
+    assert store.running_ids() == [] and store.queue_estimates([lost.id]) == {}
 
 
 def test_an_unwritable_job_folder_gives_a_clear_error(tmp_path: Path) -> None:

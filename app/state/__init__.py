@@ -1,0 +1,31 @@
+"""The job state, one owner for it: records, queue order, claims, heartbeats, recovery, ETA.
+
+Used by the API (HTTP only) and the worker (the Celery task only); imports neither FastAPI nor
+Celery nor torch. Redis holds the live state (key names in ``app.state.keys``), each job
+folder's state.json a copy that survives a Redis restart.
+"""
+
+from app.state.claims import HEARTBEAT_EVERY_S, HEARTBEAT_TTL_S, Claims, Workers
+from app.state.estimate import AsyncJobReader, QueueEstimate
+from app.state.eta import (
+    DEFAULT_STAGE_SECONDS,
+    STAGES,
+    EtaModel,
+    StageHistory,
+    default_stage_seconds,
+)
+from app.state.lifecycle import FINISH_RETRY_S, finish_job
+from app.state.messaging import QUEUE, SEND_RETRY_POLICY, TASK_NAME, celery_config
+from app.state.records import ANON_OWNER, ErrorDetail, JobRecord, JobState, is_job_id
+from app.state.recovery import MAX_ATTEMPTS, ORPHAN_GRACE_S, OrphanWatch, find_orphans, requeue
+from app.state.settings import Settings, SettingsError, load_settings, non_public_reason
+from app.state.store import JobStore, connect
+
+__all__ = [
+    "ANON_OWNER", "DEFAULT_STAGE_SECONDS", "FINISH_RETRY_S", "HEARTBEAT_EVERY_S",
+    "HEARTBEAT_TTL_S", "MAX_ATTEMPTS", "ORPHAN_GRACE_S", "QUEUE", "SEND_RETRY_POLICY", "STAGES",
+    "TASK_NAME", "AsyncJobReader", "Claims", "ErrorDetail", "EtaModel", "JobRecord", "JobState",
+    "JobStore", "OrphanWatch", "QueueEstimate", "Settings", "SettingsError", "StageHistory",
+    "Workers", "celery_config", "connect", "default_stage_seconds", "find_orphans", "finish_job",
+    "is_job_id", "load_settings", "non_public_reason", "requeue",
+]

@@ -1,0 +1,307 @@
+"""Job records in Redis, mirrored to ``<job folder>/state.json``, with the queue order, the
+running set and the cancel flags.
+
+Redis answers the hot path (a poll is one HGETALL); ``state.json`` lets a job survive a Redis
+restart: a job Redis has forgotten is read back from its folder and re-seeded.
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+import shutil
+import time
+from collections.abc import Iterable, Iterator, Sequence
+from pathlib import Path
+from typing import Any
+
+import redis
+from pydantic import ValidationError
+
+from app.state import keys, scripts
+from app.state.claims import Claims, Workers
+from app.state.estimate import QueueEstimate, read_estimates
+from app.state.eta import StageHistory, history_devices
+from app.state.records import JobRecord, JobState, encode, is_job_id
+
+log = logging.getLogger(__name__)
+
+STATE_FILE = "state.json"
+TOMBSTONE_TTL_S = 7 * 24 * 3600
+CANCEL_TTL_S = 7 * 24 * 3600
+
+
+def connect(url: str) -> redis.Redis:
+    """A Redis client with short timeouts and decoded strings (connections open lazily).
+
+    Args:
+        url: redis://, rediss:// or unix:// URL.
+    """
+    return redis.Redis.from_url(url, decode_responses=True, socket_timeout=10,
+                                socket_connect_timeout=3, health_check_interval=30)
+
+
+class JobStore:
+    """The job state: records, queue order, running set, cancel flags, claims, workers, history.
+
+    Args:
+        client: the Redis client (``connect``); closed by ``close``.
+        data_root: the folder holding one folder per job.
+    """
+
+    def __init__(self, client: redis.Redis, data_root: Path) -> None:
+        self._r = client
+        self.data_root = Path(data_root)
+        self.claims = Claims(client)
+        self.workers = Workers(client)
+        self.history = StageHistory(client)
+        self._update = client.register_script(scripts.UPDATE)
+        self._start = client.register_script(scripts.START)
+        self._requeue = client.register_script(scripts.REQUEUE)
+
+    @classmethod
+    def open(cls, url: str, data_root: Path) -> JobStore:
+        """A store on a new client of the Redis at ``url``."""
+        return cls(connect(url), data_root)
+
+    def close(self) -> None:
+        """Close the Redis connections."""
+        self._r.close()
+
+    def ping(self) -> bool:
+        """True when Redis answers (raises ``redis.RedisError`` when it does not)."""
+        return bool(self._r.ping())
+
+    def job_dir(self, job_id: str) -> Path:
+        """The job's folder; raises ValueError for anything but a job id (no path tricks)."""
+        if not is_job_id(job_id):
+            raise ValueError(f"not a job id: {job_id!r}")
+        return self.data_root / job_id
+
+    # --- records --------------------------------------------------------------------------
+    def create(self, record: JobRecord) -> None:
+        """Store a new job (its folder must exist), mirror it, and queue it when queued."""
+        pipe = self._r.pipeline()
+        pipe.hset(keys.job(record.id), mapping=record.to_hash())  # type: ignore[arg-type]
+        pipe.zadd(keys.owner_jobs(record.owner), {record.id: record.created_at})
+        if record.state == JobState.queued:
+            pipe.zadd(keys.QUEUE, {record.id: record.created_at})
+        pipe.execute()
+        self.write_state_file(record)
+
+    def get(self, job_id: str) -> JobRecord | None:
+        """The job's record: one HGETALL, or state.json (re-seeding Redis) when Redis lost it."""
+        if not is_job_id(job_id):
+            return None
+        raw = self._r.hgetall(keys.job(job_id))
+        if raw:
+            return JobRecord.from_hash(raw)  # type: ignore[arg-type]
+        record = self.read_state_file(job_id)
+        if record is not None:
+            self.reseed(record)
+        return record
+
+    def latest(self, record: JobRecord) -> JobRecord:
+        """The newest record readable: Redis, else state.json, else ``record`` itself."""
+        try:
+            raw = self._r.hgetall(keys.job(record.id))
+            if raw:
+                return JobRecord.from_hash(raw)  # type: ignore[arg-type]
+        except redis.RedisError as exc:
+            log.debug("job %s: Redis unreadable (%s); using state.json", record.id, exc)
+        return self.read_state_file(record.id) or record
+
+    def reseed(self, record: JobRecord) -> None:
+        """Put a record read from disk back into Redis (and its running set or queue order)."""
+        pipe = self._r.pipeline()
+        pipe.hset(keys.job(record.id), mapping=record.to_hash())  # type: ignore[arg-type]
+        pipe.zadd(keys.owner_jobs(record.owner), {record.id: record.created_at})
+        if record.state == JobState.running:  # scanned for a dead worker
+            pipe.sadd(keys.RUNNING, record.id)
+        if record.state == JobState.queued:  # its place in the queue, as near as we know
+            pipe.zadd(keys.QUEUE, {record.id: record.created_at}, nx=True)
+        pipe.execute()
+        log.info("re-seeded job %s from state.json", record.id)
+
+    def update(self, job_id: str, allowed_from: Iterable[JobState] = (),
+               **fields: Any) -> bool:
+        """Set fields of an existing job atomically.
+
+        Args:
+            job_id: the job.
+            allowed_from: apply only while the job is in one of these states (empty: any).
+            fields: JobRecord fields to set.
+
+        Returns:
+            False when the job is gone or in another state (nothing was written).
+        """
+        argv: list[str] = [",".join(s.value for s in allowed_from)]
+        argv += _pairs({**fields, "updated_at": time.time()})
+        return bool(self._update(keys=[keys.job(job_id)], args=argv))
+
+    def page(self, owner: str, offset: int, limit: int) -> tuple[list[JobRecord], int]:
+        """One page of an owner's jobs, newest first, and how many there are."""
+        index = keys.owner_jobs(owner)
+        ids: list[str] = self._r.zrevrange(index, offset, offset + limit - 1)  # type: ignore[assignment]
+        total = int(self._r.zcard(index))  # type: ignore[arg-type]
+        pipe = self._r.pipeline()
+        for job_id in ids:
+            pipe.hgetall(keys.job(job_id))
+        return [JobRecord.from_hash(raw) for raw in pipe.execute() if raw], total
+
+    def delete(self, record: JobRecord) -> None:
+        """Forget a job in Redis (leaving a tombstone) and remove its folder."""
+        pipe = self._r.pipeline()
+        pipe.delete(keys.job(record.id), keys.cancel(record.id))
+        pipe.set(keys.deleted(record.id), "1", ex=TOMBSTONE_TTL_S)
+        pipe.zrem(keys.owner_jobs(record.owner), record.id)
+        pipe.srem(keys.RUNNING, record.id)
+        pipe.zrem(keys.QUEUE, record.id)
+        pipe.execute()
+        shutil.rmtree(self.job_dir(record.id), ignore_errors=True)
+
+    # --- transitions ----------------------------------------------------------------------
+    def start(self, job_id: str, worker: str, started_at: float) -> bool:
+        """Queued (or running again after a re-delivery) -> running on ``worker``.
+
+        The job joins the running set and leaves the queue order in the same step. Returns
+        False when it is in another state (it leaves the queue order all the same).
+        """
+        fields = {"state": JobState.running, "started_at": started_at, "error": None,
+                  "error_detail": None, "worker": worker, "updated_at": time.time()}
+        argv = [job_id, *_pairs(fields)]
+        started = bool(self._start(keys=[keys.job(job_id), keys.RUNNING, keys.QUEUE], args=argv))
+        if started:
+            self.mirror(job_id)
+        return started
+
+    def settle(self, final: JobRecord, fields: dict[str, Any]) -> bool:
+        """Write a final state to Redis: the job leaves the running set and the queue order.
+
+        A job Redis has lost (restarted empty) is re-seeded from ``final`` unless it was
+        deleted. Returns True once Redis has the job. Raises ``redis.RedisError``.
+        """
+        if not self.update(final.id, **fields):
+            if self.was_deleted(final.id):
+                return False
+            self.reseed(final)
+        pipe = self._r.pipeline()
+        pipe.srem(keys.RUNNING, final.id)
+        pipe.zrem(keys.QUEUE, final.id)
+        pipe.execute()
+        return True
+
+    def request_cancel(self, job_id: str) -> None:
+        """Ask the worker to stop this job at its next step (or not to start it)."""
+        self._r.set(keys.cancel(job_id), "1", ex=CANCEL_TTL_S)
+
+    def cancel(self, job_id: str) -> None:
+        """Ask a running job to stop; a queued one is cancelled at once and leaves the queue."""
+        self.request_cancel(job_id)
+        if self.update(job_id, allowed_from=(JobState.queued,), state=JobState.cancelled,
+                       finished_at=time.time()):
+            self._r.zrem(keys.QUEUE, job_id)
+
+    def requeue_orphan(self, record: JobRecord, max_attempts: int, error: str) -> int:
+        """Running -> queued (its attempts + 1), or failed with ``error`` at ``max_attempts``.
+
+        Only while the job still is running on ``record.worker`` with no claim. Returns the
+        attempts made so far, 0 when it failed, -1 when the job changed meanwhile.
+        """
+        argv = [record.id, record.worker or "", str(max_attempts), f"{time.time():.6f}", error]
+        job_keys = [keys.job(record.id), keys.claim(record.id), keys.RUNNING, keys.QUEUE]
+        outcome = int(self._requeue(keys=job_keys, args=argv))  # type: ignore[arg-type]
+        if outcome >= 0:
+            self.mirror(record.id)
+        return outcome
+
+    # --- running set, queue order, cancel flag ---------------------------------------------
+    def running_ids(self) -> list[str]:
+        """Ids in the running set (scanned for orphans)."""
+        return sorted(str(i) for i in self._r.smembers(keys.RUNNING))  # type: ignore[union-attr]
+
+    def mark_running(self, job_id: str, running: bool) -> None:
+        """Add the job to (or remove it from) the running set."""
+        if running:
+            self._r.sadd(keys.RUNNING, job_id)
+        else:
+            self._r.srem(keys.RUNNING, job_id)
+
+    def leave_queue(self, job_id: str) -> None:
+        """Take a job out of the queue order (it ended before starting)."""
+        self._r.zrem(keys.QUEUE, job_id)
+
+    def queue_estimates(self, job_ids: Sequence[str], device: str = "auto"
+                        ) -> dict[str, QueueEstimate]:
+        """Place and expected wait of queued jobs (two round trips); others are left out.
+
+        Args:
+            job_ids: the jobs.
+            device: the workers' configured device (its measured history is used).
+        """
+        if not job_ids:
+            return {}
+        return read_estimates(self._r, job_ids, history_devices(device))
+
+    def cancel_requested(self, job_id: str) -> bool:
+        """True once someone asked the job to stop, or the job was deleted.
+
+        A job missing from Redis whose folder is still there was lost by a Redis restart (the
+        API re-seeds it from state.json), not deleted.
+        """
+        pipe = self._r.pipeline()
+        pipe.exists(keys.cancel(job_id), keys.deleted(job_id))
+        pipe.exists(keys.job(job_id))
+        flags, exists = pipe.execute()
+        if flags:
+            return True
+        return not exists and not (self.job_dir(job_id) / STATE_FILE).is_file()
+
+    def was_deleted(self, job_id: str) -> bool:
+        """True when the job was deleted (in the last ``TOMBSTONE_TTL_S``) or its folder is gone."""
+        return bool(self._r.exists(keys.deleted(job_id))) or not (
+            self.job_dir(job_id) / STATE_FILE).is_file()
+
+    # --- state.json -----------------------------------------------------------------------
+    def write_state_file(self, record: JobRecord) -> None:
+        """Atomically mirror a record into its folder (skipped when the folder is gone)."""
+        folder = self.job_dir(record.id)
+        if not folder.is_dir():
+            return
+        tmp = folder / f".{STATE_FILE}.{os.getpid()}.tmp"
+        try:
+            tmp.write_text(record.model_dump_json(indent=1))
+            os.replace(tmp, folder / STATE_FILE)
+        except OSError as exc:  # the folder was deleted under us: the job is gone anyway
+            log.debug("could not mirror %s: %s", record.id, exc)
+
+    def mirror(self, job_id: str) -> JobRecord | None:
+        """Copy the Redis record to state.json; returns it (None if the job is gone)."""
+        raw = self._r.hgetall(keys.job(job_id))
+        if not raw:
+            return None
+        record = JobRecord.from_hash(raw)  # type: ignore[arg-type]
+        self.write_state_file(record)
+        return record
+
+    def read_state_file(self, job_id: str) -> JobRecord | None:
+        """The record saved in the job folder, or None when absent or unreadable."""
+        if not is_job_id(job_id):
+            return None
+        try:
+            return JobRecord.model_validate_json((self.job_dir(job_id) / STATE_FILE).read_text())
+        except (OSError, ValidationError, ValueError):
+            return None
+
+    def iter_job_ids(self) -> Iterator[str]:
+        """Ids of all job folders on disk."""
+        if not self.data_root.is_dir():
+            return
+        for entry in self.data_root.iterdir():
+            if entry.is_dir() and is_job_id(entry.name):
+                yield entry.name
+
+
+def _pairs(fields: dict[str, Any]) -> list[str]:
+    """Encoded fields as a flat field, value, ... list (HSET's arguments)."""
+    return [item for pair in encode(fields).items() for item in pair]
