@@ -27,4 +27,4 @@ RUN useradd --create-home --uid 1000 cadnerf \
 USER cadnerf
 
 EXPOSE 8000
-CMD ["python", "-m", "cadnerf_cli.main", "serve", "--host", "0.0.0.0", "--port", "8000"]
+CMD ["python", "-m", "cadnerf_cli.main", "serve", "--host", "0.0.0.0", "--port", "8000", "--verbose"]

@@ -122,7 +122,9 @@ def save_orbit_frame(job: Path) -> None:
     import imageio_ffmpeg
     from PIL import Image
 
-    reader = imageio_ffmpeg.read_frames(str(job / "orbit.mp4"))
+    from cadnerf_core.jobfolder import ORBIT_VIDEO, JobFolder
+
+    reader = imageio_ffmpeg.read_frames(str(JobFolder(job).file(ORBIT_VIDEO)))
     meta = next(reader)
     frames = list(reader)
     width, height = meta["size"]

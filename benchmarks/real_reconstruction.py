@@ -35,15 +35,17 @@ def picture(job: Path, photos: list[Path], masks: list[Path], out: Path) -> None
     from PIL import Image
 
     from cadnerf_core.intake.photos import canonical_views, load_photos
+    from cadnerf_core.jobfolder import ORBIT_VIDEO, VIEWS, JobFolder
 
     loaded = load_photos(photos, masks)
     found = [p.mask for p in loaded if p.mask is not None]  # every photo has its shipped mask
     rgb, crops, _ = canonical_views(loaded, found, TILE, 0.1)
     row1 = [(np.where(c[..., None], im, 1.0) * 255).astype(np.uint8)
             for im, c in zip(rgb, crops, strict=True)]
-    views = sorted((job / "views").glob("*.png"))[:len(photos)]
+    folder = JobFolder(job)
+    views = sorted(folder.file(VIEWS).glob("*.png"))[:len(photos)]
     row2 = [np.asarray(Image.open(v).convert("RGB").resize((TILE, TILE))) for v in views]
-    reader = imageio_ffmpeg.read_frames(str(job / "orbit.mp4"))
+    reader = imageio_ffmpeg.read_frames(str(folder.file(ORBIT_VIDEO)))
     meta = next(reader)
     frames = list(reader)
     width, height = meta["size"]

@@ -5,7 +5,6 @@ from __future__ import annotations
 
 import contextlib
 import dataclasses
-import json
 import math
 from collections.abc import Iterator
 from pathlib import Path
@@ -130,7 +129,9 @@ def refined_test_psnr(report: EvalReport, steps: int, align: str | None = None,
 
 def score_report(report: EvalReport, tta: bool, device: str = DEVICE) -> dict[str, Any]:
     """The table's numbers for one evaluated job (its model loaded on ``device``)."""
-    metrics = json.loads((Path(report.job_dir) / "metrics.json").read_text())
+    from cadnerf_core.jobfolder import JobFolder
+
+    metrics = JobFolder(report.job_dir).read_metrics() or {}
     return {"psnr": report.image.psnr,
             # The same cameras mapped by the camera centres alone: six noisy centres on a
             # ring fix the frame only roughly.

@@ -11,8 +11,8 @@ import typer
 
 from cadnerf_cli.eval_cmd import parse_overrides
 from cadnerf_cli.retrieve_cmd import FOCAL_HELP, PERSPECTIVE_HELP, Perspective, Walk
+from cadnerf_core.progress import STAGES
 
-STAGES = ("masks", "retrieval", "phase1", "phase2", "phase3", "render", "export")
 DEFAULT_LIBRARY = Path("library_data/build")
 
 

@@ -200,14 +200,18 @@ def demo_mesh(path: Path) -> Path:
 
 def run_demo(url: str, preset: str = "preview", views: int = 6, size: int = 160,
              mesh: Path | None = None, out: Path | None = None,
-             api_key: str | None = None) -> dict[str, Any]:
+             api_key: str | None = None,
+             overrides: dict[str, Any] | None = None) -> dict[str, Any]:
     """Render a synthetic object, submit it over HTTP, follow it, download the orbit.
+
+    ``overrides`` go with the preset in the job's config, as an API client would send them.
 
     Returns:
         The job's final status.
     """
     from app.client import JobClient
     from cadnerf_core.evaluation.dataset import render_dataset
+    from cadnerf_core.jobfolder import ORBIT_VIDEO
 
     logging.getLogger("httpx").setLevel(logging.WARNING)  # one line per poll is noise here
     out = out or Path(tempfile.mkdtemp(prefix="cadnerf-demo-"))
@@ -216,7 +220,7 @@ def run_demo(url: str, preset: str = "preview", views: int = 6, size: int = 160,
     photos = sorted((dataset / "images").glob("*.png"))
     client = JobClient(url, api_key=api_key)
     try:
-        job = client.submit(photos, config={"preset": preset})
+        job = client.submit(photos, config={"preset": preset, "overrides": overrides or {}})
         typer.echo(f"demo job {job['id']}: {len(photos)} photos, preset {preset}")
         typer.echo(f"watch it at {url}/?job={job['id']}")
         final = client.follow(job["id"], on_update=_StatusPrinter(), poll_s=1.0)
@@ -225,9 +229,9 @@ def run_demo(url: str, preset: str = "preview", views: int = 6, size: int = 160,
             return final
         for warning in client.result(job["id"]).get("warnings", []):
             typer.echo(f"warning: {warning}")
-        orbit = client.download(job["id"], "orbit.mp4", out / "orbit.mp4")
+        orbit = client.download(job["id"], ORBIT_VIDEO, out / ORBIT_VIDEO)
         typer.echo(f"result (model, poses, metrics): {url}/v1/jobs/{job['id']}/result")
-        typer.echo(f"orbit video: {url}/v1/jobs/{job['id']}/artifacts/orbit.mp4")
+        typer.echo(f"orbit video: {url}/v1/jobs/{job['id']}/artifacts/{ORBIT_VIDEO}")
         typer.echo(f"downloaded to {orbit}")
         return final
     finally:

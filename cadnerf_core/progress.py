@@ -11,6 +11,9 @@ from typing import Protocol
 
 from cadnerf_core.errors import JobCancelled
 
+STAGES = ("masks", "retrieval", "phase1", "phase2", "phase3", "render", "export")
+"""The stages a job reports, in the order it runs them."""
+
 
 class ProgressReporter(Protocol):
     """Receives (stage, done, total) whenever a step of ``stage`` finishes."""

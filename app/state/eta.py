@@ -14,10 +14,10 @@ from dataclasses import dataclass, field
 import redis
 
 from app.state import keys
+from cadnerf_core.progress import STAGES
 
 log = logging.getLogger(__name__)
 
-STAGES = ("masks", "retrieval", "phase1", "phase2", "phase3", "render", "export")
 DEVICES = ("cpu", "cuda")  # the kinds of device the tables and the history distinguish
 FALLBACK_PRESET = "standard"  # the table of a job whose preset has none (the default preset's)
 MEASURED_WEIGHT = 0.5  # exponential moving average of measured stage durations

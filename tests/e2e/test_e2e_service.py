@@ -1,4 +1,4 @@
-"""End to end over HTTP: a real worker process runs the real pipeline (preset `test`)."""
+"""End to end over HTTP: a real worker process runs the real pipeline (the suite's tiny config)."""
 
 from __future__ import annotations
 
@@ -10,6 +10,8 @@ from typing import Any
 
 import httpx
 import pytest
+
+from tests.configs import TINY_OVERRIDES, TINY_PRESET, tiny_request
 
 pytestmark = pytest.mark.slow
 
@@ -39,7 +41,7 @@ def _follow(url: str, job_id: str, timeout_s: float, until: tuple[str, ...] = (
 
 def test_a_job_runs_to_its_artifacts(live_service, photo_set: list[Path]) -> None:
     url = live_service.url
-    job = _submit(url, photo_set, {"preset": "test"})
+    job = _submit(url, photo_set, tiny_request())
     seen = _follow(url, job["id"], timeout_s=300)
     final = seen[-1]
     assert final["state"] == "succeeded", f"{final}\n{live_service.log_tail()}"
@@ -71,7 +73,7 @@ def test_a_job_runs_to_its_artifacts(live_service, photo_set: list[Path]) -> Non
 def test_delete_stops_a_running_job_within_seconds(live_service, photo_set: list[Path]) -> None:
     url = live_service.url
     # Long enough to be caught in phase three; the core reports (and checks) 50 times a phase.
-    slow = {"preset": "test", "overrides": {"phase3.steps": 10000}}
+    slow = tiny_request(phase3={"steps": 10000})
     job = _submit(url, photo_set, slow)
     deadline = time.monotonic() + 180
     status = {}
@@ -89,7 +91,7 @@ def test_delete_stops_a_running_job_within_seconds(live_service, photo_set: list
     assert httpx.get(f"{url}/v1/jobs/{job['id']}", timeout=10).status_code == 404
     assert not (live_service.settings.data_root / job["id"]).exists()
     # The worker is free again: a new job runs to the end.
-    again = _submit(url, photo_set, {"preset": "test"})
+    again = _submit(url, photo_set, tiny_request())
     assert _follow(url, again["id"], timeout_s=300)[-1]["state"] == "succeeded"
 
 
@@ -101,7 +103,7 @@ def test_an_unusable_photo_fails_the_job_with_its_name(live_service, tmp_path: P
         path = tmp_path / f"blank_{i}.png"
         Image.new("RGB", (64, 64), "white").save(path)
         blank.append(path)
-    job = _submit(live_service.url, blank, {"preset": "test"})
+    job = _submit(live_service.url, blank, tiny_request())
     final = _follow(live_service.url, job["id"], timeout_s=120)[-1]
     assert final["state"] == "failed" and "blank_0.png" in final["error"], final
 
@@ -110,7 +112,8 @@ def test_the_demo_command_follows_a_job_to_its_orbit(live_service, tmp_path: Pat
                                                       capsys: pytest.CaptureFixture[str]) -> None:
     from cadnerf_cli.service_cmd import run_demo
 
-    final = run_demo(live_service.url, preset="test", views=4, size=64, out=tmp_path)
+    final = run_demo(live_service.url, preset=TINY_PRESET, overrides=TINY_OVERRIDES, views=4,
+                     size=64, out=tmp_path)
     assert final["state"] == "succeeded"
     assert (tmp_path / "orbit.mp4").read_bytes()[4:8] == b"ftyp"
     printed = capsys.readouterr().out

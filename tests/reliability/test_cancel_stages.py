@@ -11,13 +11,13 @@ from typing import Any
 import httpx
 import pytest
 
+from cadnerf_core.progress import STAGES
 from tests.configs import tiny_request
 from tests.reliability import jobs
 from tests.reliability.support import NEEDS_PIPELINE, Live, pipeline_ready, wait_for
 
 pytestmark = [pytest.mark.slow, pytest.mark.skipif(not pipeline_ready(), reason=NEEDS_PIPELINE)]
 
-STAGES = ("masks", "retrieval", "phase1", "phase2", "phase3", "render", "export")
 LONG = 100_000  # progress (and so the cancel check) comes every LONG / 50 steps
 # The config that keeps a job in each stage for seconds, and the photos it needs.
 PLANS: dict[str, tuple[dict[str, Any], str]] = {
