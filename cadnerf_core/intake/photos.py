@@ -15,7 +15,7 @@ import math
 from collections.abc import Sequence
 from dataclasses import dataclass, replace
 from pathlib import Path
-from typing import Any
+from typing import Any, Literal
 
 import numpy as np
 from PIL import Image, ImageOps, UnidentifiedImageError
@@ -44,6 +44,8 @@ class Photo:
     mask: np.ndarray | None = None
     focal_35mm: float | None = None
     """The EXIF focal length in 35 mm film terms (``FocalLengthIn35mmFilm``), None if absent."""
+    mask_source: Literal["uploaded", "alpha"] | None = None
+    """Where ``mask`` came from: a mask the user gave, or the photo's own alpha."""
 
     @property
     def focal_pixels(self) -> float | None:
@@ -206,7 +208,7 @@ def load_photo(source: PhotoSource, index: int = 0, mask: PhotoSource | None = N
     raw_size = raw.size
     rgb, alpha_mask = _to_array(_decode(raw, name, "photo"))
     if mask is None:
-        return Photo(name, rgb, alpha_mask, focal)
+        return Photo(name, rgb, alpha_mask, focal, "alpha" if alpha_mask is not None else None)
     mask_name, mask_data = _read_source(mask, index)
     mask_image = _decode(_open_image(name, mask_data, f"mask ({mask_name})", None), name, "mask")
     if mask_image.size == raw_size != (rgb.shape[1], rgb.shape[0]) and orientation in _ORIENTATION:
@@ -217,7 +219,7 @@ def load_photo(source: PhotoSource, index: int = 0, mask: PhotoSource | None = N
         (h, w), (mh, mw) = rgb.shape[:2], user_mask.shape
         raise InputError(f"the mask is {mw}x{mh} pixels but the photo is {w}x{h}", item=name,
                          hint="give a mask of the same size as its photo, in the same order")
-    return Photo(name, rgb, user_mask, focal)
+    return Photo(name, rgb, user_mask, focal, "uploaded")
 
 
 def load_photos(paths: Sequence[PhotoSource],
