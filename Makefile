@@ -9,7 +9,8 @@ STAMP := .make
 LIBRARY_DIR ?= library_data/build
 QUICK ?=
 VERBOSE ?=
-# pip stays quiet: no warning about running as root (containers do), no notice of a newer pip.
+# pip stays quiet (-qq: errors only): no warning about running as root (containers do), no
+# notice of a newer pip, no notes about index locations.
 export PIP_ROOT_USER_ACTION := ignore
 export PIP_DISABLE_PIP_VERSION_CHECK := 1
 
@@ -23,9 +24,9 @@ $(STAMP)/venv: pyproject.toml
 	@echo "setting up $(VENV): PyTorch (CPU) and the project (minutes, the first time only)"
 	@mkdir -p $(STAMP)
 	@test -x $(PY) || python3 -m venv $(VENV)
-	@$(PY) -m pip install -q --upgrade pip setuptools wheel
-	@$(PY) -m pip install -q torch==2.13.0
-	@$(PY) -m pip install -q -e '.[dev]'
+	@$(PY) -m pip install -qq --upgrade pip setuptools wheel
+	@$(PY) -m pip install -qq torch==2.13.0
+	@$(PY) -m pip install -qq -e '.[dev]'
 	@touch $@
 
 library: setup
