@@ -83,9 +83,9 @@ class PhotoResult(BaseModel):
     elevation: float | None = None
     c2w: list[list[float]] | None = Field(None, description="4x4 camera-to-world, OpenCV axes.")
     K: list[list[float]] | None = Field(None, description="3x3 intrinsics in the photo's pixels.")
-    mask_source: Literal["uploaded", "alpha", "built-in"] | None = Field(
+    mask_source: Literal["uploaded", "alpha", "learned", "grabcut"] | None = Field(
         None, description="Where the photo's mask came from: the uploaded mask, the photo's "
-        "alpha, or built-in background removal (the mask used is artifact used_masks/NNN.png).")
+        "alpha, or background removal (learned or grabcut); the mask used is an artifact.")
 
 
 class ModelRef(BaseModel):

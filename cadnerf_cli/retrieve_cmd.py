@@ -182,7 +182,7 @@ def retrieve_command(
 
     try:
         loaded = with_focal(load_photos(photos, resolve_mask_paths(photos, masks)), focal_35mm)
-        found = photo_masks(loaded)
+        found = [result.mask for result in photo_masks(loaded)]
         lib = load_library(library)
         config = RetrievalConfig(solver="paper" if solver == Solver.paper else "dp",
                                  walk=walk.value, shared_focal=not own_focal,

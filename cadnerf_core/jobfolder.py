@@ -6,7 +6,7 @@ One job is one folder, written by the app at upload (or the CLI), then by the pi
     masks/NNN_<stem>.png      uploaded masks, each named after ITS PHOTO (not its own file name)
     config.json               the resolved PipelineConfig, written once at the door
     retrieval.json            model, matches and discarded photos (the retrieval stage)
-    masks.json                per photo: the mask's source (uploaded, alpha, built-in)
+    masks.json                per photo: the mask's source (uploaded, alpha, learned, grabcut)
     used_masks/NNN.png        the mask each photo actually used (NNN = photo index)
     poses.json, transforms.json, metrics.json
     views/NNN.png, orbit.mp4, orbit.gif, mesh.glb, results.zip
@@ -67,7 +67,7 @@ MEDIA_TYPES: dict[str, str] = {
 _NUMBERED = re.compile(rf"^({VIEWS}|{USED_MASKS})/(\d{{3}})\.png$")
 _PHOTO_INDEX = re.compile(r"^(\d{3})_")
 
-MaskSource = Literal["uploaded", "alpha", "built-in"]
+MaskSource = Literal["uploaded", "alpha", "learned", "grabcut"]
 """Where a photo's mask came from: an uploaded mask, the photo's alpha, background removal."""
 
 

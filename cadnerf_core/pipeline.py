@@ -22,7 +22,7 @@ import numpy as np
 from cadnerf_core.config import PipelineConfig
 from cadnerf_core.errors import InputError
 from cadnerf_core.intake.crop import apply_crop
-from cadnerf_core.jobfolder import CONFIG, INPUTS, InputPhoto, JobFolder, MaskSource
+from cadnerf_core.jobfolder import CONFIG, INPUTS, JobFolder
 from cadnerf_core.progress import Progress
 
 if TYPE_CHECKING:
@@ -56,13 +56,6 @@ def read_job_config(job_dir: Path) -> PipelineConfig:
         raise InputError(f"invalid configuration: {exc}", item=CONFIG) from exc
 
 
-def mask_sources(inputs: list[InputPhoto], photos: list[Any]) -> list[MaskSource]:
-    """Where each photo's mask comes from: an uploaded mask wins over the photo's alpha, and
-    background removal makes the rest."""
-    return ["uploaded" if entry.mask is not None else "alpha" if photo.mask is not None
-            else "built-in" for entry, photo in zip(inputs, photos, strict=True)]
-
-
 def run_intake(job_dir: Path, library: Library, config: PipelineConfig,
                progress: Progress) -> Intake:
     """Read photos and masks, remove backgrounds where needed, retrieve model and poses."""
@@ -77,8 +70,9 @@ def run_intake(job_dir: Path, library: Library, config: PipelineConfig,
                          hint="add 3 to 10 ordered photos")
     photos = [load_photo(entry.path, entry.index, entry.mask) for entry in inputs]
     names = [entry.name for entry in inputs]
-    masks = photo_masks(photos, progress=progress)
-    folder.write_used_masks(inputs, masks, mask_sources(inputs, photos))
+    found = photo_masks(photos, config.masks.method, progress=progress)
+    masks = [result.mask for result in found]
+    folder.write_used_masks(inputs, masks, [result.source for result in found])
     photos = with_focal(photos, config.retrieval.focal_35mm)  # where EXIF says nothing
     retrieval = retrieve(masks, names, library, config.retrieval, progress,
                          [p.rgb for p in photos], [p.focal_pixels for p in photos],

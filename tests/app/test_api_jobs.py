@@ -51,7 +51,7 @@ def _succeed(settings: Settings, job_id: str) -> Path:
     job.write_metrics({"mask_iou": 0.91})
     photos = job.photos()
     job.write_used_masks(photos, [np.ones((64, 80), bool)] * len(photos),
-                         ["uploaded", "alpha", "built-in"])
+                         ["uploaded", "alpha", "grabcut"])
     store = _store(settings)
     assert store.update(job_id, state=JobState.succeeded, progress=1.0, finished_at=time.time())
     store.mirror(job_id)
@@ -125,7 +125,7 @@ def test_result_is_409_until_succeeded_then_complete(client: TestClient, setting
     assert result["artifacts"]["orbit.mp4"] == f"/v1/jobs/{job['id']}/artifacts/orbit.mp4"
     assert "views/000.png" in result["artifacts"] and "orbit.gif" not in result["artifacts"]
     assert result["warnings"] == []
-    assert [p["mask_source"] for p in result["photos"]] == ["uploaded", "alpha", "built-in"]
+    assert [p["mask_source"] for p in result["photos"]] == ["uploaded", "alpha", "grabcut"]
     assert "used_masks/002.png" in result["artifacts"]
     # A walking direction the photos could not tell: the result says so and what to send.
     folder = JobFolder(settings.data_root / job["id"])

@@ -112,11 +112,11 @@ def test_used_masks_and_their_sources_round_trip(tmp_path: Path) -> None:
     photos = folder.photos()
     rng = np.random.default_rng(0)
     masks = [rng.random((6, 8)) > 0.5 for _ in photos]
-    records = folder.write_used_masks(photos, masks, ["uploaded", "alpha", "built-in"])
+    records = folder.write_used_masks(photos, masks, ["uploaded", "alpha", "grabcut"])
     assert [r.mask for r in records] == ["used_masks/000.png", "used_masks/001.png",
                                          "used_masks/002.png"]
     assert folder.read_mask_sources() == records
-    assert [r.source for r in records] == ["uploaded", "alpha", "built-in"]
+    assert [r.source for r in records] == ["uploaded", "alpha", "grabcut"]
     assert [r.name for r in records] == [p.name for p in photos]
     for i, mask in enumerate(masks):
         assert np.array_equal(folder.read_used_mask(i), mask)
