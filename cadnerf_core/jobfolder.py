@@ -53,7 +53,7 @@ MESH = "mesh.glb"
 BUNDLE = "results.zip"
 LOG = "log.txt"
 
-PHOTO_SUFFIXES = (".jpg", ".jpeg", ".png", ".webp")
+PHOTO_SUFFIXES = (".jpg", ".jpeg", ".png", ".webp", ".heic", ".heif", ".hif", ".avif")
 """Suffixes of the photos in ``inputs/`` (anything else there is ignored)."""
 
 MEDIA_TYPES: dict[str, str] = {
