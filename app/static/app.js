@@ -11,8 +11,8 @@ const POLL_MS = 1000;                // normal polling interval
 const MAX_BACKOFF_S = 30;            // longest wait between retries after failures
 const GIVE_UP_MS = 5 * 60 * 1000;    // stop retrying after this long without a good answer
 const MIB = 2 ** 20;
-const PHOTO_TYPES = /^image\/(jpeg|png|webp)$/;
-const PHOTO_EXTENSIONS = /\.(jpe?g|png|webp)$/i;
+const PHOTO_TYPES = /^image\/(jpeg|png|webp|heic|heif|avif)$/;
+const PHOTO_EXTENSIONS = /\.(jpe?g|png|webp|heic|heif|hif|avif)$/i;
 
 function apiKey() { return $("api-key").value.trim(); }
 
@@ -103,9 +103,8 @@ function addPhotos(files) {
   const note = $("skipped");
   if (skipped.length) {
     const what = skipped.length === 1 ? "1 file was" : `${skipped.length} files were`;
-    note.textContent = `${what} not added: ${skipped.join(", ")}. Only JPEG, PNG and WebP photos `
-      + "are accepted: save them as JPEG, PNG or WebP (e.g. iPhone HEIC photos: export or share "
-      + "them as JPEG, or set Camera \u203a Formats to \u201cMost Compatible\u201d) and add them again.";
+    note.textContent = `${what} not added: ${skipped.join(", ")}. Only JPEG, PNG, WebP, HEIC `
+      + "and AVIF photos are accepted: save them as JPEG and add them again.";
   }
   note.hidden = skipped.length === 0;
   renderThumbs();
@@ -149,6 +148,15 @@ function renderCount() {
   $("photo-count").classList.toggle("warning", Boolean(problem));
 }
 
+function thumbPlaceholder(fileName) {
+  const box = document.createElement("div");
+  box.className = "placeholder";
+  box.setAttribute("role", "img");
+  box.setAttribute("aria-label", fileName);
+  box.textContent = fileName;
+  return box;
+}
+
 function renderThumbs() {
   const list = $("thumbs");
   list.replaceChildren();
@@ -159,6 +167,8 @@ function renderThumbs() {
     const img = document.createElement("img");
     img.src = photo.url;
     img.alt = photo.file.name;
+    // Browsers other than Safari cannot show HEIC: a placeholder with the name stands in.
+    img.addEventListener("error", () => img.replaceWith(thumbPlaceholder(photo.file.name)));
     const order = document.createElement("span");
     order.className = "order";
     order.textContent = String(index + 1);
