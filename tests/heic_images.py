@@ -49,3 +49,11 @@ def gradient(width: int, height: int) -> np.ndarray:
     rgb = np.stack([x, y, np.full_like(x, 60)], -1).astype(np.uint8)
     rgb[: height // 4, : width // 4, 2] = 255
     return rgb
+
+
+def claiming_size(data: bytes, side: int) -> bytes:
+    """The HEIC ``data`` with its header (the ``ispe`` box) claiming ``side`` x ``side`` pixels:
+    a bomb that only a check made before decoding refuses cheaply."""
+    at = data.index(b"ispe")
+    size = side.to_bytes(4, "big")
+    return data[:at + 8] + size + size + data[at + 16:]

@@ -18,7 +18,7 @@ from cadnerf_core.jobfolder import JobFolder
 from tests.app.conftest import MakeSettings
 from tests.app.images import image_bytes
 from tests.configs import tiny_request_json
-from tests.heic_images import gradient, phone_photo, stored_pixels
+from tests.heic_images import claiming_size, gradient, phone_photo, stored_pixels
 
 Files = list[tuple[str, tuple[str, bytes, str]]]
 
@@ -96,6 +96,18 @@ def test_size_limits_hold_for_heic(make_settings: MakeSettings) -> None:
         response = client.post("/v1/jobs", files=_phone_files())
     assert response.status_code == 422
     assert response.json()["error"]["code"] == "image_too_large"
+
+
+@pytest.mark.parametrize("side", [8000, 20000])  # over the limit; over Pillow's bomb limit
+def test_a_heic_claiming_too_many_pixels_is_refused_from_its_header(client: TestClient,
+                                                                    side: int) -> None:
+    files = _phone_files()
+    name, data, media = files[0][1]
+    files[0] = ("images", (name, claiming_size(data, side), media))
+    response = client.post("/v1/jobs", files=files)
+    assert response.status_code == 422
+    error = response.json()["error"]
+    assert error["code"] == "image_too_large" and error["photo"] == "IMG_0000.HEIC"
 
 
 def test_a_truncated_heic_is_refused_naming_the_photo(client: TestClient) -> None:

@@ -15,7 +15,7 @@ from cadnerf_core.errors import InputError
 from cadnerf_core.intake.photos import PHOTO_FORMATS, load_photo
 from cadnerf_core.jobfolder import JobFolder
 from tests.configs import tiny_cli_options
-from tests.heic_images import gradient, phone_photo, stored_pixels
+from tests.heic_images import claiming_size, gradient, phone_photo, stored_pixels
 
 FORMATS = ["HEIF", pytest.param("AVIF", marks=pytest.mark.skipif(
     not features.check("avif"), reason="this Pillow was built without AVIF"))]
@@ -78,6 +78,12 @@ def test_a_damaged_heic_is_refused_naming_the_photo() -> None:
     with pytest.raises(InputError) as caught:
         load_photo(("IMG_0002.HEIC", data[: len(data) // 2]))
     assert caught.value.item == "IMG_0002.HEIC"
+
+
+def test_a_heic_claiming_too_many_pixels_is_refused_before_decoding() -> None:
+    data = claiming_size(phone_photo(gradient(96, 64), 6, 26), 8000)
+    with pytest.raises(InputError, match="8000x8000 pixels, over 40 megapixels"):
+        load_photo(("IMG_0003.HEIC", data))
 
 
 def _render_phone_job(src: Path, library: Any, n: int = 3) -> tuple[list[Path], list[Path],
