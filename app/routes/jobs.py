@@ -37,7 +37,8 @@ _UPLOAD_BODY: dict[str, Any] = {
         "type": "object", "required": ["images"],
         "properties": {
             "images": {"type": "array", "items": {"type": "string", "format": "binary"},
-                       "description": "3-10 photos (JPEG, PNG or WebP) in walking order."},
+                       "description": "3-10 photos (JPEG, PNG, WebP, HEIC or AVIF) in walking "
+                                      "order."},
             "masks": {"type": "array", "items": {"type": "string", "format": "binary"},
                       "description": "Optional: one mask per photo, same order and size."},
             "config": {"type": "string",
