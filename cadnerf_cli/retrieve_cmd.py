@@ -151,7 +151,8 @@ def summary_lines(result: RetrievalResult) -> list[str]:
 
 
 def retrieve_command(
-    photos: list[Path] = typer.Argument(..., help="Photos in walking order (JPEG, PNG, WebP)."),
+    photos: list[Path] = typer.Argument(..., help="Photos in walking order (JPEG, PNG, WebP, "
+                                        "HEIC, AVIF)."),
     masks: list[Path] = typer.Option([], "--masks", "-m", help="A mask per photo, in order "
                                      "(repeat the option), or one folder of masks named "
                                      "like the photos."),

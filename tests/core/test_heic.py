@@ -4,6 +4,7 @@ their EXIF focal length, through intake and through a whole ``cadnerf reconstruc
 from __future__ import annotations
 
 import io
+import json
 from pathlib import Path
 from typing import Any
 
@@ -130,12 +131,22 @@ def test_cli_reconstructs_from_heic_keeping_orientation_and_focal(
     assert [m.source for m in folder.read_mask_sources()] == ["uploaded"] * 3
     for i, upright in enumerate(uprights):  # the stored-pixel masks were turned upright
         assert np.array_equal(folder.read_used_mask(i), upright)
-    retrieval = folder.read_retrieval()
-    assert retrieval is not None
-    focal_pixels = 37.0 * np.hypot(96, 64) / np.hypot(36, 24)  # from the HEIC's EXIF
+    assert (out / "mesh.glb").is_file()
+    retrieved = CliRunner().invoke(app, ["retrieve", *map(str, photos), "--json", "--library",
+                                         str(tiny_library_dir), "--walk", "ccw",
+                                         *[arg for m in masks for arg in ("--masks", str(m))]])
+    assert retrieved.exit_code == 0, retrieved.output
+    for retrieval in (folder.read_retrieval(), json.loads(retrieved.stdout)):
+        assert retrieval is not None and retrieval["model_id"] == "mug"
+        _assert_upright_with_exif_focal(retrieval, focal_35mm=37.0, width=96, height=64)
+
+
+def _assert_upright_with_exif_focal(retrieval: dict[str, Any], focal_35mm: float, width: int,
+                                    height: int) -> None:
+    """Every photo's camera has the EXIF focal length and its principal point near the middle
+    of the upright photo (not of the stored, turned one)."""
+    focal_pixels = focal_35mm * np.hypot(width, height) / np.hypot(36, 24)
     for match in retrieval["matches"]:
         K = np.asarray(match["K_photo"])
         assert K[0, 0] == pytest.approx(focal_pixels, rel=1e-4)
-        # Near the middle of the upright 96x64 photo, not of the stored 64x96 one.
-        assert abs(K[0, 2] - 48.0) < 6.0 and abs(K[1, 2] - 32.0) < 6.0
-    assert (out / "mesh.glb").is_file()
+        assert abs(K[0, 2] - width / 2) < 6.0 and abs(K[1, 2] - height / 2) < 6.0
