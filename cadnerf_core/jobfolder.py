@@ -163,17 +163,9 @@ class InputPhoto:
 class FoundMask(Protocol):
     """What ``write_masks`` keeps of one photo's mask (``intake.masks.MaskResult`` is one)."""
 
-    @property
-    def mask(self) -> np.ndarray:
-        """[H, W] bool, the photo's size."""
-
-    @property
-    def source(self) -> MaskSource:
-        """Where the mask came from."""
-
-    @property
-    def warnings(self) -> list[str]:
-        """What looks wrong with it (empty when fine)."""
+    mask: np.ndarray  # [H, W] bool, the photo's size
+    source: MaskSource
+    warnings: list[str]  # what looks wrong with it (empty when fine)
 
 
 class MaskRecord(BaseModel):
