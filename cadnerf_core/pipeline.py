@@ -22,7 +22,7 @@ import numpy as np
 from cadnerf_core.config import PipelineConfig
 from cadnerf_core.errors import InputError
 from cadnerf_core.intake.crop import apply_crop
-from cadnerf_core.jobfolder import CONFIG, INPUTS, JobFolder
+from cadnerf_core.jobfolder import CONFIG, INPUTS, OVERLAY_SIDE, JobFolder
 from cadnerf_core.progress import Progress
 
 if TYPE_CHECKING:
@@ -70,6 +70,21 @@ def _mask_overlay(rgb: np.ndarray, mask: np.ndarray) -> np.ndarray:
     return (picture * 255 + 0.5).astype(np.uint8)
 
 
+def _overlay_sized(rgb: np.ndarray, mask: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The photo and its mask shrunk to the stored overlay's size (``OVERLAY_SIDE``), so the
+    picture costs milliseconds, not a pass over 12 megapixels."""
+    import cv2
+
+    height, width = mask.shape
+    scale = OVERLAY_SIDE / max(height, width)
+    if scale >= 1.0:
+        return rgb, mask
+    size = (max(1, round(width * scale)), max(1, round(height * scale)))
+    small = cv2.resize(np.asarray(rgb, np.float32), size, interpolation=cv2.INTER_AREA)
+    cover = cv2.resize(mask.astype(np.float32), size, interpolation=cv2.INTER_AREA)
+    return small, cover > 0.5
+
+
 def run_intake(job_dir: Path, library: Library, config: PipelineConfig,
                progress: Progress, mask_model: Path | None = None) -> Intake:
     """Read photos and masks, remove backgrounds where needed (``mask_model``: the ONNX model
@@ -88,8 +103,8 @@ def run_intake(job_dir: Path, library: Library, config: PipelineConfig,
     names = [entry.name for entry in inputs]
     found = photo_masks(photos, config.masks.method, model_path=mask_model, progress=progress)
     masks = [result.mask for result in found]
-    folder.write_masks(inputs, found, (_mask_overlay(p.rgb, m) for p, m in zip(
-        photos, masks, strict=True)))
+    folder.write_masks(inputs, found, (_mask_overlay(*_overlay_sized(p.rgb, m))
+                                       for p, m in zip(photos, masks, strict=True)))
     for result in found:
         for warning in result.warnings:
             log.warning("%s", warning)
