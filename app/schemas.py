@@ -86,6 +86,15 @@ class PhotoResult(BaseModel):
     mask_source: Literal["uploaded", "alpha", "learned", "grabcut"] | None = Field(
         None, description="Where the photo's mask came from: the uploaded mask, the photo's "
         "alpha, or background removal (learned or grabcut); the mask used is an artifact.")
+    mask_warnings: list[str] = Field(
+        default_factory=list, description="What looks wrong with the photo's mask and what to "
+        "do (crop, retake, or upload a mask); empty when it looks fine.")
+    mask: str | None = Field(None, description="URL of the mask the photo used (PNG, 255 = "
+                             "object, the photo's size).")
+    overlay: str | None = Field(None, description="URL of a picture of that mask over the "
+                                "photo (JPEG).")
+    silhouette: str | None = Field(None, description="URL of the library silhouette the "
+                                   "photo was matched to (PNG); null for a discarded photo.")
 
 
 class ModelRef(BaseModel):

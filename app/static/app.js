@@ -447,6 +447,7 @@ async function showResult(jobId) {
   warnings.hidden = !warnings.children.length;
   renderMatches(result.photos);
   plotCameras(result.photos);
+  renderMasks(result.photos).catch((err) => showNotice(`the mask pictures could not be loaded: ${err.message}`));
   const list = $("downloads");
   list.replaceChildren();
   for (const [name, url] of Object.entries(result.artifacts)) {
@@ -483,6 +484,60 @@ function renderMatches(photos) {
       row.append(cell);
     }
     body.append(row);
+  }
+}
+
+// How each mask source reads on the page (the API's `mask_source`).
+const MASK_SOURCE_TEXT = {
+  uploaded: "uploaded (your mask)",
+  alpha: "alpha (the photo's transparency)",
+  learned: "learned (background removal)",
+  grabcut: "grabcut (background removal)",
+};
+
+async function maskPicture(url, alt, className) {
+  if (!url) {
+    const none = document.createElement("span");
+    none.className = `${className} missing`;
+    none.textContent = "no match";
+    return none;
+  }
+  const image = document.createElement("img");
+  image.className = className;
+  image.alt = alt;
+  image.decoding = "async";
+  image.src = await artifactUrl(url);
+  return image;
+}
+
+// Per photo: the mask it used over the photo, the library silhouette it matched, the mask's
+// source and warnings; a badly cut object is seen here, not mistaken for a failure of the method.
+async function renderMasks(photos) {
+  const gallery = $("mask-gallery");
+  gallery.replaceChildren();
+  const shown = photos.filter((p) => p.overlay);
+  $("mask-section").hidden = !shown.length;
+  for (const photo of shown) {
+    const item = document.createElement("li");
+    if (photo.discarded) item.className = "discarded";
+    const pair = document.createElement("div");
+    pair.className = "pair";
+    pair.append(await maskPicture(photo.overlay, `Mask of photo ${photo.index + 1} over it`, "overlay"),
+      await maskPicture(photo.discarded ? null : photo.silhouette,
+        `Library silhouette matched to photo ${photo.index + 1}`, "silhouette"));
+    const caption = document.createElement("p");
+    caption.className = "mask-caption";
+    const source = MASK_SOURCE_TEXT[photo.mask_source] || "unknown";
+    caption.textContent = `${photo.index + 1}. ${photo.name} \u2013 mask: ${source}`
+      + (photo.discarded ? " \u2013 discarded" : "");
+    item.append(pair, caption);
+    for (const text of photo.mask_warnings || []) {
+      const warning = document.createElement("p");
+      warning.className = "warning mask-warning";
+      warning.textContent = text;
+      item.append(warning);
+    }
+    gallery.append(item);
   }
 }
 
