@@ -11,7 +11,8 @@ from typing import Any
 
 import httpx
 
-_MEDIA = {".jpg": "image/jpeg", ".jpeg": "image/jpeg", ".png": "image/png", ".webp": "image/webp"}
+_MEDIA = {".jpg": "image/jpeg", ".jpeg": "image/jpeg", ".png": "image/png", ".webp": "image/webp",
+          ".heic": "image/heic", ".heif": "image/heif", ".avif": "image/avif"}
 
 
 class ServiceError(RuntimeError):

@@ -9,6 +9,7 @@ from __future__ import annotations
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
+from urllib.parse import quote
 
 from app.errors import ApiError
 from app.schemas import JobResult, ModelRef, PhotoResult
@@ -61,18 +62,35 @@ def _pose_entries(poses: Any) -> list[dict[str, Any]]:
     return []
 
 
+def _mask_links(mask: MaskRecord | None, artifacts: dict[str, str]) -> dict[str, Any]:
+    """A photo's mask fields: source, warnings, and the URLs of its mask and overlay."""
+    if mask is None:
+        return {}
+    return {"mask_source": mask.source, "mask_warnings": mask.warnings,
+            "mask": artifacts.get(mask.mask),
+            "overlay": artifacts.get(mask.overlay) if mask.overlay else None}
+
+
+def _silhouette_url(model_id: Any, view: Any, perspective: Any) -> str | None:
+    """The library route of a matched silhouette (None without a model or view)."""
+    if not isinstance(model_id, str) or not isinstance(view, int):
+        return None
+    suffix = "?perspective=near" if perspective == "near" else ""
+    return f"/v1/library/{quote(model_id, safe='')}/silhouette/{view}{suffix}"
+
+
 def _photo(index: int, name: str, match: dict[str, Any], pose: dict[str, Any],
-           mask: MaskRecord | None) -> PhotoResult:
+           links: dict[str, Any], silhouette: Callable[[Any], str | None]) -> PhotoResult:
     c2w = pose.get("c2w", match.get("c2w"))
     K = pose.get("K", pose.get("K_photo", match.get("K_photo")))
     discarded = bool(pose.get("discarded", match.get("discarded", c2w is None)))
+    view = match.get("view", pose.get("view"))
     return PhotoResult(index=index, name=name, discarded=discarded,
-                       iou=match.get("iou", pose.get("iou")),
-                       view=match.get("view", pose.get("view")),
+                       iou=match.get("iou", pose.get("iou")), view=view,
                        azimuth=match.get("azimuth", pose.get("azimuth")),
                        elevation=match.get("elevation", pose.get("elevation")),
                        c2w=None if discarded else c2w, K=None if discarded else K,
-                       mask_source=None if mask is None else mask.source)
+                       silhouette=None if discarded else silhouette(view), **links)
 
 
 def _by_index(entries: list[dict[str, Any]]) -> dict[int, dict[str, Any]]:
@@ -101,18 +119,29 @@ def read_result(record: JobRecord, job_dir: Path) -> JobResult:
     masks = {m.index: m for m in _tolerant(folder.read_mask_sources) or []}
     matches = _by_index(_pose_entries({"photos": retrieval.get("matches", [])}))
     pose_by_index = _by_index(_pose_entries(poses))
-    photos = [_photo(i, name, matches.get(i, {}), pose_by_index.get(i, {}), masks.get(i))
-              for i, name in enumerate(record.names)]
+    artifacts = list_artifacts(job_dir, record.id)
     pose_model = poses.get("model_id") if isinstance(poses, dict) else None
-    model_id = retrieval.get("model_id") or pose_model or "unknown"
-    model = ModelRef(id=str(model_id), category=retrieval.get("category"))
-    from cadnerf_core.config import AMBIGUOUS_HINT  # torch-free by contract
+    model_id = retrieval.get("model_id") or pose_model
 
-    warnings = []
-    if retrieval.get("direction_ambiguous"):
-        warnings.append(f"{AMBIGUOUS_HINT}: resubmit with the config field "
-                        '{"overrides": {"retrieval": {"walk": "cw"}}}')
+    def silhouette(view: Any) -> str | None:
+        return _silhouette_url(model_id, view, retrieval.get("perspective"))
+
+    photos = [_photo(i, name, matches.get(i, {}), pose_by_index.get(i, {}),
+                     _mask_links(masks.get(i), artifacts), silhouette)
+              for i, name in enumerate(record.names)]
+    model = ModelRef(id=str(model_id or "unknown"), category=retrieval.get("category"))
     return JobResult(id=record.id, model=model, photos=photos,
                      discarded=[p.name for p in photos if p.discarded],
                      metrics=metrics if isinstance(metrics, dict) else {},
-                     artifacts=list_artifacts(job_dir, record.id), warnings=warnings)
+                     artifacts=artifacts, warnings=_warnings(retrieval, photos))
+
+
+def _warnings(retrieval: dict[str, Any], photos: list[PhotoResult]) -> list[str]:
+    """The result's warnings: each photo's mask warnings, then an undecided walking direction."""
+    from cadnerf_core.config import AMBIGUOUS_HINT  # torch-free by contract
+
+    warnings = [w for photo in photos for w in photo.mask_warnings]
+    if retrieval.get("direction_ambiguous"):
+        warnings.append(f"{AMBIGUOUS_HINT}: resubmit with the config field "
+                        '{"overrides": {"retrieval": {"walk": "cw"}}}')
+    return warnings

@@ -83,9 +83,18 @@ class PhotoResult(BaseModel):
     elevation: float | None = None
     c2w: list[list[float]] | None = Field(None, description="4x4 camera-to-world, OpenCV axes.")
     K: list[list[float]] | None = Field(None, description="3x3 intrinsics in the photo's pixels.")
-    mask_source: Literal["uploaded", "alpha", "built-in"] | None = Field(
+    mask_source: Literal["uploaded", "alpha", "learned", "grabcut"] | None = Field(
         None, description="Where the photo's mask came from: the uploaded mask, the photo's "
-        "alpha, or built-in background removal (the mask used is artifact used_masks/NNN.png).")
+        "alpha, or background removal (learned or grabcut); the mask used is an artifact.")
+    mask_warnings: list[str] = Field(
+        default_factory=list, description="What looks wrong with the photo's mask and what to "
+        "do (crop, retake, or upload a mask); empty when it looks fine.")
+    mask: str | None = Field(None, description="URL of the mask the photo used (PNG, 255 = "
+                             "object, the photo's size).")
+    overlay: str | None = Field(None, description="URL of a picture of that mask over the "
+                                "photo (JPEG).")
+    silhouette: str | None = Field(None, description="URL of the library silhouette the "
+                                   "photo was matched to (PNG); null for a discarded photo.")
 
 
 class ModelRef(BaseModel):

@@ -1,7 +1,8 @@
 """Validation of a job upload and the job folder it becomes.
 
-Photos are checked by content (magic bytes), dimensions are read from the header without decoding
-(decompression bombs are refused before any pixel is decoded), masks must match their photos,
+Photos are checked by content (magic bytes): JPEG, PNG, WebP, HEIC/HEIF (pillow-heif) and AVIF
+where Pillow reads it. Dimensions are read from the header without decoding (decompression bombs
+are refused before any pixel is decoded), masks must match their photos,
 and the config is resolved once with the core's torch-free ``resolve_config``. The files are
 laid out by the core's ``JobFolder`` (stored names ``NNN_<sanitised>.<ext>``; each mask under
 its photo's name): the client's name never becomes a path.
@@ -13,7 +14,8 @@ import warnings
 from dataclasses import dataclass
 from pathlib import Path
 
-from PIL import Image
+import pillow_heif
+from PIL import Image, features
 from pydantic import AnyHttpUrl, TypeAdapter, ValidationError
 
 from app.errors import ApiError
@@ -24,8 +26,22 @@ from cadnerf_core.config import PipelineConfig, resolve_config
 from cadnerf_core.jobfolder import JobFolder
 
 _EXIF_ORIENTATION = 0x0112
-_PIL_FORMATS = {"jpg": "JPEG", "png": "PNG", "webp": "WEBP"}
+_PIL_FORMATS = {"jpg": "JPEG", "png": "PNG", "webp": "WEBP", "heic": "HEIF", "heif": "HEIF",
+                "avif": "AVIF"}
+PHOTO_TYPES = frozenset({"jpg", "png", "webp", "heic", "heif"}
+                        | ({"avif"} if features.check("avif") else set()))
+"""Photo types accepted (AVIF where this Pillow was built to read it)."""
+MASK_TYPES = frozenset({"jpg", "png", "webp"})
+"""Mask types accepted: a mask is drawn and saved by a tool, never a phone's camera."""
+_TYPE_NAMES = {"jpg": "JPEG", "png": "PNG", "webp": "WebP", "heic": "HEIC", "avif": "AVIF"}
+# ISO base media file brands (ftyp box): HEVC still images, the generic HEIF brand, AV1 images.
+_HEIC_BRANDS = frozenset({b"heic", b"heix", b"heim", b"heis"})
+_HEIF_BRANDS = frozenset({b"mif1"})
+_AVIF_BRANDS = frozenset({b"avif"})
 _URL = TypeAdapter(AnyHttpUrl)
+
+# Thumbnails and depth maps are never used: skip reading them.
+pillow_heif.register_heif_opener(thumbnails=False, depth_images=False)
 
 
 @dataclass(frozen=True)
@@ -53,36 +69,55 @@ class JobSpec:
 
 
 def sniff_type(head: bytes) -> str | None:
-    """The image type from the first bytes of a file: "jpg", "png", "webp" or None."""
+    """The image type from the first bytes (32 or more) of a file: "jpg", "png", "webp",
+    "heic", "heif", "avif" or None."""
     if head.startswith(b"\xff\xd8\xff"):
         return "jpg"
     if head.startswith(b"\x89PNG\r\n\x1a\n"):
         return "png"
     if len(head) >= 12 and head[:4] == b"RIFF" and head[8:12] == b"WEBP":
         return "webp"
+    if len(head) >= 12 and head[4:8] == b"ftyp":
+        return _sniff_heif(head)
     return None
 
 
-def inspect_image(part: StoredPart, settings: Settings) -> ImageInfo:
+def _sniff_heif(head: bytes) -> str | None:
+    """The type of an ISO media file from its ftyp box: the major brand, else (for the generic
+    ``mif1``) the compatible brands that name the codec."""
+    box_end = min(len(head), int.from_bytes(head[:4], "big"))
+    brands = [head[8:12]] + [head[i:i + 4] for i in range(16, box_end - 3, 4)]
+    for brand in brands:
+        if brand in _HEIC_BRANDS:
+            return "heic"
+        if brand in _AVIF_BRANDS:
+            return "avif"
+    return "heif" if brands[0] in _HEIF_BRANDS else None
+
+
+def inspect_image(part: StoredPart, settings: Settings,
+                  types: frozenset[str] = PHOTO_TYPES) -> ImageInfo:
     """Check one uploaded image by content and header.
 
     Args:
         part: the file on disk.
         settings: size limits.
+        types: the accepted types (``PHOTO_TYPES`` or ``MASK_TYPES``).
 
     Returns:
         Its type and size.
 
     Raises:
-        ApiError: 415 for a type other than JPEG/PNG/WebP, 422 for an unreadable, too small or
-            too large (megapixels) image.
+        ApiError: 415 for a type not in ``types``, 422 for an unreadable, too small or too
+            large (megapixels) image.
     """
     with part.path.open("rb") as handle:
-        ext = sniff_type(handle.read(16))
-    if ext is None:
-        raise ApiError(415, "unsupported_image_type", "not a JPEG, PNG or WebP image",
+        ext = sniff_type(handle.read(64))
+    if ext not in types:
+        names = _type_names(types)
+        raise ApiError(415, "unsupported_image_type", f"not a {names} image",
                        photo=part.filename, field=part.field,
-                       hint="save it as JPEG, PNG or WebP (the type is read from the content)")
+                       hint=f"save it as {names} (the type is read from the content)")
     width, height, orientation = _read_header(part, ext)
     megapixels = width * height / 1e6
     if megapixels > settings.max_megapixels:
@@ -109,11 +144,7 @@ def _read_header(part: StoredPart, ext: str) -> tuple[int, int, int]:
             with Image.open(part.path) as image:  # lazy: reads the header only
                 if image.format != _PIL_FORMATS[ext]:
                     raise unreadable
-                width, height = image.size
-                # PNG's getexif() decodes the whole image to find a trailing eXIf chunk: only
-                # JPEG and WebP carry the orientation in the header we already read.
-                orientation = (int(image.getexif().get(_EXIF_ORIENTATION, 1) or 1)
-                               if ext != "png" else 1)
+                width, height, orientation = _stored_size(image)
     except Image.DecompressionBombError:
         raise ApiError(422, "image_too_large", "the image has far too many pixels",
                        photo=part.filename, field=part.field, hint="downscale it") from None
@@ -122,6 +153,22 @@ def _read_header(part: StoredPart, ext: str) -> tuple[int, int, int]:
     except Exception:  # Pillow raises many types on damaged headers
         raise unreadable from None
     return width, height, orientation
+
+
+def _stored_size(image: Image.Image) -> tuple[int, int, int]:
+    """Width and height of the stored pixels and the EXIF orientation of an opened image."""
+    width, height = image.size
+    if image.format == "HEIF":
+        # pillow-heif gives the upright size and resets the tag to 1 (it rotates on decode):
+        # undo both, so a HEIC is checked (masks included) exactly as a JPEG.
+        orientation = int(image.info.get("original_orientation") or 1)
+        return (height, width, orientation) if orientation in (5, 6, 7, 8) else \
+            (width, height, orientation)
+    if image.format == "PNG":
+        # PNG's getexif() decodes the whole image to find a trailing eXIf chunk: only JPEG,
+        # WebP and AVIF carry the orientation in the header already read.
+        return width, height, 1
+    return width, height, int(image.getexif().get(_EXIF_ORIENTATION, 1) or 1)
 
 
 def _decode_fully(part: StoredPart, ext: str) -> None:
@@ -146,6 +193,12 @@ def _decode_fully(part: StoredPart, ext: str) -> None:
                        hint="the file is truncated or damaged; export it again") from None
 
 
+def _type_names(types: frozenset[str]) -> str:
+    """"JPEG, PNG or WebP"-style list of accepted types (HEIF is said as HEIC)."""
+    names = [name for ext, name in _TYPE_NAMES.items() if ext in types]
+    return ", ".join(names[:-1]) + " or " + names[-1]
+
+
 def check_counts(form: ReceivedForm, settings: Settings) -> None:
     """The number of photos and masks."""
     images, masks = form.files["images"], form.files["masks"]
@@ -162,7 +215,7 @@ def check_counts(form: ReceivedForm, settings: Settings) -> None:
 def check_mask(mask: StoredPart, photo: StoredPart, photo_info: ImageInfo,
                settings: Settings) -> ImageInfo:
     """A mask must be an image the size of its photo (stored or EXIF-rotated)."""
-    info = inspect_image(mask, settings)
+    info = inspect_image(mask, settings, MASK_TYPES)
     sizes = {(photo_info.width, photo_info.height), photo_info.oriented}
     if (info.width, info.height) not in sizes:
         raise ApiError(422, "mask_size", f"the mask is {info.width}x{info.height} pixels but "

@@ -63,7 +63,7 @@ def real_set(name: str, library: Any, picture: Path) -> list[str]:
     bare = [Photo(p.name, p.rgb) for p in shipped]
     start = time.perf_counter()
     try:
-        found = photo_masks(bare)
+        found = [r.mask for r in photo_masks(bare, "grabcut")]
     except InputError as exc:
         lines.append(f"- {name}, GrabCut masks: background removal refused a photo: {exc}.")
         found = None

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import logging
-import shutil
 from pathlib import Path
 from typing import Any
 
@@ -19,7 +18,7 @@ DEFAULT_LIBRARY = Path("library_data/build")
 def stage_inputs(photos: list[Path], masks: list[Path] | None, out: Path) -> None:
     """Copy photos (and one mask each) into the job folder ``out``, in order, replacing any
     earlier inputs; each mask is stored under its photo's name (``JobFolder``)."""
-    from cadnerf_core.jobfolder import INPUTS, MASKS, JobFolder
+    from cadnerf_core.jobfolder import JobFolder
 
     if masks and len(masks) != len(photos):
         raise ValueError(f"{len(masks)} masks for {len(photos)} photos: give one per photo")
@@ -27,8 +26,7 @@ def stage_inputs(photos: list[Path], masks: list[Path] | None, out: Path) -> Non
         if not path.is_file():
             raise ValueError(f"{path}: no such file")
     folder = JobFolder(out)
-    for name in (INPUTS, MASKS):
-        shutil.rmtree(folder.file(name), ignore_errors=True)
+    folder.clear_inputs()
     for i, photo in enumerate(photos):
         stored = folder.add_photo(i, photo)
         if masks:
@@ -52,6 +50,9 @@ def reconstruct(
                                             help=PERSPECTIVE_HELP),
     focal_35mm: float | None = typer.Option(None, "--focal-35mm", min=8.0, max=1200.0,
                                             help=FOCAL_HELP),
+    mask_model: Path | None = typer.Option(None, "--mask-model", exists=True, dir_okay=False,
+                                           help="Your own ONNX background-removal model for "
+                                           "the learned masks (default: the built-in one)."),
     settings: list[str] = typer.Option([], "--set", help="Config override key=value (dotted "
                                        "keys, JSON values, e.g. phase2.steps=300); repeatable."),
 ) -> None:
@@ -60,7 +61,7 @@ def reconstruct(
 
     from cadnerf_core.config import resolve_config
     from cadnerf_core.errors import CadNerfError
-    from cadnerf_core.jobfolder import MESH, ORBIT_VIDEO, POSES, VIEWS, JobFolder
+    from cadnerf_core.jobfolder import MASKS, MESH, ORBIT_VIDEO, POSES, VIEWS, JobFolder
     from cadnerf_core.library.format import load_library
     from cadnerf_core.pipeline import run_job
     from cadnerf_core.progress import Progress as CoreProgress
@@ -89,7 +90,7 @@ def reconstruct(
                 if task is not None:
                     bar.update(task, completed=done, total=max(total, 1), visible=True)
 
-            summary = run_job(out, library, CoreProgress(report), device)
+            summary = run_job(out, library, CoreProgress(report), device, mask_model)
     except (CadNerfError, ValueError, OSError) as exc:
         typer.echo(f"error: {exc}", err=True)
         raise typer.Exit(2) from exc
@@ -97,11 +98,15 @@ def reconstruct(
     logging.getLogger(__name__).debug("summary: %s", summary)
     typer.echo(f"model: {summary['model_id']} ({summary['category']}); "
                f"mean training PSNR {metrics['mean_psnr']:.2f} dB")
+    for record in JobFolder(out).read_mask_sources():
+        for warning in record.warnings:
+            typer.echo(f"warning: {warning}")
     if (JobFolder(out).read_retrieval() or {}).get("direction_ambiguous"):
         from cadnerf_core.config import AMBIGUOUS_HINT
 
         typer.echo(f"warning: {AMBIGUOUS_HINT} (--walk)")
-    typer.echo(f"results in {out.resolve()}: {ORBIT_VIDEO}, {MESH}, {POSES}, {VIEWS}/")
+    typer.echo(f"results in {out.resolve()}: {ORBIT_VIDEO}, {MESH}, {POSES}, {VIEWS}/, "
+               f"{MASKS}/")
 
 
 def register(app: typer.Typer) -> None:

@@ -151,7 +151,8 @@ def summary_lines(result: RetrievalResult) -> list[str]:
 
 
 def retrieve_command(
-    photos: list[Path] = typer.Argument(..., help="Photos in walking order (JPEG, PNG, WebP)."),
+    photos: list[Path] = typer.Argument(..., help="Photos in walking order (JPEG, PNG, WebP, "
+                                        "HEIC, AVIF)."),
     masks: list[Path] = typer.Option([], "--masks", "-m", help="A mask per photo, in order "
                                      "(repeat the option), or one folder of masks named "
                                      "like the photos."),
@@ -182,7 +183,7 @@ def retrieve_command(
 
     try:
         loaded = with_focal(load_photos(photos, resolve_mask_paths(photos, masks)), focal_35mm)
-        found = photo_masks(loaded)
+        found = [result.mask for result in photo_masks(loaded)]
         lib = load_library(library)
         config = RetrievalConfig(solver="paper" if solver == Solver.paper else "dp",
                                  walk=walk.value, shared_focal=not own_focal,

@@ -244,6 +244,13 @@ class RetrievalConfig(_Frozen):
     hundredths of IoU never decides) or "best" (the higher objective, however slight)."""
 
 
+class MasksConfig(_Frozen):
+    """Background removal for photos that bring no mask of their own."""
+
+    method: Literal["auto", "learned", "grabcut"] = "auto"
+    """"auto": the learned remover where its package is installed, else GrabCut."""
+
+
 class PipelineConfig(_Frozen):
     """Everything that decides a job's result. Runtime objects (device, library) are not here."""
 
@@ -273,6 +280,8 @@ class PipelineConfig(_Frozen):
     """Phase two."""
     phase3: Phase3Config = Field(default_factory=Phase3Config)
     """Phase three."""
+    masks: MasksConfig = Field(default_factory=MasksConfig)
+    """Background removal."""
     retrieval: RetrievalConfig = Field(default_factory=RetrievalConfig)
     """Model and pose retrieval."""
     export: ExportConfig = Field(default_factory=ExportConfig)

@@ -3,15 +3,19 @@
 One job is one folder, written by the app at upload (or the CLI), then by the pipeline::
 
     inputs/NNN_<stem>.<ext>   the photos; NNN (000, 001, ...) is the photo order
-    masks/NNN_<stem>.png      uploaded masks, each named after ITS PHOTO (not its own file name)
+    inputs/masks/NNN_<stem>.png   uploaded masks, each named after ITS PHOTO (not its own name)
     config.json               the resolved PipelineConfig, written once at the door
+    masks/NNN.png             the mask photo NNN used (8-bit, 255 = object, the photo's size
+                              after EXIF orientation)
+    masks/NNN_overlay.jpg     a picture of that mask over the photo, to look at
+    masks.json                per photo: name, mask source (uploaded, alpha, learned, grabcut),
+                              warnings, and the mask and overlay file names
     retrieval.json            model, matches and discarded photos (the retrieval stage)
-    masks.json                per photo: the mask's source (uploaded, alpha, built-in)
-    used_masks/NNN.png        the mask each photo actually used (NNN = photo index)
     poses.json, transforms.json, metrics.json
     views/NNN.png, orbit.mp4, orbit.gif, mesh.glb, results.zip
     checkpoints/phaseN.pt, log.txt, eval/ (held-out renders of an evaluation)
 
+Inputs (photos and uploaded masks) are never downloadable; the masks the job used are.
 ``state.json`` belongs to the service's job state, not to this module. Everything here is
 light (stdlib, pydantic, numpy, Pillow): the API imports it.
 """
@@ -23,11 +27,11 @@ import os
 import re
 import shutil
 import tempfile
-from collections.abc import Iterator, Sequence
+from collections.abc import Iterable, Iterator, Sequence
 from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path, PurePosixPath
-from typing import Any, Literal
+from typing import Any, Literal, Protocol
 
 import numpy as np
 from PIL import Image
@@ -36,8 +40,8 @@ from pydantic import BaseModel, ConfigDict
 from cadnerf_core.config import PipelineConfig, resolve_config
 
 INPUTS = "inputs"
+MASK_UPLOADS = f"{INPUTS}/masks"
 MASKS = "masks"
-USED_MASKS = "used_masks"
 VIEWS = "views"
 CHECKPOINTS = "checkpoints"
 EVAL = "eval"
@@ -53,7 +57,7 @@ MESH = "mesh.glb"
 BUNDLE = "results.zip"
 LOG = "log.txt"
 
-PHOTO_SUFFIXES = (".jpg", ".jpeg", ".png", ".webp")
+PHOTO_SUFFIXES = (".jpg", ".jpeg", ".png", ".webp", ".heic", ".heif", ".hif", ".avif")
 """Suffixes of the photos in ``inputs/`` (anything else there is ignored)."""
 
 MEDIA_TYPES: dict[str, str] = {
@@ -64,10 +68,15 @@ MEDIA_TYPES: dict[str, str] = {
 }
 """The single files a user may download, in listing order, and their Content-Type."""
 
-_NUMBERED = re.compile(rf"^({VIEWS}|{USED_MASKS})/(\d{{3}})\.png$")
+OVERLAY_SUFFIX = "_overlay.jpg"
+OVERLAY_SIDE = 1024
+"""Longest side of a stored overlay in pixels: a picture to look at on a page (the mask
+itself keeps the photo's size)."""
+
+_NUMBERED = re.compile(rf"^(?:{VIEWS}/\d{{3}}\.png|{MASKS}/\d{{3}}(?:\.png|{OVERLAY_SUFFIX}))$")
 _PHOTO_INDEX = re.compile(r"^(\d{3})_")
 
-MaskSource = Literal["uploaded", "alpha", "built-in"]
+MaskSource = Literal["uploaded", "alpha", "learned", "grabcut"]
 """Where a photo's mask came from: an uploaded mask, the photo's alpha, background removal."""
 
 
@@ -92,19 +101,28 @@ def photo_index(stored_name: str) -> int | None:
 
 
 def numbered_name(folder: str, index: int) -> str:
-    """``<folder>/NNN.png``: view (``VIEWS``) or used mask (``USED_MASKS``) number ``index``."""
+    """``<folder>/NNN.png``: view (``VIEWS``) or used mask (``MASKS``) number ``index``."""
     return f"{folder}/{index:03d}.png"
 
 
+def overlay_name(index: int) -> str:
+    """``masks/NNN_overlay.jpg``: the overlay of photo ``index``'s mask."""
+    return f"{MASKS}/{index:03d}{OVERLAY_SUFFIX}"
+
+
 def is_artifact_name(name: str) -> bool:
-    """Whether ``name`` is one a user may download (a fixed file, a view or a used mask)."""
+    """Whether ``name`` is one a user may download (a fixed file, a view, a used mask or its
+    overlay)."""
     return name in MEDIA_TYPES or _NUMBERED.match(name) is not None
 
 
 def media_type(name: str) -> str:
     """The Content-Type of an artifact name."""
-    return MEDIA_TYPES.get(name, "image/png" if _NUMBERED.match(name) else
-                           "application/octet-stream")
+    if name in MEDIA_TYPES:
+        return MEDIA_TYPES[name]
+    if _NUMBERED.match(name):
+        return "image/jpeg" if name.endswith(".jpg") else "image/png"
+    return "application/octet-stream"
 
 
 @contextmanager
@@ -142,6 +160,14 @@ class InputPhoto:
         return self.path.name
 
 
+class FoundMask(Protocol):
+    """What ``write_masks`` keeps of one photo's mask (``intake.masks.MaskResult`` is one)."""
+
+    mask: np.ndarray  # [H, W] bool, the photo's size
+    source: MaskSource
+    warnings: list[str]  # what looks wrong with it (empty when fine)
+
+
 class MaskRecord(BaseModel):
     """One photo's entry in ``masks.json``."""
 
@@ -153,8 +179,12 @@ class MaskRecord(BaseModel):
     """The photo's stored name."""
     source: MaskSource
     """Where the mask came from."""
+    warnings: list[str] = []
+    """What looks wrong with the mask, each naming the photo and what to do."""
     mask: str
-    """The used mask, relative to the job folder (``used_masks/NNN.png``)."""
+    """The used mask, relative to the job folder (``masks/NNN.png``)."""
+    overlay: str | None = None
+    """Its overlay, relative to the job folder (``masks/NNN_overlay.jpg``)."""
 
 
 class JobFolder:
@@ -186,8 +216,12 @@ class JobFolder:
         return target
 
     def mask_path(self, photo: Path | str) -> Path:
-        """Where the uploaded mask of a stored photo lives: ``masks/<photo's stem>.png``."""
-        return self.root / MASKS / f"{PurePosixPath(Path(photo).name).stem}.png"
+        """Where the uploaded mask of a stored photo lives: ``inputs/masks/<photo's stem>.png``."""
+        return self.root / MASK_UPLOADS / f"{PurePosixPath(Path(photo).name).stem}.png"
+
+    def clear_inputs(self) -> None:
+        """Remove every photo and uploaded mask (before staging a new set into the folder)."""
+        shutil.rmtree(self.root / INPUTS, ignore_errors=True)
 
     def add_mask(self, photo: Path | str, source: Path, move: bool = False) -> Path:
         """Store ``source`` as the uploaded mask of a stored photo, as PNG.
@@ -287,23 +321,30 @@ class JobFolder:
         """``metrics.json``, None before export."""
         return self._read_object(METRICS)
 
-    # Masks used, and where each came from.
+    # Masks used, their overlays, where each came from and what looks wrong.
 
-    def write_used_masks(self, photos: Sequence[InputPhoto], masks: Sequence[np.ndarray],
-                         sources: Sequence[MaskSource]) -> list[MaskRecord]:
-        """Keep each photo's mask (``used_masks/NNN.png``, 0/255) and its source (``masks.json``).
+    def write_masks(self, photos: Sequence[InputPhoto], found: Sequence[FoundMask],
+                    overlays: Iterable[np.ndarray]) -> list[MaskRecord]:
+        """Keep each photo's mask (``masks/NNN.png``, 0/255), its overlay
+        (``masks/NNN_overlay.jpg``, at most ``OVERLAY_SIDE`` px) and ``masks.json``.
 
         Args:
-            photos: the job's photos; masks: their [H_i, W_i] bool masks; sources: one each.
+            photos: the job's photos; found: their masks [H_i, W_i] bool, sources, warnings.
+            overlays: one [H_i, W_i, 3] uint8 picture each (a generator keeps one in memory).
         """
         records = []
-        for photo, mask, source in zip(photos, masks, sources, strict=True):
-            name = numbered_name(USED_MASKS, photo.index)
+        for photo, result, overlay in zip(photos, found, overlays, strict=True):
+            name, picture = numbered_name(MASKS, photo.index), overlay_name(photo.index)
             with atomic_path(self.root / name) as tmp:
-                Image.fromarray(np.asarray(mask, bool).astype(np.uint8) * 255, "L").save(
+                Image.fromarray(np.asarray(result.mask, bool).astype(np.uint8) * 255, "L").save(
                     tmp, format="PNG")
-            records.append(MaskRecord(index=photo.index, name=photo.name, source=source,
-                                      mask=name))
+            image = Image.fromarray(np.asarray(overlay, np.uint8), "RGB")
+            image.thumbnail((OVERLAY_SIDE, OVERLAY_SIDE), Image.Resampling.LANCZOS)
+            with atomic_path(self.root / picture) as tmp:
+                image.save(tmp, format="JPEG", quality=85)
+            records.append(MaskRecord(index=photo.index, name=photo.name, source=result.source,
+                                      warnings=list(result.warnings), mask=name,
+                                      overlay=picture))
         write_json(self.root / MASK_SOURCES, {"photos": [r.model_dump() for r in records]})
         return records
 
@@ -316,9 +357,9 @@ class JobFolder:
         data = self._read_object(MASK_SOURCES) or {}
         return [MaskRecord.model_validate(entry) for entry in data.get("photos", [])]
 
-    def read_used_mask(self, index: int) -> np.ndarray:
+    def read_mask(self, index: int) -> np.ndarray:
         """The mask photo ``index`` used, [H, W] bool. Raises FileNotFoundError before masks."""
-        with Image.open(self.root / numbered_name(USED_MASKS, index)) as image:
+        with Image.open(self.root / numbered_name(MASKS, index)) as image:
             return np.asarray(image.convert("L")) > 127
 
     # Rendered outputs, checkpoints, log.
@@ -344,9 +385,10 @@ class JobFolder:
     # Downloads.
 
     def artifacts(self) -> list[str]:
-        """Names of the downloadable files present: fixed files, then views, then used masks."""
+        """Names of the downloadable files present: fixed files, then views, then used masks
+        and their overlays."""
         names = [n for n in MEDIA_TYPES if (self.root / n).is_file()]
-        for folder in (VIEWS, USED_MASKS):
+        for folder in (VIEWS, MASKS):
             if (self.root / folder).is_dir():
                 names += sorted(n for p in (self.root / folder).iterdir()
                                 if _NUMBERED.match(n := f"{folder}/{p.name}") and p.is_file())

@@ -22,7 +22,7 @@ import numpy as np
 from cadnerf_core.config import PipelineConfig
 from cadnerf_core.errors import InputError
 from cadnerf_core.intake.crop import apply_crop
-from cadnerf_core.jobfolder import CONFIG, INPUTS, InputPhoto, JobFolder, MaskSource
+from cadnerf_core.jobfolder import CONFIG, INPUTS, OVERLAY_SIDE, JobFolder
 from cadnerf_core.progress import Progress
 
 if TYPE_CHECKING:
@@ -56,16 +56,40 @@ def read_job_config(job_dir: Path) -> PipelineConfig:
         raise InputError(f"invalid configuration: {exc}", item=CONFIG) from exc
 
 
-def mask_sources(inputs: list[InputPhoto], photos: list[Any]) -> list[MaskSource]:
-    """Where each photo's mask comes from: an uploaded mask wins over the photo's alpha, and
-    background removal makes the rest."""
-    return ["uploaded" if entry.mask is not None else "alpha" if photo.mask is not None
-            else "built-in" for entry, photo in zip(inputs, photos, strict=True)]
+def _mask_overlay(rgb: np.ndarray, mask: np.ndarray) -> np.ndarray:
+    """Stand-in for ``cadnerf_core.intake.masks.mask_overlay``: the photo, its background
+    dimmed and tinted, the mask's outline drawn. rgb [H, W, 3] float in [0, 1], mask [H, W]
+    bool -> [H, W, 3] uint8."""
+    from scipy import ndimage
+
+    picture = np.clip(np.asarray(rgb, np.float32), 0.0, 1.0)
+    tint = np.array([0.15, 0.2, 0.45], np.float32)
+    picture = np.where(mask[..., None], picture, 0.35 * picture + tint)
+    edge = mask & ~ndimage.binary_erosion(mask, iterations=max(1, max(mask.shape) // 300))
+    picture[edge] = (1.0, 0.85, 0.0)
+    return (picture * 255 + 0.5).astype(np.uint8)
+
+
+def _overlay_sized(rgb: np.ndarray, mask: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The photo and its mask shrunk to the stored overlay's size (``OVERLAY_SIDE``), so the
+    picture costs milliseconds, not a pass over 12 megapixels."""
+    import cv2
+
+    height, width = mask.shape
+    scale = OVERLAY_SIDE / max(height, width)
+    if scale >= 1.0:
+        return rgb, mask
+    size = (max(1, round(width * scale)), max(1, round(height * scale)))
+    small = cv2.resize(np.asarray(rgb, np.float32), size, interpolation=cv2.INTER_AREA)
+    cover = cv2.resize(mask.astype(np.float32), size, interpolation=cv2.INTER_AREA)
+    return small, cover > 0.5
 
 
 def run_intake(job_dir: Path, library: Library, config: PipelineConfig,
-               progress: Progress) -> Intake:
-    """Read photos and masks, remove backgrounds where needed, retrieve model and poses."""
+               progress: Progress, mask_model: Path | None = None) -> Intake:
+    """Read photos and masks, remove backgrounds where needed (``mask_model``: the ONNX model
+    of the learned method, None for the built-in one), keep the masks with their overlays,
+    sources and warnings, and retrieve model and poses."""
     from cadnerf_core.intake.masks import photo_masks
     from cadnerf_core.intake.photos import load_photo, with_focal
     from cadnerf_core.retrieval.retrieve import retrieve
@@ -77,8 +101,13 @@ def run_intake(job_dir: Path, library: Library, config: PipelineConfig,
                          hint="add 3 to 10 ordered photos")
     photos = [load_photo(entry.path, entry.index, entry.mask) for entry in inputs]
     names = [entry.name for entry in inputs]
-    masks = photo_masks(photos, progress=progress)
-    folder.write_used_masks(inputs, masks, mask_sources(inputs, photos))
+    found = photo_masks(photos, config.masks.method, model_path=mask_model, progress=progress)
+    masks = [result.mask for result in found]
+    folder.write_masks(inputs, found, (_mask_overlay(*_overlay_sized(p.rgb, m))
+                                       for p, m in zip(photos, masks, strict=True)))
+    for result in found:
+        for warning in result.warnings:
+            log.warning("%s", warning)
     photos = with_focal(photos, config.retrieval.focal_35mm)  # where EXIF says nothing
     retrieval = retrieve(masks, names, library, config.retrieval, progress,
                          [p.rgb for p in photos], [p.focal_pixels for p in photos],
@@ -202,7 +231,7 @@ def train(job_dir: Path, library: Library, retrieval: RetrievalResult, data: Tra
 
 
 def run_job(job_dir: Path, library: Library, progress: Progress | None = None,
-            device: str = "auto") -> dict[str, Any]:
+            device: str = "auto", mask_model: Path | None = None) -> dict[str, Any]:
     """Run (or resume) a whole job in its folder.
 
     Args:
@@ -211,6 +240,8 @@ def run_job(job_dir: Path, library: Library, progress: Progress | None = None,
         progress: progress reporter and cancel check (stages masks, retrieval, phase1-3,
             render, export); raises JobCancelled between steps when cancelled.
         device: "auto" (CUDA if available), "cpu", "cuda", "cuda:1", ...
+        mask_model: an ONNX background-removal model for the learned method (a runtime
+            argument, not config: a client must not name files on the server); None: built-in.
     Returns:
         Summary: model_id, category, photos (per photo: name, pose, IoU, discarded, PSNR),
         metrics (summary), artifacts (file names relative to the job folder).
@@ -229,7 +260,7 @@ def run_job(job_dir: Path, library: Library, progress: Progress | None = None,
             JobFolder(job_dir).write_config(config)
         dev = resolve_device(device)
         start = time.perf_counter()
-        intake = run_intake(job_dir, library, config, progress)
+        intake = run_intake(job_dir, library, config, progress, mask_model)
         intake_s = time.perf_counter() - start
         data = training_data(intake, config, library.spec.margin, dev)
         state, extra = train(job_dir, library, intake.retrieval, data, config, dev, progress)

@@ -145,7 +145,8 @@ def _run(record: JobRecord, settings: Settings, store: JobStore, started: float,
     watchdog = _hard_limit_watchdog(store, record, settings.job_hard_time_limit_s)
     try:
         run_job(store.job_dir(record.id), get_library(str(settings.library_dir)),
-                Progress(adapter, adapter.cancelled), settings.device)
+                Progress(adapter, adapter.cancelled), settings.device,
+                mask_model=settings.mask_model)
     except JobCancelled:
         if adapter.timed_out:
             message = f"the job ran past its time limit of {settings.job_soft_time_limit_s} s"

@@ -37,7 +37,8 @@ _UPLOAD_BODY: dict[str, Any] = {
         "type": "object", "required": ["images"],
         "properties": {
             "images": {"type": "array", "items": {"type": "string", "format": "binary"},
-                       "description": "3-10 photos (JPEG, PNG or WebP) in walking order."},
+                       "description": "3-10 photos (JPEG, PNG, WebP, HEIC or AVIF) in walking "
+                                      "order."},
             "masks": {"type": "array", "items": {"type": "string", "format": "binary"},
                       "description": "Optional: one mask per photo, same order and size."},
             "config": {"type": "string",
@@ -128,7 +129,7 @@ def _check_range(request: Request, response: FileResponse, size: int) -> None:
 @router.head("/{job_id}/artifacts/{name:path}", responses=_ARTIFACT_ERRORS,
              response_class=FileResponse, summary="An artifact's headers, without its body")
 def get_artifact(job: JobDep, store: StoreDep, name: str, request: Request) -> Response:
-    """orbit.mp4, orbit.gif, mesh.glb, poses.json, transforms.json, metrics.json, views/NNN.png.
+    """orbit.mp4, orbit.gif, mesh.glb, poses.json, metrics.json, views/NNN.png, masks/NNN.png...
 
     Cached privately for a day and marked immutable (a succeeded job's files never change);
     `If-None-Match` with the ETag answers 304; HEAD answers the same headers without a body.
@@ -137,7 +138,7 @@ def get_artifact(job: JobDep, store: StoreDep, name: str, request: Request) -> R
         raise ApiError(409, "not_ready", f"the job is {job.state.value}",
                        hint="artifacts exist once the job has succeeded")
     path = results.artifact_path(store.job_dir(job.id), name)
-    download = None if path.suffix in (".mp4", ".gif", ".png") else path.name
+    download = None if path.suffix in (".mp4", ".gif", ".png", ".jpg") else path.name
     try:
         stat = os.stat(path)
     except OSError:  # the job was deleted since the check

@@ -34,6 +34,9 @@ class Settings(BaseSettings):
     """Broker and job-state store."""
     library_dir: Path = Field(Path("library_data/build"), description="The built CAD library.")
     """Folder with the library's manifest.json (read by the API, loaded by workers)."""
+    mask_model: Path | None = Field(None, description="An ONNX background-removal model for "
+                                    "learned masks; unset: the built-in one.")
+    """A deployment's own model (a job's config cannot name server files); must exist."""
     device: Literal["auto", "cpu", "cuda"] = Field("auto", description="Worker torch device.")
     """Where the worker trains: auto picks CUDA when available."""
     default_preset: str = Field("standard", description="Preset used when a job names none.")
@@ -90,6 +93,15 @@ class Settings(BaseSettings):
 
         if value not in PRESETS:
             raise ValueError(f"must be one of {', '.join(sorted(PRESETS))}")
+        return value
+
+    @field_validator("mask_model", mode="before")
+    @classmethod
+    def _existing_file(cls, value: object) -> object:
+        if value is None or value == "":  # an empty variable means unset
+            return None
+        if not Path(str(value)).is_file():
+            raise ValueError(f"{value} is not a file")
         return value
 
     @field_validator("redis_url")

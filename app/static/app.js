@@ -11,8 +11,8 @@ const POLL_MS = 1000;                // normal polling interval
 const MAX_BACKOFF_S = 30;            // longest wait between retries after failures
 const GIVE_UP_MS = 5 * 60 * 1000;    // stop retrying after this long without a good answer
 const MIB = 2 ** 20;
-const PHOTO_TYPES = /^image\/(jpeg|png|webp)$/;
-const PHOTO_EXTENSIONS = /\.(jpe?g|png|webp)$/i;
+const PHOTO_TYPES = /^image\/(jpeg|png|webp|heic|heif|avif)$/;
+const PHOTO_EXTENSIONS = /\.(jpe?g|png|webp|heic|heif|hif|avif)$/i;
 
 function apiKey() { return $("api-key").value.trim(); }
 
@@ -103,9 +103,8 @@ function addPhotos(files) {
   const note = $("skipped");
   if (skipped.length) {
     const what = skipped.length === 1 ? "1 file was" : `${skipped.length} files were`;
-    note.textContent = `${what} not added: ${skipped.join(", ")}. Only JPEG, PNG and WebP photos `
-      + "are accepted: save them as JPEG, PNG or WebP (e.g. iPhone HEIC photos: export or share "
-      + "them as JPEG, or set Camera \u203a Formats to \u201cMost Compatible\u201d) and add them again.";
+    note.textContent = `${what} not added: ${skipped.join(", ")}. Only JPEG, PNG, WebP, HEIC `
+      + "and AVIF photos are accepted: save them as JPEG and add them again.";
   }
   note.hidden = skipped.length === 0;
   renderThumbs();
@@ -149,6 +148,15 @@ function renderCount() {
   $("photo-count").classList.toggle("warning", Boolean(problem));
 }
 
+function thumbPlaceholder(fileName) {
+  const box = document.createElement("div");
+  box.className = "placeholder";
+  box.setAttribute("role", "img");
+  box.setAttribute("aria-label", fileName);
+  box.textContent = fileName;
+  return box;
+}
+
 function renderThumbs() {
   const list = $("thumbs");
   list.replaceChildren();
@@ -159,6 +167,8 @@ function renderThumbs() {
     const img = document.createElement("img");
     img.src = photo.url;
     img.alt = photo.file.name;
+    // Browsers other than Safari cannot show HEIC: a placeholder with the name stands in.
+    img.addEventListener("error", () => img.replaceWith(thumbPlaceholder(photo.file.name)));
     const order = document.createElement("span");
     order.className = "order";
     order.textContent = String(index + 1);
@@ -437,6 +447,7 @@ async function showResult(jobId) {
   warnings.hidden = !warnings.children.length;
   renderMatches(result.photos);
   plotCameras(result.photos);
+  renderMasks(result.photos).catch((err) => showNotice(`the mask pictures could not be loaded: ${err.message}`));
   const list = $("downloads");
   list.replaceChildren();
   for (const [name, url] of Object.entries(result.artifacts)) {
@@ -473,6 +484,60 @@ function renderMatches(photos) {
       row.append(cell);
     }
     body.append(row);
+  }
+}
+
+// How each mask source reads on the page (the API's `mask_source`).
+const MASK_SOURCE_TEXT = {
+  uploaded: "uploaded (your mask)",
+  alpha: "alpha (the photo's transparency)",
+  learned: "learned (background removal)",
+  grabcut: "grabcut (background removal)",
+};
+
+async function maskPicture(url, alt, className) {
+  if (!url) {
+    const none = document.createElement("span");
+    none.className = `${className} missing`;
+    none.textContent = "no match";
+    return none;
+  }
+  const image = document.createElement("img");
+  image.className = className;
+  image.alt = alt;
+  image.decoding = "async";
+  image.src = await artifactUrl(url);
+  return image;
+}
+
+// Per photo: the mask it used over the photo, the library silhouette it matched, the mask's
+// source and warnings; a badly cut object is seen here, not mistaken for a failure of the method.
+async function renderMasks(photos) {
+  const gallery = $("mask-gallery");
+  gallery.replaceChildren();
+  const shown = photos.filter((p) => p.overlay);
+  $("mask-section").hidden = !shown.length;
+  for (const photo of shown) {
+    const item = document.createElement("li");
+    if (photo.discarded) item.className = "discarded";
+    const pair = document.createElement("div");
+    pair.className = "pair";
+    pair.append(await maskPicture(photo.overlay, `Mask of photo ${photo.index + 1} over it`, "overlay"),
+      await maskPicture(photo.discarded ? null : photo.silhouette,
+        `Library silhouette matched to photo ${photo.index + 1}`, "silhouette"));
+    const caption = document.createElement("p");
+    caption.className = "mask-caption";
+    const source = MASK_SOURCE_TEXT[photo.mask_source] || "unknown";
+    caption.textContent = `${photo.index + 1}. ${photo.name} \u2013 mask: ${source}`
+      + (photo.discarded ? " \u2013 discarded" : "");
+    item.append(pair, caption);
+    for (const text of photo.mask_warnings || []) {
+      const warning = document.createElement("p");
+      warning.className = "warning mask-warning";
+      warning.textContent = text;
+      item.append(warning);
+    }
+    gallery.append(item);
   }
 }
 

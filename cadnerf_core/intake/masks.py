@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import logging
 from collections.abc import Sequence
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Literal
 
@@ -23,6 +24,7 @@ from scipy import ndimage
 
 from cadnerf_core.errors import InputError
 from cadnerf_core.intake.photos import Photo
+from cadnerf_core.jobfolder import MaskSource
 from cadnerf_core.progress import Progress
 
 log = logging.getLogger(__name__)
@@ -33,6 +35,17 @@ BAND_SIDES, BAND_TOP_BOTTOM = 0.10, 0.05  # sure-background band, fractions of w
 CENTRE_SIGMA = 0.3  # of each side: the centre prior that picks the object's component
 GRABCUT_ITERATIONS = 5
 MASK_HINT = "upload a mask for this photo (white = object, black = background)"
+
+MaskMethod = Literal["auto", "learned", "grabcut"]
+
+
+@dataclass
+class MaskResult:
+    """One photo's mask, where it came from, and what looks wrong with it."""
+
+    mask: np.ndarray  # [H, W] bool, the photo's own size (after EXIF orientation)
+    source: MaskSource
+    warnings: list[str] = field(default_factory=list)  # each names the photo and what to do
 
 
 def largest_component(mask: np.ndarray, weight: np.ndarray | None = None) -> np.ndarray:
@@ -165,27 +178,29 @@ def remove_background(photo: Photo, method: Literal["grabcut", "learned"] = "gra
     return mask
 
 
-def photo_masks(photos: Sequence[Photo], method: Literal["grabcut", "learned"] = "grabcut",
-                weights: str | Path | None = None,
-                progress: Progress | None = None) -> list[np.ndarray]:
+def photo_masks(photos: Sequence[Photo], method: MaskMethod = "auto",
+                model_path: Path | None = None,
+                progress: Progress | None = None) -> list[MaskResult]:
     """Each photo's mask: its own (alpha or uploaded) if it has one, else a found one.
 
     Args:
         photos: N photos.
-        method, weights: background removal for photos without a mask.
+        method: background removal for photos without a mask ("auto": GrabCut).
+        model_path: a local ONNX saliency model, for "learned".
         progress: reports stage "masks" after each photo and checks for cancellation.
     Returns:
-        N masks [H_i, W_i] bool.
+        N results: mask [H_i, W_i] bool, its source, warnings.
     """
-    masks = []
+    results = []
     for i, photo in enumerate(photos):
         if photo.mask is not None:
             check_cover(photo.mask, photo.name, automatic=False)
-            masks.append(photo.mask)
+            results.append(MaskResult(photo.mask, photo.mask_source or "uploaded"))
         else:
-            masks.append(remove_background(photo, method, weights))
+            found: Literal["learned", "grabcut"] = "learned" if method == "learned" else "grabcut"
+            results.append(MaskResult(remove_background(photo, found, model_path), found))
             log.debug("%s: background removed, %.1f%% kept", photo.name,
-                      100 * masks[-1].mean())
+                      100 * results[-1].mask.mean())
         if progress is not None:
             progress.step("masks", i + 1, len(photos))
-    return masks
+    return results

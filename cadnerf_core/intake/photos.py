@@ -1,7 +1,9 @@
 """Photo intake: read photos and optional masks, with clear errors naming the photo.
 
-Photos are JPEG, PNG or WebP (read with Pillow). The EXIF orientation is applied, so a photo
-comes out the way a viewer shows it. A photo with real transparency (an alpha channel not fully
+Photos are JPEG, PNG, WebP, HEIC/HEIF (a phone's own format, through pillow-heif) or AVIF (where
+Pillow was built to read it). The orientation is applied once, so a photo comes out the way a
+viewer shows it: Pillow leaves it to the EXIF tag, pillow-heif applies the HEIF container's
+rotation on decode and resets the tag. A photo with real transparency (an alpha channel not fully
 opaque) gives its mask (alpha > one half) and is composited on white. The size is checked from
 the header before any pixel is decoded, so a huge photo costs nothing to refuse. The EXIF focal
 length is kept as its 35 mm equivalent (a phone's own tag, or a camera's focal length over its
@@ -18,14 +20,21 @@ from pathlib import Path
 from typing import Any, Literal
 
 import numpy as np
-from PIL import Image, ImageOps, UnidentifiedImageError
+import pillow_heif
+from PIL import Image, ImageOps, UnidentifiedImageError, features
 
 from cadnerf_core.errors import InputError
 from cadnerf_core.intake.crop import DEFAULT_MARGIN, CropBox, apply_crop, canonical_box
 
 MIN_SIDE = 64  # pixels: smaller photos hold too little of the object
 MAX_PIXELS = 40_000_000  # 40 megapixels: larger photos are refused before decoding
-PHOTO_FORMATS = frozenset({"JPEG", "MPO", "PNG", "WEBP"})  # MPO: phone JPEGs with a depth map
+# MPO: phone JPEGs with a depth map; HEIF: HEIC and HEIF; AVIF only where Pillow reads it.
+PHOTO_FORMATS = frozenset({"JPEG", "MPO", "PNG", "WEBP", "HEIF"}
+                          | ({"AVIF"} if features.check("avif") else set()))
+_FORMATS_HINT = ("use JPEG, PNG, WebP or HEIC" + (" or AVIF" if "AVIF" in PHOTO_FORMATS else ""))
+
+# Thumbnails and depth maps are never used: skip reading them.
+pillow_heif.register_heif_opener(thumbnails=False, depth_images=False)
 
 # A photo given as a path, raw bytes, or (name, bytes).
 PhotoSource = str | Path | bytes | tuple[str, bytes]
@@ -92,10 +101,10 @@ def _open_image(name: str, data: bytes, what: str, formats: frozenset[str] | Non
                          item=name, hint="downscale it before uploading") from exc
     except (UnidentifiedImageError, OSError, ValueError, SyntaxError) as exc:
         raise InputError(f"the {what} is not an image that can be read", item=name,
-                         hint="use JPEG, PNG or WebP") from exc
+                         hint=_FORMATS_HINT) from exc
     if formats is not None and image.format not in formats:
         raise InputError(f"the {what} is in {image.format} format", item=name,
-                         hint="use JPEG, PNG or WebP")
+                         hint=_FORMATS_HINT)
     width, height = image.size
     if width * height > MAX_PIXELS:
         raise InputError(f"the {what} is {width}x{height} pixels, over "
@@ -159,6 +168,20 @@ def _focal_35mm_from_focal_plane(tags: Any, size: tuple[int, int]) -> float | No
     return float(focal_mm) * FULL_FRAME_DIAGONAL_MM / sensor_diagonal
 
 
+def stored_orientation(image: Image.Image) -> tuple[int, tuple[int, int]]:
+    """The EXIF orientation of an opened photo and the (width, height) of its stored pixels.
+
+    pillow-heif decodes a HEIF already upright (its size is the upright one) and resets the
+    EXIF tag to 1, keeping the original in ``info["original_orientation"]``: both are undone
+    here, so a mask drawn on the stored pixels is recognised as for a JPEG.
+    """
+    if image.format == "HEIF":
+        orientation = int(image.info.get("original_orientation") or 1)
+        width, height = image.size
+        return orientation, (height, width) if orientation in (5, 6, 7, 8) else (width, height)
+    return int(image.getexif().get(_EXIF_ORIENTATION_TAG, 1) or 1), image.size
+
+
 def _decode(image: Image.Image, name: str, what: str) -> Image.Image:
     """Decode all pixels and apply the EXIF orientation. InputError if the data is damaged."""
     try:
@@ -203,9 +226,8 @@ def load_photo(source: PhotoSource, index: int = 0, mask: PhotoSource | None = N
     """Read one photo (and its mask). See ``load_photos``."""
     name, data = _read_source(source, index)
     raw = _open_image(name, data, "photo", PHOTO_FORMATS)
-    orientation = raw.getexif().get(_EXIF_ORIENTATION_TAG, 1)
+    orientation, raw_size = stored_orientation(raw)
     focal = exif_focal_35mm(raw)
-    raw_size = raw.size
     rgb, alpha_mask = _to_array(_decode(raw, name, "photo"))
     if mask is None:
         return Photo(name, rgb, alpha_mask, focal, "alpha" if alpha_mask is not None else None)
@@ -227,7 +249,8 @@ def load_photos(paths: Sequence[PhotoSource],
     """Read ordered photos and, optionally, one mask per photo in the same order.
 
     Args:
-        paths: photo files (path, raw bytes, or (name, bytes)); JPEG, PNG or WebP.
+        paths: photo files (path, raw bytes, or (name, bytes)); JPEG, PNG, WebP, HEIC/HEIF,
+            AVIF (where Pillow reads it).
         mask_paths: masks in the same order, any image format; nonzero (or opaque) = object.
             A mask the size of the photo's stored pixels, where the photo's EXIF orientation
             rotates it to another size, gets the same rotation.

@@ -2,9 +2,11 @@
 
 from __future__ import annotations
 
+import io
 import json
 import time
 import uuid
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -16,7 +18,7 @@ from PIL import Image
 from app import jobs
 from app.state import JobState, JobStore, connect, keys
 from app.state.settings import Settings
-from cadnerf_core.jobfolder import JobFolder
+from cadnerf_core.jobfolder import JobFolder, MaskSource
 from tests.configs import TINY_PRESET, tiny_config, tiny_request_json
 
 
@@ -28,6 +30,13 @@ def _submit(client: TestClient, photos, **data: str) -> dict:
     response = client.post("/v1/jobs", files=photos(), data=data)
     assert response.status_code == 202, response.text
     return response.json()
+
+
+@dataclass
+class _Found:
+    mask: np.ndarray
+    source: MaskSource
+    warnings: list[str]
 
 
 def _succeed(settings: Settings, job_id: str) -> Path:
@@ -50,8 +59,10 @@ def _succeed(settings: Settings, job_id: str) -> Path:
     job.write_poses(poses["model_id"], poses["photos"])
     job.write_metrics({"mask_iou": 0.91})
     photos = job.photos()
-    job.write_used_masks(photos, [np.ones((64, 80), bool)] * len(photos),
-                         ["uploaded", "alpha", "built-in"])
+    found = [_Found(np.ones((64, 80), bool), source, [])
+             for source in ("uploaded", "alpha", "learned")]
+    found[2].warnings.append(f"{photos[2].name}: the mask touches three borders (crop or retake)")
+    job.write_masks(photos, found, (np.full((64, 80, 3), 90, np.uint8) for _ in photos))
     store = _store(settings)
     assert store.update(job_id, state=JobState.succeeded, progress=1.0, finished_at=time.time())
     store.mirror(job_id)
@@ -124,15 +135,53 @@ def test_result_is_409_until_succeeded_then_complete(client: TestClient, setting
     assert result["metrics"] == {"mask_iou": 0.91}
     assert result["artifacts"]["orbit.mp4"] == f"/v1/jobs/{job['id']}/artifacts/orbit.mp4"
     assert "views/000.png" in result["artifacts"] and "orbit.gif" not in result["artifacts"]
-    assert result["warnings"] == []
-    assert [p["mask_source"] for p in result["photos"]] == ["uploaded", "alpha", "built-in"]
-    assert "used_masks/002.png" in result["artifacts"]
+    assert [p["mask_source"] for p in result["photos"]] == ["uploaded", "alpha", "learned"]
+    mask_warning = result["photos"][2]["mask_warnings"]
+    assert len(mask_warning) == 1 and "002_photo_2.png" in mask_warning[0]
+    assert result["photos"][0]["mask_warnings"] == [] and result["warnings"] == mask_warning
+    base = f"/v1/jobs/{job['id']}/artifacts"
+    assert result["photos"][1]["mask"] == f"{base}/masks/001.png"
+    assert result["photos"][1]["overlay"] == f"{base}/masks/001_overlay.jpg"
+    overlay = client.get(result["photos"][1]["overlay"])
+    assert overlay.status_code == 200 and overlay.headers["content-type"] == "image/jpeg"
+    assert "attachment" not in overlay.headers.get("content-disposition", "")
+    assert Image.open(io.BytesIO(overlay.content)).size == (80, 64)
+    assert result["photos"][1]["silhouette"] == "/v1/library/chair_01/silhouette/3"
+    assert result["photos"][2]["silhouette"] is None  # discarded
     # A walking direction the photos could not tell: the result says so and what to send.
     folder = JobFolder(settings.data_root / job["id"])
-    folder.write_retrieval({**(folder.read_retrieval() or {}), "direction_ambiguous": True})
-    warnings = client.get(f"/v1/jobs/{job['id']}/result").json()["warnings"]
-    assert len(warnings) == 1 and "walking direction is a guess" in warnings[0]
-    assert '"walk": "cw"' in warnings[0]
+    folder.write_retrieval({**(folder.read_retrieval() or {}), "direction_ambiguous": True,
+                            "perspective": "near"})
+    result = client.get(f"/v1/jobs/{job['id']}/result").json()
+    warnings = result["warnings"]
+    assert len(warnings) == 2 and "walking direction is a guess" in warnings[1]
+    assert '"walk": "cw"' in warnings[1]
+    assert result["photos"][0]["silhouette"].endswith("/silhouette/0?perspective=near")
+
+
+def test_library_silhouettes_are_served_as_png_for_listed_models_only(
+        client: TestClient, settings: Settings) -> None:
+    from cadnerf_core.library.format import pack_silhouettes, save_npz
+
+    masks = np.zeros((4, 16, 16), bool)
+    masks[2, 4:12, 6:10] = True
+    near = np.zeros((4, 16, 16), bool)
+    near[2, :8] = True
+    (settings.library_dir / "chair_01").mkdir()
+    save_npz(settings.library_dir / "chair_01" / "silhouettes.npz",
+             pack_silhouettes(masks, np.zeros((4, 3)), (near, np.zeros((4, 3)))))
+    response = client.get("/v1/library/chair_01/silhouette/2")
+    assert response.status_code == 200 and response.headers["content-type"] == "image/png"
+    assert "max-age" in response.headers["cache-control"]
+    assert np.array_equal(np.asarray(Image.open(io.BytesIO(response.content))) > 127, masks[2])
+    near_png = client.get("/v1/library/chair_01/silhouette/2", params={"perspective": "near"})
+    assert np.array_equal(np.asarray(Image.open(io.BytesIO(near_png.content))) > 127, near[2])
+    for path in ("chair_01/silhouette/4", "cuboid_1x1x1/silhouette/0", "nope/silhouette/0",
+                 "..%2Fchair_01/silhouette/0", "chair_01/silhouette/-1"):
+        response = client.get(f"/v1/library/{path}")
+        assert response.status_code in (404, 422), path
+        assert response.status_code == 422 or response.json()["error"]["code"] in (
+            "no_such_model", "no_such_view", "not_found"), path
 
 
 def test_artifacts_stream_with_ranges_and_stay_inside_the_job(client: TestClient,
@@ -150,7 +199,8 @@ def test_artifacts_stream_with_ranges_and_stay_inside_the_job(client: TestClient
     assert client.get(f"{base}/views/000.png").headers["content-type"] == "image/png"
     (folder / "views" / "001.png").symlink_to("/etc/hostname")
     for name in ("state.json", "../state.json", "views/../../x", "views/001.png",
-                 "inputs/000_photo_0.png", "orbit.avi"):
+                 "inputs/000_photo_0.png", "orbit.avi", "inputs/masks/000_photo_0.png",
+                 "masks/../inputs/000_photo_0.png", "masks/003.png"):
         response = client.get(f"{base}/{name}")
         assert response.status_code == 404, name
 

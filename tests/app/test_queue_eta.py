@@ -144,7 +144,8 @@ def test_a_job_leaves_the_queue_when_a_worker_starts_it(settings: Settings,
     first, second = _job(store, now), _job(store, now + 1)
     seen: dict[str, object] = {}
 
-    def run_job(job_dir: Path, library: object, progress: object, device: str) -> None:
+    def run_job(job_dir: Path, library: object, progress: object, device: str,
+                mask_model: Path | None = None) -> None:
         seen["first_queued"] = clean_redis.zscore(keys.QUEUE, first.id)
         seen["second"] = _status(store, settings, second)["queue_position"]
         seen["first"] = _status(store, settings, first)["queue_position"]

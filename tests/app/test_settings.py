@@ -11,7 +11,8 @@ from app.state.settings import SettingsError, hash_key, load_settings
 
 
 def test_defaults_and_environment(monkeypatch: pytest.MonkeyPatch) -> None:
-    for name in ("CADNERF_DATA_ROOT", "CADNERF_MAX_PHOTOS", "CADNERF_API_KEYS", "CADNERF_DEVICE"):
+    for name in ("CADNERF_DATA_ROOT", "CADNERF_MAX_PHOTOS", "CADNERF_API_KEYS", "CADNERF_DEVICE",
+                 "CADNERF_MASK_MODEL"):
         monkeypatch.delenv(name, raising=False)
     settings = load_settings()
     assert settings.data_root == Path("data/jobs") and settings.max_megapixels == 40
@@ -23,6 +24,11 @@ def test_defaults_and_environment(monkeypatch: pytest.MonkeyPatch) -> None:
     settings = load_settings()
     assert settings.max_photos == 8 and settings.device == "cpu"
     assert settings.api_key_hashes == {hash_key("a"), hash_key("b")}
+    assert settings.mask_model is None
+    monkeypatch.setenv("CADNERF_MASK_MODEL", "")  # empty: unset
+    assert load_settings().mask_model is None
+    monkeypatch.setenv("CADNERF_MASK_MODEL", __file__)
+    assert load_settings().mask_model == Path(__file__)
 
 
 @pytest.mark.parametrize(("name", "value", "fragment"), [
@@ -31,6 +37,7 @@ def test_defaults_and_environment(monkeypatch: pytest.MonkeyPatch) -> None:
     ("CADNERF_DEFAULT_PRESET", "turbo", "must be one of"),
     ("CADNERF_REDIS_URL", "http://x", "redis://"),
     ("CADNERF_MAX_MEGAPIXELS", "-1", "greater than 0"),
+    ("CADNERF_MASK_MODEL", "/nonexistent/u2netp.onnx", "is not a file"),
 ])
 def test_bad_values_name_the_variable(monkeypatch: pytest.MonkeyPatch, name: str, value: str,
                                       fragment: str) -> None:

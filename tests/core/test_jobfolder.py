@@ -4,6 +4,7 @@ writers round-tripping, and the download allow-list."""
 from __future__ import annotations
 
 import json
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -13,6 +14,7 @@ from PIL import Image
 from cadnerf_core.config import DEFAULT_PRESET, resolve_config
 from cadnerf_core.jobfolder import (
     JobFolder,
+    MaskSource,
     is_artifact_name,
     media_type,
     photo_file_name,
@@ -38,7 +40,7 @@ def test_stored_photo_names_keep_the_order() -> None:
     assert photo_file_name(3, "IMG_01.JPG", "JPG") == "003_IMG_01.jpg"
     assert photo_index("003_IMG_01.jpg") == 3
     assert photo_index("/jobs/x/inputs/011_b.png") == 11
-    assert photo_index("photo.png") is None and photo_index("used_masks/001.png") is None
+    assert photo_index("photo.png") is None and photo_index("masks/001.png") is None
     names = [photo_file_name(i, "p", "png") for i in (10, 2, 0)]
     assert sorted(names) == ["000_p.png", "002_p.png", "010_p.png"]
 
@@ -63,6 +65,10 @@ def test_a_mask_is_found_by_its_photo_whatever_its_own_name(tmp_path: Path) -> N
     assert not jpeg_mask.exists()  # moved
     with Image.open(found[2].mask) as stored:
         assert stored.size == (8, 6)
+    assert not folder.file("masks").exists()  # uploads stay with the inputs, never downloadable
+    assert all(folder.artifact_path(f"inputs/masks/{p.stem}.png") is None for p in photos)
+    folder.clear_inputs()
+    assert folder.photos() == [] and found[0].mask is not None and not found[0].mask.exists()
 
 
 def test_a_mask_that_cannot_be_decoded_is_refused(tmp_path: Path) -> None:
@@ -105,21 +111,37 @@ def test_json_files_round_trip_and_missing_ones_read_as_none(tmp_path: Path) -> 
     assert not list(tmp_path.glob(".*"))  # atomic writes leave no temporary files
 
 
-def test_used_masks_and_their_sources_round_trip(tmp_path: Path) -> None:
+@dataclass
+class _Found:
+    mask: np.ndarray
+    source: MaskSource
+    warnings: list[str] = field(default_factory=list)
+
+
+def test_used_masks_overlays_sources_and_warnings_round_trip(tmp_path: Path) -> None:
     folder = JobFolder(tmp_path)
     for i in range(3):
         folder.add_photo(i, _png(tmp_path / f"p{i}.png"))
     photos = folder.photos()
     rng = np.random.default_rng(0)
-    masks = [rng.random((6, 8)) > 0.5 for _ in photos]
-    records = folder.write_used_masks(photos, masks, ["uploaded", "alpha", "built-in"])
-    assert [r.mask for r in records] == ["used_masks/000.png", "used_masks/001.png",
-                                         "used_masks/002.png"]
+    found = [_Found(rng.random((6, 8)) > 0.5, source)
+             for source in ("uploaded", "alpha", "learned")]
+    found[2].warnings.append("002_p2.png: the mask touches three borders; crop or retake")
+    big = np.zeros((1500, 2000, 3), np.uint8)  # a large overlay is stored smaller
+    records = folder.write_masks(photos, found, iter([np.zeros((6, 8, 3), np.uint8)] * 2
+                                                     + [big]))
+    assert [r.mask for r in records] == ["masks/000.png", "masks/001.png", "masks/002.png"]
+    assert [r.overlay for r in records] == [f"masks/00{i}_overlay.jpg" for i in range(3)]
     assert folder.read_mask_sources() == records
-    assert [r.source for r in records] == ["uploaded", "alpha", "built-in"]
+    assert [r.source for r in records] == ["uploaded", "alpha", "learned"]
+    assert [r.warnings for r in records] == [[], [], found[2].warnings]
     assert [r.name for r in records] == [p.name for p in photos]
-    for i, mask in enumerate(masks):
-        assert np.array_equal(folder.read_used_mask(i), mask)
+    for i, entry in enumerate(found):
+        assert np.array_equal(folder.read_mask(i), entry.mask)
+        with Image.open(folder.file(f"masks/00{i}.png")) as stored:
+            assert stored.mode == "L" and set(np.unique(np.asarray(stored))) <= {0, 255}
+    with Image.open(folder.file("masks/002_overlay.jpg")) as overlay:
+        assert overlay.format == "JPEG" and overlay.size == (1024, 768)
 
 
 def test_only_listed_artifacts_inside_the_folder_are_served(tmp_path: Path) -> None:
@@ -129,18 +151,26 @@ def test_only_listed_artifacts_inside_the_folder_are_served(tmp_path: Path) -> N
     folder.file("views").mkdir()
     _png(folder.view_path(1))
     _png(folder.view_path(0))
-    folder.write_used_masks([], [], [])
+    folder.write_masks([], [], [])
+    folder.file("masks").mkdir()
+    _png(folder.file("masks/001.png"))
+    _png(folder.file("masks/001_overlay.jpg"))
+    _png(folder.file("masks/001_photo.png"))
     (folder.file("views") / "notes.png").write_bytes(b"x")
     folder.file("state.json").write_text("{}")
     outside = _png(tmp_path / "secret.png")
     (folder.file("views") / "002.png").symlink_to(outside)
     assert folder.artifacts() == ["metrics.json", "config.json", "masks.json", "views/000.png",
-                                  "views/001.png", "views/002.png"]
+                                  "views/001.png", "views/002.png", "masks/001.png",
+                                  "masks/001_overlay.jpg"]
     assert folder.artifact_path("views/001.png") == folder.view_path(1).resolve()
     for name in ("views/002.png", "state.json", "views/notes.png", "../secret.png",
-                 "views/../config.json", "inputs/000_a.png", "mesh.glb", "checkpoints/phase1.pt"):
+                 "views/../config.json", "inputs/000_a.png", "mesh.glb", "checkpoints/phase1.pt",
+                 "masks/001_photo.png", "inputs/masks/000_a.png", "masks/../inputs/000_a.png"):
         assert folder.artifact_path(name) is None, name
-    assert is_artifact_name("used_masks/004.png") and not is_artifact_name("used_masks/4.png")
+    assert is_artifact_name("masks/004.png") and not is_artifact_name("masks/4.png")
+    assert is_artifact_name("masks/004_overlay.jpg") and not is_artifact_name("used_masks/004.png")
+    assert media_type("masks/004_overlay.jpg") == "image/jpeg"
     assert media_type("orbit.mp4") == "video/mp4" and media_type("views/003.png") == "image/png"
     assert media_type("mesh.glb") == "model/gltf-binary"
     assert folder.checkpoint_path(2) == tmp_path / "job" / "checkpoints" / "phase2.pt"

@@ -66,9 +66,10 @@ def test_photo_masks_prefers_the_photo_own_mask() -> None:
     photo, truth = _synthetic_photo()
     given = np.zeros_like(truth)
     given[10:40, 10:40] = True
-    masks = photo_masks([Photo("own.png", photo.rgb, given), photo])
-    assert np.array_equal(masks[0], given)
-    assert _iou(masks[1], truth) > 0.9
+    found = photo_masks([Photo("own.png", photo.rgb, given, mask_source="uploaded"), photo],
+                        "grabcut")
+    assert np.array_equal(found[0].mask, given) and found[0].source == "uploaded"
+    assert _iou(found[1].mask, truth) > 0.9 and found[1].source == "grabcut"
     with pytest.raises(InputError) as info:
         photo_masks([Photo("void.png", photo.rgb, np.zeros_like(truth))])
     assert info.value.item == "void.png"

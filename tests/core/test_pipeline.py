@@ -51,15 +51,18 @@ def test_run_job_writes_every_artifact(tmp_path: Path, tiny_library: Any) -> Non
         assert (tmp_path / name).is_file(), name
     for name in ("poses.json", "transforms.json", "metrics.json", "orbit.mp4", "orbit.gif",
                  "mesh.glb", "retrieval.json", "config.json", "masks.json", "views/000.png",
-                 "used_masks/003.png", "log.txt", "checkpoints/phase1.pt",
+                 "masks/003.png", "masks/003_overlay.jpg", "log.txt", "checkpoints/phase1.pt",
                  "checkpoints/phase2.pt", "checkpoints/phase3.pt"):
         assert (tmp_path / name).is_file(), name
     folder = JobFolder(tmp_path)
     assert [m.source for m in folder.read_mask_sources()] == ["alpha"] * 4
+    assert {"masks/000.png", "masks/003_overlay.jpg"} <= set(folder.artifacts())
     for photo in folder.photos():  # the used mask is the photo's alpha
         with Image.open(photo.path) as image:
             alpha = np.asarray(image)[..., 3] > 127
-        assert np.array_equal(folder.read_used_mask(photo.index), alpha)
+        assert np.array_equal(folder.read_mask(photo.index), alpha)
+        with Image.open(folder.file(f"masks/{photo.index:03d}_overlay.jpg")) as overlay:
+            assert overlay.size == alpha.shape[::-1] and overlay.mode == "RGB"
     assert {"masks", "retrieval", "phase1", "phase2", "phase3", "render", "export"} <= set(stages)
     mesh = trimesh.load(tmp_path / "mesh.glb", force="mesh")
     assert isinstance(mesh, trimesh.Trimesh)
@@ -148,6 +151,9 @@ def test_cli_reports_errors_in_one_line(tmp_path: Path, tiny_library_dir: Path) 
                                  "--library", str(tiny_library_dir)])
     assert result.exit_code == 2
     assert "no such file" in result.output
+    result = runner.invoke(app, ["reconstruct", str(photo), "--out", str(tmp_path / "job"),
+                                 "--mask-model", str(tmp_path / "missing.onnx")])
+    assert result.exit_code == 2 and "missing.onnx" in result.output
 
 
 def test_cli_reconstructs_into_the_output_folder(tmp_path: Path, tiny_library: Any,
@@ -181,14 +187,14 @@ def test_cli_reconstructs_into_the_output_folder(tmp_path: Path, tiny_library: A
     assert retrieval is not None
     assert retrieval["perspective"] == "near"
     assert retrieval["direction"] == 1 and retrieval["direction_lead"] is None
-    assert sorted(p.name for p in (out / "inputs").iterdir()) == \
+    assert sorted(p.name for p in (out / "inputs").iterdir() if p.is_file()) == \
         ["000_000_p.png", "001_001_p.png", "002_002_p.png"]
     assert (out / "mesh.glb").is_file() and (out / "orbit.mp4").is_file()
     used = JobFolder(out)
     assert [m.source for m in used.read_mask_sources()] == ["uploaded"] * 3
     for i, mask in enumerate(masks):
         with Image.open(mask) as image:
-            assert np.array_equal(used.read_used_mask(i), np.asarray(image) > 127)
+            assert np.array_equal(used.read_mask(i), np.asarray(image) > 127)
 
 
 def test_cli_retrieve_warns_of_a_guessed_direction_unless_given(tmp_path: Path,

@@ -1,4 +1,5 @@
-"""The web page in headless Chromium: upload, watch progress, play the orbit, screenshot."""
+"""The web page in headless Chromium: upload, watch progress, play the orbit, see the masks
+next to the matched silhouettes, screenshot (wide and narrow)."""
 
 from __future__ import annotations
 
@@ -86,13 +87,34 @@ def test_upload_progress_video_and_screenshot(live_service, photo_set: list[Path
                                         key=lambda p: p.stat().st_mtime).read_text())
             assert job_config["retrieval"]["focal_35mm"] == 42.0
             assert page.locator("#warnings").is_hidden()
+            _check_masks(page, len(photo_set))
             page.wait_for_timeout(500)
             # A test writes no tracked file: the screenshot goes to a temporary folder.
             shot = tmp_path / "web_page.png"
             page.screenshot(path=str(shot), full_page=True)
             assert shot.stat().st_size > 0
+            page.set_viewport_size({"width": 380, "height": 800})  # a phone: nothing sideways
+            assert page.evaluate("() => document.documentElement.scrollWidth") <= 380
+            width = page.evaluate("() => document.querySelector('#mask-gallery img.overlay')"
+                                  ".getBoundingClientRect().width")
+            assert 0 < width < 380
         finally:
             browser.close()
+
+
+def _check_masks(page, n_photos: int) -> None:  # type: ignore[no-untyped-def]
+    """Each photo's overlay and matched silhouette load as images, with the mask's source."""
+    page.wait_for_function(
+        "() => { const images = [...document.querySelectorAll('#mask-gallery img')];"
+        " return images.length > 0 && images.every((i) => i.complete); }", timeout=30_000)
+    sizes = page.evaluate("() => [...document.querySelectorAll('#mask-gallery img.overlay')]"
+                          ".map((i) => i.naturalWidth)")
+    assert len(sizes) == n_photos and all(w > 0 for w in sizes), sizes
+    silhouettes = page.evaluate("() => [...document.querySelectorAll('#mask-gallery "
+                                "img.silhouette')].map((i) => i.naturalWidth)")
+    assert silhouettes and all(w > 0 for w in silhouettes), silhouettes
+    captions = page.locator("#mask-gallery .mask-caption").all_inner_texts()
+    assert len(captions) == n_photos and all("mask: alpha" in c for c in captions), captions
 
 
 def _progress_samples(page) -> list[float]:  # type: ignore[no-untyped-def]

@@ -267,18 +267,18 @@ def test_poll_stops_on_unknown_job(page: Any, fake_api: FakeApi) -> None:
 
 
 def test_unsupported_files_are_listed_and_count_is_checked(page: Any, fake_api: FakeApi) -> None:
-    """HEIC (and other) files are named as skipped; too few photos are refused before sending."""
+    """TIFF (and other) files are named as skipped; too few photos are refused before sending."""
     uploads_before = len(fake_api.uploads)
     page.set_input_files("#photos", [
         _png("a.png"), _png("b.png"),
-        {"name": "IMG_0003.HEIC", "mimeType": "image/heic", "buffer": b"\x00" * 64},
+        {"name": "scan.tif", "mimeType": "image/tiff", "buffer": b"II*\x00" + bytes(60)},
         {"name": "notes.txt", "mimeType": "text/plain", "buffer": b"hello"}])
     assert page.locator("#thumbs li").count() == 2
     skipped = page.locator("#skipped")
     assert skipped.is_visible()
     text = skipped.inner_text()
-    assert "IMG_0003.HEIC" in text and "notes.txt" in text
-    assert "JPEG, PNG or WebP" in text
+    assert "scan.tif" in text and "notes.txt" in text
+    assert "JPEG, PNG, WebP, HEIC" in text
     assert "add 1 more" in page.inner_text("#photo-count")
     page.click("#submit")
     error = page.locator("#form-error")
@@ -288,6 +288,18 @@ def test_unsupported_files_are_listed_and_count_is_checked(page: Any, fake_api: 
     page.set_input_files("#photos", [_png("c.png")])
     assert skipped.is_hidden()
     assert page.inner_text("#photo-count") == "3 photos chosen"
+
+
+def test_heic_photos_are_added_with_a_placeholder_thumbnail(page: Any) -> None:
+    """Chromium cannot show HEIC: the photo is kept, its thumbnail is its name."""
+    page.set_input_files("#photos", [
+        {"name": "IMG_0001.HEIC", "mimeType": "image/heic", "buffer": b"\x00" * 64},
+        {"name": "IMG_0002.heic", "mimeType": "", "buffer": b"\x00" * 64}])
+    assert page.locator("#thumbs li").count() == 2 and page.locator("#skipped").is_hidden()
+    page.wait_for_function("document.querySelectorAll('#thumbs li .placeholder').length === 2")
+    assert page.locator("#thumbs li .placeholder").all_inner_texts() == ["IMG_0001.HEIC",
+                                                                         "IMG_0002.heic"]
+    assert page.locator("#thumbs li img").count() == 0  # no broken image left
 
 
 def test_upload_progress_reaches_100(page: Any, fake_api: FakeApi) -> None:

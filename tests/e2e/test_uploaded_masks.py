@@ -1,6 +1,6 @@
 """The masks a job uses, checked from the outside: photos and masks go in over HTTP, a real worker
 runs the job with the suite's tiny config, and the result says (and shows) which mask each photo
-used."""
+used: its source, its warnings, the mask itself and its overlay as artifacts."""
 
 from __future__ import annotations
 
@@ -65,13 +65,25 @@ def _run(url: str, files: list[tuple[str, tuple[str, bytes, str]]],
     return result
 
 
-def _used_mask(url: str, result: dict[str, Any], index: int) -> np.ndarray:
-    """The mask photo ``index`` used, downloaded from the job's artifacts."""
-    link = result["artifacts"][f"used_masks/{index:03d}.png"]
+def _download(url: str, link: str, content_type: str) -> Image.Image:
+    """An image artifact (or library picture), decoded."""
     response = httpx.get(f"{url}{link}", timeout=10)
-    assert response.status_code == 200 and response.headers["content-type"] == "image/png"
-    with Image.open(io.BytesIO(response.content)) as image:
-        return np.asarray(image.convert("L")) > 127
+    assert response.status_code == 200 and response.headers["content-type"] == content_type
+    image = Image.open(io.BytesIO(response.content))
+    image.load()
+    return image
+
+
+def _used_mask(url: str, result: dict[str, Any], index: int) -> np.ndarray:
+    """The mask photo ``index`` used (``masks/NNN.png``: 8-bit, 0 or 255), downloaded from the
+    job's artifacts; the result's photo links to the same file."""
+    link = result["artifacts"][f"masks/{index:03d}.png"]
+    assert result["photos"][index]["mask"] == link
+    image = _download(url, link, "image/png")
+    assert image.mode == "L"
+    pixels = np.asarray(image)
+    assert set(np.unique(pixels)) <= {0, 255}
+    return pixels > 127
 
 
 def test_uploaded_masks_named_unlike_their_photos_are_the_masks_the_job_uses(
@@ -96,7 +108,24 @@ def test_without_uploaded_masks_a_photo_uses_its_alpha_else_background_removal(
     files += [("images", (f"{stem}.jpg", _jpeg_on_white(path), "image/jpeg"))
               for stem, path in zip("bc", sources[1:], strict=True)]
     result = _run(live_service.url, files, live_service.log_tail)
-    assert [p["mask_source"] for p in result["photos"]] == ["alpha", "built-in", "built-in"]
+    photos = result["photos"]
+    assert photos[0]["mask_source"] == "alpha"
+    assert all(p["mask_source"] in ("learned", "grabcut") for p in photos[1:])
+    assert all(isinstance(p["mask_warnings"], list) for p in photos)
+    assert [w for p in photos for w in p["mask_warnings"]] == [
+        w for w in result["warnings"] if "walking direction" not in w]
     with Image.open(sources[0]) as image:
         alpha = np.asarray(image.convert("RGBA"))[..., 3] > 127
     assert np.array_equal(_used_mask(live_service.url, result, 0), alpha)
+    for index, source in enumerate(sources):
+        with Image.open(source) as image:
+            size = image.size
+        assert _used_mask(live_service.url, result, index).shape == size[::-1]
+        link = result["artifacts"][f"masks/{index:03d}_overlay.jpg"]
+        assert photos[index]["overlay"] == link
+        overlay = _download(live_service.url, link, "image/jpeg")
+        assert overlay.size == size and overlay.mode == "RGB"
+    matched = [p for p in photos if not p["discarded"]]
+    assert matched and all(p["silhouette"] for p in matched)
+    silhouette = _download(live_service.url, matched[0]["silhouette"], "image/png")
+    assert silhouette.size[0] == silhouette.size[1] > 0

@@ -27,7 +27,8 @@ def _failing_job(store: JobStore, monkeypatch: pytest.MonkeyPatch, redis_url: st
     store.job_dir(record.id).mkdir()
     store.create(record)
 
-    def run_job(job_dir: Path, library: object, progress: object, device: str) -> None:
+    def run_job(job_dir: Path, library: object, progress: object, device: str,
+                mask_model: Path | None = None) -> None:
         raise exc
 
     fake = types.ModuleType("cadnerf_core.pipeline")
