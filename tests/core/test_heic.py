@@ -130,7 +130,7 @@ def test_cli_reconstructs_from_heic_keeping_orientation_and_focal(
         "000_IMG_0000.heic", "001_IMG_0001.heic", "002_IMG_0002.heic"]
     assert [m.source for m in folder.read_mask_sources()] == ["uploaded"] * 3
     for i, upright in enumerate(uprights):  # the stored-pixel masks were turned upright
-        assert np.array_equal(folder.read_used_mask(i), upright)
+        assert np.array_equal(folder.read_mask(i), upright)
     assert (out / "mesh.glb").is_file()
     retrieved = CliRunner().invoke(app, ["retrieve", *map(str, photos), "--json", "--library",
                                          str(tiny_library_dir), "--walk", "ccw",
