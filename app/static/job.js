@@ -19,7 +19,6 @@ function schedulePoll(delayMs) {
   state.timer = setTimeout(() => poll(seq), delayMs);
 }
 
-
 export function follow(jobId) {
   stopPolling();
   state.jobId = jobId;
