@@ -2,12 +2,16 @@
 
 from __future__ import annotations
 
+import mimetypes
 from pathlib import Path
 
 from fastapi import APIRouter
 from fastapi.responses import FileResponse
 
 STATIC_DIR = Path(__file__).resolve().parents[1] / "static"
+# The page is ES modules, which browsers run only when served as JavaScript; some systems' type
+# tables (the Windows registry) say text/plain for .js.
+mimetypes.add_type("text/javascript", ".js")
 
 router = APIRouter(tags=["pages"])
 

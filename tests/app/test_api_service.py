@@ -3,11 +3,13 @@
 from __future__ import annotations
 
 import json
+import re
 
 import redis
 from fastapi.testclient import TestClient
 
 from app.main import create_app
+from app.routes.pages import STATIC_DIR
 from app.state import Workers
 from tests.configs import TINY_PRESET
 
@@ -74,10 +76,23 @@ def test_readiness_reports_a_dead_redis(make_settings) -> None:
 def test_the_page_and_its_assets_are_served(client: TestClient) -> None:
     page = client.get("/")
     assert page.status_code == 200 and page.headers["content-type"].startswith("text/html")
-    for needle in ('id="photos"', 'id="orbit"', "autoplay", "/static/app.js", 'id="cameras"'):
+    for needle in ('id="photos"', 'id="orbit"', "autoplay", 'id="cameras"',
+                   '<script type="module" src="/static/main.js">'):
         assert needle in page.text
-    script = client.get("/static/app.js")
-    assert script.status_code == 200 and "/v1/jobs" in script.text
+    # Browsers run a module only when it is served as JavaScript: follow main.js's imports.
+    scripts: dict[str, str] = {}
+    pending = ["main.js"]
+    while pending:
+        name = pending.pop()
+        if name in scripts:
+            continue
+        script = client.get(f"/static/{name}")
+        assert script.status_code == 200, name
+        assert script.headers["content-type"].startswith("text/javascript"), name
+        scripts[name] = script.text
+        pending += re.findall(r'^import .* from "\./([\w-]+\.js)";$', script.text, re.M)
+    assert set(scripts) == {path.name for path in STATIC_DIR.glob("*.js")}  # none left out
+    assert any("/v1/jobs" in text for text in scripts.values())
     assert client.get("/static/style.css").status_code == 200
     assert client.get("/static/../schemas.py").status_code == 404
 
