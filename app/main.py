@@ -6,10 +6,12 @@ import asyncio
 import contextlib
 import logging
 from collections.abc import AsyncIterator
+from typing import Any
 
 from fastapi import FastAPI
 from fastapi.staticfiles import StaticFiles
 from starlette.concurrency import run_in_threadpool
+from starlette.responses import Response
 
 from app import jobs
 from app.errors import install_handlers
@@ -124,5 +126,15 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     install_handlers(app)
     for router in (job_routes.router, library.router, health.router, pages.router):
         app.include_router(router)
-    app.mount("/static", StaticFiles(directory=STATIC_DIR), name="static")
+    app.mount("/static", RevalidatedStatic(directory=STATIC_DIR), name="static")
     return app
+
+
+class RevalidatedStatic(StaticFiles):
+    """The page's files, revalidated on every load (ETag): after an upgrade a browser never
+    mixes a new module with an old cached one."""
+
+    def file_response(self, *args: Any, **kwargs: Any) -> Response:
+        response = super().file_response(*args, **kwargs)
+        response.headers["Cache-Control"] = "no-cache"
+        return response

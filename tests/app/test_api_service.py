@@ -89,6 +89,7 @@ def test_the_page_and_its_assets_are_served(client: TestClient) -> None:
         script = client.get(f"/static/{name}")
         assert script.status_code == 200, name
         assert script.headers["content-type"].startswith("text/javascript"), name
+        assert script.headers["cache-control"] == "no-cache", name  # revalidated: no mixed versions
         scripts[name] = script.text
         pending += re.findall(r'^import .* from "\./([\w-]+\.js)";$', script.text, re.M)
     assert set(scripts) == {path.name for path in STATIC_DIR.glob("*.js")}  # none left out
