@@ -190,3 +190,20 @@ def test_mask_overlay_tints_the_background_and_outlines_the_object() -> None:
     assert np.array_equal(overlay[30, 40], [230, 230, 230])  # object inside: untouched
     assert overlay[2, 2, 2] > overlay[2, 2, 0]  # background: tinted blue
     assert not np.array_equal(overlay[15, 40], [230, 230, 230])  # the outline
+
+
+REAL_PHOTOS = Path(__file__).resolve().parents[2] / ".." / "shared" / "eval" / "photos"
+
+
+@needs_learned
+@pytest.mark.skipif(not REAL_PHOTOS.is_dir(), reason="../shared/eval/photos absent")
+@pytest.mark.parametrize("name", ["ners_espresso", "raydiffusion_robot"])
+def test_learned_masks_match_the_shipped_masks_of_real_phone_photos(name: str) -> None:
+    from cadnerf_core.intake.photos import load_photos
+
+    folder = REAL_PHOTOS / name
+    paths = sorted((folder / "images").iterdir())
+    shipped = load_photos(paths, [folder / "masks" / f"{p.stem}.png" for p in paths])
+    found = photo_masks([Photo(p.name, p.rgb) for p in shipped], "auto")
+    ious = [_iou(r.mask, p.mask) for r, p in zip(found, shipped, strict=True) if p.mask is not None]
+    assert len(ious) == len(paths) and np.mean(ious) > 0.88 and min(ious) > 0.7
