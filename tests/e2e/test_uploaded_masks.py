@@ -96,7 +96,7 @@ def test_without_uploaded_masks_a_photo_uses_its_alpha_else_background_removal(
     files += [("images", (f"{stem}.jpg", _jpeg_on_white(path), "image/jpeg"))
               for stem, path in zip("bc", sources[1:], strict=True)]
     result = _run(live_service.url, files, live_service.log_tail)
-    assert [p["mask_source"] for p in result["photos"]] == ["alpha", "grabcut", "grabcut"]
+    assert [p["mask_source"] for p in result["photos"]] == ["alpha", "learned", "learned"]
     with Image.open(sources[0]) as image:
         alpha = np.asarray(image.convert("RGBA"))[..., 3] > 127
     assert np.array_equal(_used_mask(live_service.url, result, 0), alpha)
