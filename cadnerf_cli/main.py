@@ -38,6 +38,8 @@ def _register() -> None:
     service_cmd.register(app)
     from cadnerf_cli import dataset_cmd
     dataset_cmd.register(app)
+    from cadnerf_cli import masks_cmd
+    masks_cmd.register(app)
 
 
 _register()

@@ -56,20 +56,6 @@ def read_job_config(job_dir: Path) -> PipelineConfig:
         raise InputError(f"invalid configuration: {exc}", item=CONFIG) from exc
 
 
-def _mask_overlay(rgb: np.ndarray, mask: np.ndarray) -> np.ndarray:
-    """Stand-in for ``cadnerf_core.intake.masks.mask_overlay``: the photo, its background
-    dimmed and tinted, the mask's outline drawn. rgb [H, W, 3] float in [0, 1], mask [H, W]
-    bool -> [H, W, 3] uint8."""
-    from scipy import ndimage
-
-    picture = np.clip(np.asarray(rgb, np.float32), 0.0, 1.0)
-    tint = np.array([0.15, 0.2, 0.45], np.float32)
-    picture = np.where(mask[..., None], picture, 0.35 * picture + tint)
-    edge = mask & ~ndimage.binary_erosion(mask, iterations=max(1, max(mask.shape) // 300))
-    picture[edge] = (1.0, 0.85, 0.0)
-    return (picture * 255 + 0.5).astype(np.uint8)
-
-
 def _overlay_sized(rgb: np.ndarray, mask: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """The photo and its mask shrunk to the stored overlay's size (``OVERLAY_SIDE``), so the
     picture costs milliseconds, not a pass over 12 megapixels."""
@@ -90,7 +76,7 @@ def run_intake(job_dir: Path, library: Library, config: PipelineConfig,
     """Read photos and masks, remove backgrounds where needed (``mask_model``: the ONNX model
     of the learned method, None for the built-in one), keep the masks with their overlays,
     sources and warnings, and retrieve model and poses."""
-    from cadnerf_core.intake.masks import photo_masks
+    from cadnerf_core.intake.masks import mask_overlay, photo_masks
     from cadnerf_core.intake.photos import load_photo, with_focal
     from cadnerf_core.retrieval.retrieve import retrieve
 
@@ -103,7 +89,7 @@ def run_intake(job_dir: Path, library: Library, config: PipelineConfig,
     names = [entry.name for entry in inputs]
     found = photo_masks(photos, config.masks.method, model_path=mask_model, progress=progress)
     masks = [result.mask for result in found]
-    folder.write_masks(inputs, found, (_mask_overlay(*_overlay_sized(p.rgb, m))
+    folder.write_masks(inputs, found, (mask_overlay(*_overlay_sized(p.rgb, m))
                                        for p, m in zip(photos, masks, strict=True)))
     for result in found:
         for warning in result.warnings:

