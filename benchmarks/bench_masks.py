@@ -22,17 +22,20 @@ import sys
 import tempfile
 import time
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from benchmarks.retrieval_real import real_set_photos
 from benchmarks.retrieval_walks import EVAL_ROOT
 
+if TYPE_CHECKING:
+    from cadnerf_core.intake.masks import MaskMethod
+
 ROOT = Path(__file__).resolve().parents[1]
 LIBRARY_DIR = ROOT / "library_data" / "build"
 SETS = ("ners_espresso", "raydiffusion_robot")
-METHODS = ("learned", "grabcut", "auto")
+METHODS: tuple[MaskMethod, ...] = ("learned", "grabcut", "auto")
 TARGET_IOU = 0.90
 BIG_SIDES = (4000, 3000)  # a 12 MP phone photo, landscape
 BIG_COUNT = 10
