@@ -58,6 +58,18 @@ def _start_serve(tmp_path: Path, library: Path,
     return serve, f"http://127.0.0.1:{port}", log
 
 
+def _stop(serve: subprocess.Popen[bytes], log: IO[bytes], sig: signal.Signals) -> None:
+    """Send ``sig`` to serve and wait for it to end (killed, and the test failed, after 60 s)."""
+    serve.send_signal(sig)
+    try:
+        serve.wait(60)
+    except subprocess.TimeoutExpired:
+        serve.kill()
+        raise
+    finally:
+        log.close()
+
+
 def _embedded_redis_url(log: Path) -> str:
     found = re.search(r"embedded Redis on (redis://\S+)", log.read_text())
     assert found is not None, log.read_text()[-3000:]
@@ -98,14 +110,7 @@ def test_serve_runs_everything_and_restarts_a_dead_worker(tmp_path: Path,
         assert new_pid != pid and _alive(new_pid)
         assert httpx.get(f"{url}/", timeout=5).status_code == 200
     finally:
-        serve.send_signal(signal.SIGINT)
-        try:
-            serve.wait(60)
-        except subprocess.TimeoutExpired:
-            serve.kill()
-            raise
-        finally:
-            log.close()
+        _stop(serve, log, signal.SIGINT)
     time.sleep(1)
     text = (tmp_path / "serve.log").read_text()
     assert not _alive(new_pid), text[-3000:]
@@ -140,11 +145,4 @@ def test_the_demo_shows_its_progress_within_30_lines(tmp_path: Path,
         assert len(head.splitlines()) <= 30, head
         assert f"starting the service on {url}" in head and f"watch it at {url}/?job=" in head
     finally:
-        serve.send_signal(signal.SIGTERM)
-        try:
-            serve.wait(60)
-        except subprocess.TimeoutExpired:
-            serve.kill()
-            raise
-        finally:
-            log.close()
+        _stop(serve, log, signal.SIGTERM)
