@@ -12,7 +12,7 @@ One job is one folder, written by the app at upload (or the CLI), then by the pi
                               warnings, and the mask and overlay file names
     retrieval.json            model, matches and discarded photos (the retrieval stage)
     poses.json, transforms.json, metrics.json
-    views/NNN.png, orbit.mp4, orbit.gif, mesh.glb, results.zip
+    views/NNN.png, orbit.mp4, orbit.gif, mesh.glb
     checkpoints/phaseN.pt, log.txt, eval/ (held-out renders of an evaluation)
 
 Inputs (photos and uploaded masks) are never downloadable; the masks the job used are.
@@ -54,7 +54,6 @@ METRICS = "metrics.json"
 ORBIT_VIDEO = "orbit.mp4"
 ORBIT_GIF = "orbit.gif"
 MESH = "mesh.glb"
-BUNDLE = "results.zip"
 LOG = "log.txt"
 
 PHOTO_SUFFIXES = (".jpg", ".jpeg", ".png", ".webp", ".heic", ".heif", ".hif", ".avif")
@@ -64,7 +63,7 @@ MEDIA_TYPES: dict[str, str] = {
     ORBIT_VIDEO: "video/mp4", ORBIT_GIF: "image/gif", MESH: "model/gltf-binary",
     POSES: "application/json", TRANSFORMS: "application/json", METRICS: "application/json",
     RETRIEVAL: "application/json", CONFIG: "application/json", MASK_SOURCES: "application/json",
-    LOG: "text/plain", BUNDLE: "application/zip",
+    LOG: "text/plain",
 }
 """The single files a user may download, in listing order, and their Content-Type."""
 

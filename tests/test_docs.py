@@ -100,5 +100,11 @@ def test_every_documented_api_name_exists(dotted: str) -> None:
     pytest.fail(f"{dotted}: no such module in cadnerf_core")
 
 
-def test_the_merge_sections_are_there() -> None:
-    assert "\n## Job folder\n" in DOC and "\n## Job state\n" in DOC
+def test_the_job_folder_section_lists_every_file_the_owner_names() -> None:
+    from cadnerf_core import jobfolder
+
+    section = DOC.split("\n## Job folder\n", 1)[1].split("\n## ", 1)[0]
+    names = [jobfolder.INPUTS, jobfolder.CONFIG, jobfolder.RETRIEVAL, jobfolder.MASK_SOURCES,
+             jobfolder.POSES, jobfolder.TRANSFORMS, jobfolder.METRICS, jobfolder.ORBIT_VIDEO,
+             jobfolder.MESH, jobfolder.LOG, jobfolder.overlay_name(0).replace("000", "NNN")]
+    assert [n for n in names if n not in section] == []
