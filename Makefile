@@ -16,7 +16,7 @@ export PIP_DISABLE_PIP_VERSION_CHECK := 1
 
 .PHONY: setup library run test lint typecheck pytest bench clean
 
-setup: $(STAMP)/venv
+setup: $(STAMP)/venv $(STAMP)/web
 
 # torch goes in first, from the local CPU wheel: anything that depends on torch installed before
 # it would pull a multi-gigabyte CUDA build from the registry.
@@ -28,6 +28,16 @@ $(STAMP)/venv: pyproject.toml
 	@$(PY) -m pip install -qq torch==2.13.0
 	@$(PY) -m pip install -qq -e '.[dev]'
 	@touch $@
+
+# The result page's 3D viewer (@google/model-viewer, served by our own server) and the glTF
+# validator the tests run, from npm into web/node_modules (git-ignored). Without npm the page
+# falls back to spinning through the orbit frames and the validator test is skipped.
+$(STAMP)/web: web/package.json web/package-lock.json
+	@mkdir -p $(STAMP)
+	@if command -v npm >/dev/null; then \
+		echo "installing the web viewer and glTF validator from npm into web/node_modules"; \
+		npm ci --prefix web --no-audit --no-fund --silent && touch $@; \
+	else echo "npm not found: the result page spins orbit frames instead of the 3D viewer"; fi
 
 library: setup
 	@$(CADNERF) library build --out $(LIBRARY_DIR) --if-stale

@@ -166,20 +166,25 @@ class Phase3Config(_Frozen):
 class ExportConfig(_Frozen):
     """What the job writes."""
 
-    orbit_frames: int = Field(default=60, ge=2, le=720)
-    """Frames in orbit.mp4 and orbit.gif."""
+    orbit_frames: int = Field(default=180, ge=2, le=720)
+    """Frames in orbit.mp4 and orbit.gif (with ``orbit_fps``: the orbit's length, 6 s)."""
     orbit_fps: int = Field(default=30, ge=1, le=120)
     """Frames per second of the video."""
     orbit_elevation: float = Field(default=20.0, ge=-89.0, le=89.0)
     """Elevation of the orbit camera in degrees."""
-    orbit_size: int = Field(default=256, ge=16, le=2048)
-    """Side of orbit frames in pixels (even, for H.264 yuv420p)."""
+    orbit_size: int = Field(default=512, ge=16, le=2048)
+    """The output size: side in pixels of the orbit frames and of views/ (even, for H.264
+    yuv420p), whatever the training resolution."""
     novel_views: int = Field(default=4, ge=0, le=64)
     """Extra views rendered at new poses into views/, after the ones at the photo poses."""
     mesh_resolution: int = Field(default=96, ge=16, le=512)
     """Marching-cubes grid side for mesh.glb."""
     mesh_level: float = Field(default=0.5, gt=0.0, lt=1.0)
     """Occupancy level of the extracted surface."""
+    mesh_faces: int = Field(default=20000, ge=100, le=1_000_000)
+    """Triangles mesh.glb is decimated to (fewer when marching cubes gives fewer)."""
+    texture_size: int = Field(default=1024, ge=16, le=4096)
+    """Side in pixels of the mesh's baked colour texture."""
 
     @model_validator(mode="after")
     def _even(self) -> ExportConfig:
@@ -307,7 +312,7 @@ PRESETS: dict[str, PipelineConfig] = {
         phase3={"steps": 20000, "rays": 2048, "mask_weight": 0.0, "scene_steps": 5000,
                 "lambda_offset": 10.0, "lambda_correction": 0.1, "pose_window": (0.0, 0.0),
                 "pose_blur": 0.0},
-        export={"orbit_size": 256, "mesh_resolution": 160}),
+        export={"orbit_size": 512, "mesh_resolution": 160}),
     # The default: best quality in about a minute on a GPU at 256 px. Few large steps: on a
     # GPU a step of these small networks costs about the same whatever its batch.
     "standard": _preset(
@@ -317,7 +322,7 @@ PRESETS: dict[str, PipelineConfig] = {
         phase1={"steps": 200, "batch_points": 32768},
         phase2={"steps": 500, "rays": 8192},
         phase3={"steps": 1000, "rays": 8192, "scene_steps": 250},
-        export={"orbit_size": 256, "mesh_resolution": 128}),
+        export={"orbit_size": 512, "mesh_resolution": 128}),
     # A useful result in minutes on 2 CPU cores at 128 px. No G: D is fitted to the silhouettes
     # in its place, as good within a seed's spread and faster at this scale.
     "preview": _preset(
@@ -327,7 +332,7 @@ PRESETS: dict[str, PipelineConfig] = {
         phase1={"steps": 200, "batch_points": 4096},
         phase2={"steps": 400, "rays": 1024},
         phase3={"steps": 2000, "rays": 1024, "scene_steps": 300},
-        export={"orbit_size": 128, "mesh_resolution": 64}),
+        export={"orbit_size": 256, "orbit_frames": 90, "orbit_fps": 15, "mesh_resolution": 64}),
 }
 """The named presets a job may start from; ``standard`` is the default."""
 

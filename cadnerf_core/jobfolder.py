@@ -12,7 +12,11 @@ One job is one folder, written by the app at upload (or the CLI), then by the pi
                               warnings, and the mask and overlay file names
     retrieval.json            model, matches and discarded photos (the retrieval stage)
     poses.json, transforms.json, metrics.json
-    views/NNN.png, orbit.mp4, orbit.gif, mesh.glb
+    views/NNN.png, orbit.mp4, orbit.gif, mesh.glb, mesh.obj, mesh.mtl, mesh_texture.png
+    images/NNN_<stem>.<ext>   the photos for other tools: the upload itself (linked) when it is
+                              an upright JPEG or PNG, else its upright pixels as PNG
+    sparse/0/cameras.txt, sparse/0/images.txt, sparse/0/points3D.txt   a COLMAP text model
+    results.zip               images/, masks/, transforms.json, sparse/0/, poses.json, meshes
     checkpoints/phaseN.pt, log.txt, eval/ (held-out renders of an evaluation)
 
 Inputs (photos and uploaded masks) are never downloadable; the masks the job used are.
@@ -54,6 +58,15 @@ METRICS = "metrics.json"
 ORBIT_VIDEO = "orbit.mp4"
 ORBIT_GIF = "orbit.gif"
 MESH = "mesh.glb"
+MESH_OBJ = "mesh.obj"
+MESH_MTL = "mesh.mtl"
+MESH_TEXTURE = "mesh_texture.png"
+IMAGES = "images"
+SPARSE = "sparse/0"
+COLMAP_CAMERAS = f"{SPARSE}/cameras.txt"
+COLMAP_IMAGES = f"{SPARSE}/images.txt"
+COLMAP_POINTS = f"{SPARSE}/points3D.txt"
+BUNDLE = "results.zip"
 LOG = "log.txt"
 
 PHOTO_SUFFIXES = (".jpg", ".jpeg", ".png", ".webp", ".heic", ".heif", ".hif", ".avif")
@@ -61,8 +74,11 @@ PHOTO_SUFFIXES = (".jpg", ".jpeg", ".png", ".webp", ".heic", ".heif", ".hif", ".
 
 MEDIA_TYPES: dict[str, str] = {
     ORBIT_VIDEO: "video/mp4", ORBIT_GIF: "image/gif", MESH: "model/gltf-binary",
+    MESH_OBJ: "model/obj", MESH_MTL: "model/mtl", MESH_TEXTURE: "image/png",
+    BUNDLE: "application/zip",
     POSES: "application/json", TRANSFORMS: "application/json", METRICS: "application/json",
     RETRIEVAL: "application/json", CONFIG: "application/json", MASK_SOURCES: "application/json",
+    COLMAP_CAMERAS: "text/plain", COLMAP_IMAGES: "text/plain", COLMAP_POINTS: "text/plain",
     LOG: "text/plain",
 }
 """The single files a user may download, in listing order, and their Content-Type."""
@@ -72,7 +88,10 @@ OVERLAY_SIDE = 1024
 """Longest side of a stored overlay in pixels: a picture to look at on a page (the mask
 itself keeps the photo's size)."""
 
-_NUMBERED = re.compile(rf"^(?:{VIEWS}/\d{{3}}\.png|{MASKS}/\d{{3}}(?:\.png|{OVERLAY_SUFFIX}))$")
+_NUMBERED = re.compile(rf"^(?:{VIEWS}/\d{{3}}\.png|{MASKS}/\d{{3}}(?:\.png|{OVERLAY_SUFFIX})"
+                       rf"|{IMAGES}/\d{{3}}_[A-Za-z0-9_-]+\.(?:jpg|jpeg|png))$")
+BUNDLE_IMAGE_SUFFIXES = (".jpg", ".jpeg", ".png")
+"""Photo types copied into ``images/`` as uploaded (every tool reads them); others become PNG."""
 _PHOTO_INDEX = re.compile(r"^(\d{3})_")
 
 MaskSource = Literal["uploaded", "alpha", "learned", "grabcut"]
@@ -109,6 +128,12 @@ def overlay_name(index: int) -> str:
     return f"{MASKS}/{index:03d}{OVERLAY_SUFFIX}"
 
 
+def bundle_image_name(photo: Path | str, as_uploaded: bool) -> str:
+    """``images/<stored name>`` for a photo kept as uploaded, else ``images/<stored stem>.png``."""
+    name = PurePosixPath(Path(photo).name)
+    return f"{IMAGES}/{name if as_uploaded else name.with_suffix('.png')}"
+
+
 def is_artifact_name(name: str) -> bool:
     """Whether ``name`` is one a user may download (a fixed file, a view, a used mask or its
     overlay)."""
@@ -120,7 +145,7 @@ def media_type(name: str) -> str:
     if name in MEDIA_TYPES:
         return MEDIA_TYPES[name]
     if _NUMBERED.match(name):
-        return "image/jpeg" if name.endswith(".jpg") else "image/png"
+        return "image/jpeg" if name.endswith((".jpg", ".jpeg")) else "image/png"
     return "application/octet-stream"
 
 
@@ -300,16 +325,18 @@ class JobFolder:
         """``retrieval.json``, None before retrieval ran. Raises ValueError on a broken file."""
         return self._read_object(RETRIEVAL)
 
-    def write_poses(self, model_id: str, photos: list[dict[str, Any]]) -> None:
-        """Write ``poses.json``: the model id and one entry per photo."""
-        write_json(self.root / POSES, {"model_id": model_id, "photos": photos})
+    def write_poses(self, model_id: str, photos: list[dict[str, Any]],
+                    extra: dict[str, Any] | None = None) -> None:
+        """Write ``poses.json``: the model id, one entry per photo, and ``extra`` keys (its
+        ``conventions``, the ``novel_views``)."""
+        write_json(self.root / POSES, {"model_id": model_id, "photos": photos, **(extra or {})})
 
     def read_poses(self) -> dict[str, Any] | None:
         """``poses.json`` (``{"model_id", "photos"}``), None before export."""
         return self._read_object(POSES)
 
     def write_transforms(self, data: dict[str, Any]) -> None:
-        """Write ``transforms.json`` (NeRF-synthetic layout)."""
+        """Write ``transforms.json`` (nerfstudio-data layout, NeRF-synthetic compatible)."""
         write_json(self.root / TRANSFORMS, data)
 
     def write_metrics(self, data: dict[str, Any]) -> None:
@@ -381,13 +408,61 @@ class JobFolder:
         """``eval/``: held-out renders written by an evaluation."""
         return self.root / EVAL
 
+    # Files for other tools: photos, COLMAP model, bundle.
+
+    def add_bundle_image(self, photo: InputPhoto, pixels: np.ndarray | None) -> str:
+        """Store a photo under ``images/`` for other tools. Returns its name.
+
+        Args:
+            photo: the stored photo; pixels: None to keep the upload itself (a hard link where
+                the file system allows, else a copy), or its upright pixels [H, W, 3] uint8.
+        """
+        name = bundle_image_name(photo.path, pixels is None)
+        target = self.root / name
+        target.parent.mkdir(parents=True, exist_ok=True)
+        target.unlink(missing_ok=True)
+        if pixels is not None:
+            with atomic_path(target) as tmp:
+                Image.fromarray(np.asarray(pixels, np.uint8), "RGB").save(tmp, format="PNG")
+            return name
+        try:
+            os.link(photo.path, target)
+        except OSError:
+            shutil.copyfile(photo.path, target)
+        return name
+
+    def write_text(self, name: str, text: str) -> None:
+        """Write a text file named by one of this module's constants (``COLMAP_CAMERAS``...)."""
+        with atomic_path(self.root / name) as tmp:
+            tmp.write_text(text, encoding="utf-8")
+
+    def bundle_members(self) -> list[str]:
+        """What ``results.zip`` holds, of the files present: photos, used masks (no overlays),
+        ``transforms.json``, the COLMAP model, ``poses.json``, metrics, meshes and renders."""
+        names = [n for n in self.artifacts() if n not in (BUNDLE, LOG, CONFIG, MASK_SOURCES)
+                 and not n.endswith(OVERLAY_SUFFIX)]
+        return sorted(names, key=lambda n: (not n.startswith(f"{IMAGES}/"), n))
+
+    def write_bundle(self) -> list[str]:
+        """Write ``results.zip`` of ``bundle_members`` (already-compressed media stored, text
+        deflated), paths inside as in the job folder. Returns the members."""
+        import zipfile
+
+        members = self.bundle_members()
+        stored = (".png", ".jpg", ".jpeg", ".mp4", ".gif", ".glb")
+        with atomic_path(self.root / BUNDLE) as tmp, zipfile.ZipFile(tmp, "w") as bundle:
+            for name in members:
+                method = zipfile.ZIP_STORED if name.endswith(stored) else zipfile.ZIP_DEFLATED
+                bundle.write(self.root / name, name, compress_type=method)
+        return members
+
     # Downloads.
 
     def artifacts(self) -> list[str]:
         """Names of the downloadable files present: fixed files, then views, then used masks
         and their overlays."""
         names = [n for n in MEDIA_TYPES if (self.root / n).is_file()]
-        for folder in (VIEWS, MASKS):
+        for folder in (VIEWS, MASKS, IMAGES):
             if (self.root / folder).is_dir():
                 names += sorted(n for p in (self.root / folder).iterdir()
                                 if _NUMBERED.match(n := f"{folder}/{p.name}") and p.is_file())

@@ -23,7 +23,8 @@ TINY_OVERRIDES: dict[str, Any] = {
     "phase1": {"steps": 4, "batch_points": 256},
     "phase2": {"steps": 6, "rays": 64},
     "phase3": {"steps": 6, "rays": 64, "scene_steps": 3},
-    "export": {"orbit_frames": 4, "orbit_size": 32, "novel_views": 1, "mesh_resolution": 16},
+    "export": {"orbit_frames": 4, "orbit_size": 32, "novel_views": 1, "mesh_resolution": 16,
+               "texture_size": 64},
 }
 
 

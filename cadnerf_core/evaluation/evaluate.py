@@ -130,7 +130,7 @@ def _render_held_out(model: TrainedModel, test: Dataset, c2w_nerf: np.ndarray, K
                      out_dir: Path, lpips_net: LpipsNet | None, size: int | None,
                      ) -> tuple[list[ImageMetrics], list[str]]:
     """Render every held-out view, save it, and score it against the ground truth."""
-    from cadnerf_core.export.artifacts import write_png
+    from cadnerf_core.export.media import write_png
 
     out_dir.mkdir(parents=True, exist_ok=True)
     scores, paths = [], []

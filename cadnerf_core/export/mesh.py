@@ -1,0 +1,111 @@
+"""The mesh: marching cubes on the learned density, decimated, textured from the colour field.
+
+Written as ``mesh.glb`` (binary glTF 2.0: +Y up as glTF wants, which is our world's up; one
+unit = the radius of the object's bounding sphere, not metres, as ``poses.json`` says) and as
+``mesh.obj`` + ``mesh.mtl`` + ``mesh_texture.png`` for tools without glTF.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+import numpy as np
+import trimesh
+
+from cadnerf_core.export.texture import TexturedMesh, bake_texture, decimate
+from cadnerf_core.jobfolder import MESH, MESH_MTL, MESH_OBJ, MESH_TEXTURE, JobFolder, atomic_path
+from cadnerf_core.progress import Progress
+
+if TYPE_CHECKING:
+    from cadnerf_core.nerf.model import TrainedModel
+
+
+def extract_mesh(occupancy: np.ndarray, bound: float, level: float) -> trimesh.Trimesh:
+    """Marching cubes (scikit-image) on an occupancy grid over [-bound, bound]^3.
+
+    A field that never crosses ``level`` (barely trained) is cut halfway between its extremes
+    instead, so there is always a surface unless the field is constant.
+
+    Args:
+        occupancy: [G, G, G] values, index order x, y, z.
+    Returns:
+        The mesh in world coordinates (no colours yet).
+    Raises:
+        ValueError: the field is constant (nothing to extract).
+    """
+    from skimage.measure import marching_cubes
+
+    lo, hi = float(occupancy.min()), float(occupancy.max())
+    if hi - lo < 1e-6:
+        raise ValueError("the density field is constant: no surface to extract")
+    if not lo < level < hi:
+        level = (lo + hi) / 2.0
+    # Pad with empty space so the surface closes at the grid's border.
+    padded = np.pad(occupancy, 1, constant_values=min(lo, 0.0))
+    G = occupancy.shape[0]
+    spacing = 2.0 * bound / (G - 1)
+    verts, faces, _, _ = marching_cubes(padded, level=level, spacing=(spacing,) * 3)
+    verts = verts - bound - spacing
+    # Occupancy grows inward, so scikit-image's triangles face into the object: flip them
+    # (vertex normals then follow from the faces).
+    return trimesh.Trimesh(vertices=verts, faces=faces[:, ::-1], process=False)
+
+
+def write_glb(path: Path, mesh: TexturedMesh) -> None:
+    """Write the textured mesh as binary glTF (with vertex normals, so it shades smoothly),
+    atomically."""
+    with atomic_path(path) as tmp:
+        data = mesh.to_trimesh().export(file_type="glb", include_normals=True)
+        assert isinstance(data, bytes)
+        tmp.write_bytes(data)
+
+
+def obj_text(mesh: TexturedMesh, mtl_name: str) -> str:
+    """Wavefront OBJ of the textured mesh: positions, UVs, one material; faces ``v/vt``."""
+    lines = ["# CAD-NeRF mesh: +Y up, 1 unit = the object's bounding-sphere radius",
+             f"mtllib {mtl_name}", "o mesh"]
+    lines += [f"v {x:.6f} {y:.6f} {z:.6f}" for x, y, z in mesh.vertices]
+    lines += [f"vt {u:.6f} {v:.6f}" for u, v in mesh.uv]
+    lines.append("usemtl baked")
+    lines += [f"f {a}/{a} {b}/{b} {c}/{c}" for a, b, c in mesh.faces + 1]
+    return "\n".join(lines) + "\n"
+
+
+def mtl_text(texture_name: str) -> str:
+    """The OBJ material: diffuse colour from the texture, no specular highlight."""
+    return ("newmtl baked\nKa 0 0 0\nKd 1 1 1\nKs 0 0 0\nNs 0\nillum 1\nd 1\n"
+            f"map_Kd {texture_name}\n")
+
+
+def write_obj(folder: JobFolder, mesh: TexturedMesh) -> None:
+    """``mesh.obj``, ``mesh.mtl`` and ``mesh_texture.png`` (names relative to each other)."""
+    from PIL import Image
+
+    with atomic_path(folder.file(MESH_TEXTURE)) as tmp:
+        Image.fromarray(mesh.texture, "RGB").save(tmp, format="PNG")
+    folder.write_text(MESH_MTL, mtl_text(Path(MESH_TEXTURE).name))
+    folder.write_text(MESH_OBJ, obj_text(mesh, Path(MESH_MTL).name))
+
+
+def export_mesh(job_dir: Path, model: TrainedModel,
+                progress: Progress | None = None) -> TexturedMesh:
+    """mesh.glb and mesh.obj: marching cubes on the learned occupancy, decimated to
+    ``export.mesh_faces`` triangles, its colour baked into an ``export.texture_size`` texture.
+    Returns the textured mesh."""
+    ecfg = model.state.config.export
+    G, bound = ecfg.mesh_resolution, model.state.config.render.bound
+    axis = np.linspace(-bound, bound, G, dtype=np.float32)
+    points = np.stack(np.meshgrid(axis, axis, axis, indexing="ij"), -1).reshape(-1, 3)
+    check = None if progress is None else progress.check
+    values = model.occupancy(points, check=check).reshape(G, G, G)
+    mesh = decimate(extract_mesh(values, bound, ecfg.mesh_level), ecfg.mesh_faces)
+
+    def color(p: np.ndarray, d: np.ndarray) -> np.ndarray:
+        return model.colors(p, d, check=check)
+
+    textured = bake_texture(mesh, color, ecfg.texture_size)
+    folder = JobFolder(job_dir)
+    write_glb(folder.file(MESH), textured)
+    write_obj(folder, textured)
+    return textured
