@@ -1,4 +1,5 @@
-"""The web page at `/` (plain HTML, CSS and JavaScript in app/static)."""
+"""The web page at `/` (plain HTML, CSS and JavaScript in app/static) and the browser modules
+it loads from npm packages (`/vendor/...`, installed into web/node_modules by `make setup`)."""
 
 from __future__ import annotations
 
@@ -8,7 +9,14 @@ from pathlib import Path
 from fastapi import APIRouter
 from fastapi.responses import FileResponse
 
+from app.errors import ApiError
+
 STATIC_DIR = Path(__file__).resolve().parents[1] / "static"
+WEB_MODULES = Path(__file__).resolve().parents[2] / "web" / "node_modules"
+VENDOR: dict[str, Path] = {
+    "model-viewer.js": WEB_MODULES / "@google" / "model-viewer" / "dist" / "model-viewer.min.js",
+}
+"""Browser modules served from our own server (no CDN): name -> file of an npm package."""
 # The page is ES modules, which browsers run only when served as JavaScript; some systems' type
 # tables (the Windows registry) say text/plain for .js.
 mimetypes.add_type("text/javascript", ".js")
@@ -20,3 +28,14 @@ router = APIRouter(tags=["pages"])
 def index() -> FileResponse:
     """The upload-and-watch page."""
     return FileResponse(STATIC_DIR / "index.html", media_type="text/html")
+
+
+@router.get("/vendor/{name}", include_in_schema=False)
+def vendor(name: str) -> FileResponse:
+    """A browser module from an installed npm package; 404 when it is not installed (the page
+    then falls back to what it can do without it)."""
+    path = VENDOR.get(name)
+    if path is None or not path.is_file():
+        raise ApiError(404, "not_installed", f"no browser module {name[:80]!r} on this server",
+                       hint="run `make setup` (npm ci --prefix web) to install the 3D viewer")
+    return FileResponse(path, media_type="text/javascript", headers={"Cache-Control": "no-cache"})

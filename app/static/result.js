@@ -1,6 +1,7 @@
 // A finished job: orbit video, model, matches table, cameras from above, masks, downloads.
 import { $, showNotice } from "./page.js";
 import { api, apiKey, artifactUrl } from "./api.js";
+import { attachViewer } from "./viewer.js";
 
 const SVG_NS = "http://www.w3.org/2000/svg";
 
@@ -12,6 +13,7 @@ export async function showResult(jobId) {
     video.src = await artifactUrl(result.artifacts["orbit.mp4"]);
     video.play().catch(() => {});
   }
+  attachViewer(result.artifacts, video).catch((err) => showNotice(`the 3D view could not be shown: ${err.message}`));
   const category = result.model.category ? ` (${result.model.category})` : "";
   $("model").textContent = `Retrieved CAD model: ${result.model.id}${category}`;
   const warnings = $("warnings");

@@ -1,0 +1,199 @@
+"""Export benchmark: time and size of what a finished job writes, at the ``preview`` preset.
+
+One ``preview`` job (6 photos of a library model, 128 px training crops, CPU) is trained with
+``run_job``; ``metrics.json`` then holds the export's own timings (views, orbit, textured mesh,
+files for other tools). On the same trained model the benchmark also times, apart:
+
+- the orbit and views at the output size ``preview`` had before it named one (128 px, 60
+  frames at 30 fps, 2 s) against today's (``export.orbit_size``, ``orbit_frames`` at
+  ``orbit_fps``), so the cost of the sharper, longer orbit is a difference of two runs;
+- the mesh in steps: density grid and marching cubes, decimation, UV unwrap and texture bake,
+  and the one colour query per vertex a vertex-coloured mesh needs instead of the bake.
+
+Usage: ``python -m benchmarks.bench_export [--threads N] [--model ID] [--library DIR]``
+(``--threads 2``: the two-core figure).
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import tempfile
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+LIBRARY_DIR = Path(__file__).resolve().parents[1] / "library_data" / "build"
+MODEL = "mug"
+N_PHOTOS = 6
+PHOTO_SIZE = 256
+BEFORE = {"orbit_size": 128, "orbit_frames": 60, "orbit_fps": 30}
+"""The preview preset's orbit before it named an output size (the training size, 2 s)."""
+
+
+def write_photos(job_dir: Path, library: Any, model_id: str) -> None:
+    """``N_PHOTOS`` RGBA renders of a library model walking round it, and the preview config."""
+    from PIL import Image
+
+    from cadnerf_core.cameras import intrinsics_from_fov, orbit_pose
+    from cadnerf_core.config import resolve_config
+    from cadnerf_core.jobfolder import JobFolder
+    from cadnerf_core.mesh.renderer import MeshRenderer
+
+    renderer = MeshRenderer(library.mesh(model_id))
+    K = intrinsics_from_fov(40.0, PHOTO_SIZE)
+    folder = JobFolder(job_dir)
+    for i in range(N_PHOTOS):
+        view = renderer.render(K, orbit_pose(15.0 + 45.0 * i, 20.0, 4.0), PHOTO_SIZE, PHOTO_SIZE)
+        rgba = np.dstack([(view.rgb * 255).astype(np.uint8), view.mask.astype(np.uint8) * 255])
+        Image.fromarray(rgba, "RGBA").save(folder.new_photo_path(i, "photo", "png"))
+    folder.write_config(resolve_config("preview"))
+
+
+def timed(fn: Any, *args: Any) -> tuple[Any, float]:
+    """``fn(*args)`` and its wall time in seconds."""
+    start = time.perf_counter()
+    out = fn(*args)
+    return out, time.perf_counter() - start
+
+
+def time_orbit_and_views(job_dir: Path, model: Any, data: Any, export: dict[str, Any],
+                         out: Path) -> tuple[float, float]:
+    """Seconds of ``render_views`` and ``render_orbit`` with ``export`` settings, into ``out``."""
+    from cadnerf_core.export.renders import render_orbit, render_views
+    from cadnerf_core.progress import Progress
+
+    config = model.state.config
+    model.state.config = config.model_copy(
+        update={"export": config.export.model_copy(update=export)})
+    try:
+        _, views_s = timed(render_views, out, model, data, Progress(), 1)
+        _, orbit_s = timed(render_orbit, out, model, data, Progress(), 0, 1)
+    finally:
+        model.state.config = config
+    return views_s, orbit_s
+
+
+def time_mesh_steps(model: Any) -> dict[str, float]:
+    """Seconds of each step of the textured mesh, and of a vertex-coloured mesh's colour query."""
+    from cadnerf_core.export.mesh import extract_mesh
+    from cadnerf_core.export.texture import bake_texture, decimate
+
+    ecfg, bound = model.state.config.export, model.state.config.render.bound
+    start = time.perf_counter()
+    axis = np.linspace(-bound, bound, ecfg.mesh_resolution, dtype=np.float32)
+    points = np.stack(np.meshgrid(axis, axis, axis, indexing="ij"), -1).reshape(-1, 3)
+    values = model.occupancy(points).reshape((ecfg.mesh_resolution,) * 3)
+    surface = extract_mesh(values, bound, ecfg.mesh_level)
+    grid_s = time.perf_counter() - start
+    normals = np.asarray(surface.vertex_normals, np.float32)
+    _, vertex_colours_s = timed(model.colors, np.asarray(surface.vertices, np.float32), -normals)
+    small, decimate_s = timed(decimate, surface, ecfg.mesh_faces)
+    _, bake_s = timed(bake_texture, small, model.colors, ecfg.texture_size)
+    return {"grid_s": grid_s, "vertex_colours_s": vertex_colours_s, "decimate_s": decimate_s,
+            "bake_s": bake_s, "faces_before": float(len(surface.faces)),
+            "faces": float(len(small.faces))}
+
+
+def sizes(job_dir: Path) -> dict[str, int]:
+    """Bytes of the new outputs."""
+    from cadnerf_core.jobfolder import (
+        BUNDLE,
+        COLMAP_POINTS,
+        MESH,
+        MESH_OBJ,
+        MESH_TEXTURE,
+        ORBIT_GIF,
+        ORBIT_VIDEO,
+        JobFolder,
+    )
+
+    folder = JobFolder(job_dir)
+    return {name: folder.file(name).stat().st_size for name in
+            (ORBIT_VIDEO, ORBIT_GIF, MESH, MESH_OBJ, MESH_TEXTURE, COLMAP_POINTS, BUNDLE)}
+
+
+def measure(library_dir: Path, model_id: str, work: Path) -> dict[str, Any]:
+    """Train one preview job and time its export. Returns the figures."""
+    from cadnerf_core.jobfolder import JobFolder
+    from cadnerf_core.library.format import load_library
+    from cadnerf_core.nerf.model import TrainedModel
+    from cadnerf_core.pipeline import read_job_config, run_intake, run_job, training_data
+    from cadnerf_core.progress import Progress
+
+    library = load_library(library_dir)
+    job_dir = work / "job"
+    write_photos(job_dir, library, model_id)
+    _, job_s = timed(run_job, job_dir, library, None, "cpu")
+    metrics = JobFolder(job_dir).read_metrics() or {}
+    model = TrainedModel.load(job_dir, "cpu")
+    config = read_job_config(job_dir)
+    intake = run_intake(job_dir, library, config, Progress(), None)
+    data = training_data(intake, config, library.spec.margin, model.state.device)
+    now = {k: getattr(config.export, k) for k in BEFORE}
+    before_views, before_orbit = time_orbit_and_views(job_dir, model, data, BEFORE, work / "a")
+    after_views, after_orbit = time_orbit_and_views(job_dir, model, data, now, work / "b")
+    return {"job_s": job_s, "timings": metrics.get("timings_s", {}), "now": now,
+            "views_before_s": before_views, "views_after_s": after_views,
+            "orbit_before_s": before_orbit, "orbit_after_s": after_orbit,
+            "mesh": time_mesh_steps(model), "sizes": sizes(job_dir),
+            "texture_size": config.export.texture_size}
+
+
+def report(f: dict[str, Any], threads: int) -> str:
+    """The markdown section."""
+    t, m, now = f["timings"], f["mesh"], f["now"]
+    added_orbit = f["orbit_after_s"] - f["orbit_before_s"]
+    added_views = f["views_after_s"] - f["views_before_s"]
+    added_texture = m["decimate_s"] + m["bake_s"] - m["vertex_colours_s"]
+    mib = {k: v / 2**20 for k, v in f["sizes"].items()}
+    return "\n".join([
+        "## Export (preview)", "",
+        f"One `preview` job ({N_PHOTOS} photos of `{MODEL}`, CPU, torch threads: {threads}); "
+        f"whole job {f['job_s']:.1f} s, of which export {t.get('export_s', 0):.1f} s: views "
+        f"{t.get('views_s', 0):.1f} s, orbit {t.get('orbit_s', 0):.1f} s, textured mesh "
+        f"{t.get('mesh_s', 0):.1f} s, files for other tools and results.zip "
+        f"{t.get('bundle_s', 0):.1f} s. Command: `python -m benchmarks.bench_export "
+        f"--threads {threads}`.", "",
+        "| part | before | now | added |", "| --- | --- | --- | --- |",
+        f"| orbit ({BEFORE['orbit_size']} px, {BEFORE['orbit_frames']} frames -> "
+        f"{now['orbit_size']} px, {now['orbit_frames']} frames at {now['orbit_fps']} fps) | "
+        f"{f['orbit_before_s']:.1f} s | {f['orbit_after_s']:.1f} s | {added_orbit:+.1f} s |",
+        f"| views/ (at {now['orbit_size']} px) | {f['views_before_s']:.1f} s | "
+        f"{f['views_after_s']:.1f} s | {added_views:+.1f} s |",
+        f"| mesh colour: per-vertex query -> decimate ({m['faces_before']:.0f} -> "
+        f"{m['faces']:.0f} faces) + unwrap + {f['texture_size']} px bake | "
+        f"{m['vertex_colours_s']:.1f} s | {m['decimate_s'] + m['bake_s']:.1f} s | "
+        f"{added_texture:+.1f} s |",
+        f"| total added (goal: under 30 s) | | | "
+        f"{added_orbit + added_views + added_texture:+.1f} s |", "",
+        "Sizes: " + ", ".join(f"`{k}` {v:.2f} MiB" for k, v in mib.items()) + ".", ""])
+
+
+def run(quick: bool = False, threads: int | None = 2, library_dir: Path = LIBRARY_DIR,
+        model_id: str = MODEL) -> str:
+    """The markdown section (``quick`` changes nothing: one preview job is the smallest)."""
+    import torch
+
+    if threads:
+        torch.set_num_threads(threads)
+    with tempfile.TemporaryDirectory(prefix="bench_export_") as work:
+        figures = measure(library_dir, model_id, Path(work))
+    return report(figures, torch.get_num_threads())
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Print the section."""
+    parser = argparse.ArgumentParser(description="CAD-NeRF export benchmark")
+    parser.add_argument("--threads", type=int, default=2, help="torch CPU threads")
+    parser.add_argument("--model", default=MODEL, help="library model photographed")
+    parser.add_argument("--library", type=Path, default=LIBRARY_DIR)
+    args = parser.parse_args(argv)
+    sys.stdout.write(run(False, args.threads, args.library, args.model))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
