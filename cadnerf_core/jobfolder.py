@@ -410,27 +410,6 @@ class JobFolder:
 
     # Files for other tools: photos, COLMAP model, bundle.
 
-    def add_bundle_image(self, photo: InputPhoto, pixels: np.ndarray | None) -> str:
-        """Store a photo under ``images/`` for other tools. Returns its name.
-
-        Args:
-            photo: the stored photo; pixels: None to keep the upload itself (a hard link where
-                the file system allows, else a copy), or its upright pixels [H, W, 3] uint8.
-        """
-        name = bundle_image_name(photo.path, pixels is None)
-        target = self.root / name
-        target.parent.mkdir(parents=True, exist_ok=True)
-        target.unlink(missing_ok=True)
-        if pixels is not None:
-            with atomic_path(target) as tmp:
-                Image.fromarray(np.asarray(pixels, np.uint8), "RGB").save(tmp, format="PNG")
-            return name
-        try:
-            os.link(photo.path, target)
-        except OSError:
-            shutil.copyfile(photo.path, target)
-        return name
-
     def write_text(self, name: str, text: str) -> None:
         """Write a text file named by one of this module's constants (``COLMAP_CAMERAS``...)."""
         with atomic_path(self.root / name) as tmp:
@@ -442,19 +421,6 @@ class JobFolder:
         names = [n for n in self.artifacts() if n not in (BUNDLE, LOG, CONFIG, MASK_SOURCES)
                  and not n.endswith(OVERLAY_SUFFIX)]
         return sorted(names, key=lambda n: (not n.startswith(f"{IMAGES}/"), n))
-
-    def write_bundle(self) -> list[str]:
-        """Write ``results.zip`` of ``bundle_members`` (already-compressed media stored, text
-        deflated), paths inside as in the job folder. Returns the members."""
-        import zipfile
-
-        members = self.bundle_members()
-        stored = (".png", ".jpg", ".jpeg", ".mp4", ".gif", ".glb")
-        with atomic_path(self.root / BUNDLE) as tmp, zipfile.ZipFile(tmp, "w") as bundle:
-            for name in members:
-                method = zipfile.ZIP_STORED if name.endswith(stored) else zipfile.ZIP_DEFLATED
-                bundle.write(self.root / name, name, compress_type=method)
-        return members
 
     # Downloads.
 

@@ -15,7 +15,12 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from cadnerf_core.cameras import rotation_angle_deg
-from cadnerf_core.export.bundle import CONVENTIONS, export_for_tools, novel_view_entries
+from cadnerf_core.export.bundle import (
+    CONVENTIONS,
+    export_for_tools,
+    novel_view_entries,
+    write_bundle,
+)
 from cadnerf_core.export.mesh import export_mesh
 from cadnerf_core.export.renders import novel_cameras, render_orbit, render_views
 from cadnerf_core.jobfolder import (
@@ -113,7 +118,7 @@ def export_job(job_dir: Path, model: TrainedModel, retrieval: RetrievalResult,
     timings["export_s"] = time.perf_counter() - start
     metrics = metrics_json(model, retrieval, scores)
     folder.write_metrics(metrics)
-    folder.write_bundle()
+    write_bundle(folder)
     progress.step("export", 3, 3)
     psnr_by_name = {p["name"]: p for p in metrics["photos"]}
     return {"model_id": retrieval.model_id, "category": retrieval.category,

@@ -9,6 +9,9 @@ only that. Every path in it resolves both in the job folder and inside ``results
 
 from __future__ import annotations
 
+import os
+import shutil
+import zipfile
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
@@ -19,6 +22,7 @@ from cadnerf_core.cameras import CV_TO_GL, fov_from_intrinsics
 from cadnerf_core.export.colmap import ColmapCamera, colmap_text
 from cadnerf_core.export.texture import TexturedMesh
 from cadnerf_core.jobfolder import (
+    BUNDLE,
     BUNDLE_IMAGE_SUFFIXES,
     COLMAP_CAMERAS,
     COLMAP_IMAGES,
@@ -27,6 +31,8 @@ from cadnerf_core.jobfolder import (
     MASKS,
     InputPhoto,
     JobFolder,
+    atomic_path,
+    bundle_image_name,
     numbered_name,
 )
 
@@ -63,9 +69,45 @@ def upright_pixels(photo: InputPhoto) -> np.ndarray | None:
         return np.asarray(ImageOps.exif_transpose(image).convert("RGB"))
 
 
+def add_image(folder: JobFolder, photo: InputPhoto, pixels: np.ndarray | None) -> str:
+    """Store a photo under ``images/`` for other tools. Returns its name.
+
+    Args:
+        photo: the stored photo; pixels: None to keep the upload itself (a hard link where the
+            file system allows, else a copy), or its upright pixels [H, W, 3] uint8 (PNG).
+    """
+    from PIL import Image
+
+    name = bundle_image_name(photo.path, pixels is None)
+    target = folder.file(name)
+    target.parent.mkdir(parents=True, exist_ok=True)
+    target.unlink(missing_ok=True)
+    if pixels is not None:
+        with atomic_path(target) as tmp:
+            Image.fromarray(np.asarray(pixels, np.uint8), "RGB").save(tmp, format="PNG")
+        return name
+    try:
+        os.link(photo.path, target)
+    except OSError:
+        shutil.copyfile(photo.path, target)
+    return name
+
+
 def write_images(folder: JobFolder) -> dict[int, str]:
-    """Every photo under ``images/`` (``JobFolder.add_bundle_image``). Returns index -> name."""
-    return {p.index: folder.add_bundle_image(p, upright_pixels(p)) for p in folder.photos()}
+    """Every photo under ``images/`` (``add_image``). Returns index -> name."""
+    return {p.index: add_image(folder, p, upright_pixels(p)) for p in folder.photos()}
+
+
+def write_bundle(folder: JobFolder) -> list[str]:
+    """Write ``results.zip`` of ``JobFolder.bundle_members`` (already-compressed media stored,
+    text deflated), paths inside as in the job folder. Returns the members."""
+    members = folder.bundle_members()
+    stored = (".png", ".jpg", ".jpeg", ".mp4", ".gif", ".glb")
+    with atomic_path(folder.file(BUNDLE)) as tmp, zipfile.ZipFile(tmp, "w") as bundle:
+        for name in members:
+            method = zipfile.ZIP_STORED if name.endswith(stored) else zipfile.ZIP_DEFLATED
+            bundle.write(folder.file(name), name, compress_type=method)
+    return members
 
 
 def nerfstudio_transforms(c2w: np.ndarray, K_photo: Sequence[np.ndarray],

@@ -46,7 +46,7 @@ def test_transforms_paths_resolve_inside_the_bundle(job: Path, unpacked: Path) -
     kept = [p for p in poses["photos"] if not p["discarded"]]
     assert transforms["camera_model"] == "OPENCV" and len(transforms["frames"]) == len(kept)
     for frame, pose in zip(transforms["frames"], kept, strict=True):
-        assert NERFSTUDIO_FRAME_KEYS <= set(frame)
+        assert set(frame) >= NERFSTUDIO_FRAME_KEYS
         image, mask = unpacked / frame["file_path"], unpacked / frame["mask_path"]
         assert image.is_file() and mask.is_file()
         with Image.open(image) as photo, Image.open(mask) as mask_image:

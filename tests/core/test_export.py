@@ -7,7 +7,6 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-import trimesh
 from PIL import Image
 
 from cadnerf_core.cameras import from_transforms_json, intrinsics_from_fov, orbit_pose
