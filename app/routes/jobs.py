@@ -129,7 +129,8 @@ def _check_range(request: Request, response: FileResponse, size: int) -> None:
 @router.head("/{job_id}/artifacts/{name:path}", responses=_ARTIFACT_ERRORS,
              response_class=FileResponse, summary="An artifact's headers, without its body")
 def get_artifact(job: JobDep, store: StoreDep, name: str, request: Request) -> Response:
-    """orbit.mp4, orbit.gif, mesh.glb, poses.json, metrics.json, views/NNN.png, masks/NNN.png...
+    """orbit.mp4, orbit.gif, mesh.glb, mesh.obj, results.zip, poses.json, transforms.json,
+    sparse/0/cameras.txt, images/NNN_name.jpg, views/NNN.png, masks/NNN.png...
 
     Cached privately for a day and marked immutable (a succeeded job's files never change);
     `If-None-Match` with the ETag answers 304; HEAD answers the same headers without a body.
