@@ -10,8 +10,10 @@ files for other tools). On the same trained model the benchmark also times, apar
 - the mesh in steps: density grid and marching cubes, decimation, UV unwrap and texture bake,
   and the one colour query per vertex a vertex-coloured mesh needs instead of the bake.
 
-Usage: ``python -m benchmarks.bench_export [--threads N] [--model ID] [--library DIR]``
-(``--threads 2``: the two-core figure).
+Usage: ``python -m benchmarks.bench_export [--threads N] [--model ID] [--library DIR]
+[--work DIR]`` (``--threads 2``: the two-core figure). With ``--work`` the job folder is kept
+there, and a later run with the same folder resumes the job from its checkpoints: only the
+export runs again, with the same trained fields.
 """
 
 from __future__ import annotations
@@ -125,8 +127,9 @@ def measure(library_dir: Path, model_id: str, work: Path) -> dict[str, Any]:
 
     library = load_library(library_dir)
     job_dir = work / "job"
-    write_photos(job_dir, library, model_id)
-    _, job_s = timed(run_job, job_dir, library, None, "cpu")
+    if not JobFolder(job_dir).has_config():
+        write_photos(job_dir, library, model_id)
+    run_job(job_dir, library, None, "cpu")
     metrics = JobFolder(job_dir).read_metrics() or {}
     model = TrainedModel.load(job_dir, "cpu")
     config = read_job_config(job_dir)
@@ -135,7 +138,7 @@ def measure(library_dir: Path, model_id: str, work: Path) -> dict[str, Any]:
     now = {k: getattr(config.export, k) for k in BEFORE}
     before_views, before_orbit = time_orbit_and_views(job_dir, model, data, BEFORE, work / "a")
     after_views, after_orbit = time_orbit_and_views(job_dir, model, data, now, work / "b")
-    return {"job_s": job_s, "timings": metrics.get("timings_s", {}), "now": now,
+    return {"timings": metrics.get("timings_s", {}), "now": now,
             "views_before_s": before_views, "views_after_s": after_views,
             "orbit_before_s": before_orbit, "orbit_after_s": after_orbit,
             "mesh": time_mesh_steps(model), "sizes": sizes(job_dir),
@@ -145,14 +148,16 @@ def measure(library_dir: Path, model_id: str, work: Path) -> dict[str, Any]:
 def report(f: dict[str, Any], threads: int) -> str:
     """The markdown section."""
     t, m, now = f["timings"], f["mesh"], f["now"]
+    trained = ", ".join(f"{k.removesuffix('_s')} {t[k]:.0f} s" for k in
+                        ("phase1_s", "phase2_s", "phase3_s") if k in t)
     added_orbit = f["orbit_after_s"] - f["orbit_before_s"]
     added_views = f["views_after_s"] - f["views_before_s"]
     added_texture = m["decimate_s"] + m["bake_s"] - m["vertex_colours_s"]
     mib = {k: v / 2**20 for k, v in f["sizes"].items()}
     return "\n".join([
         "## Export (preview)", "",
-        f"One `preview` job ({N_PHOTOS} photos of `{MODEL}`, CPU, torch threads: {threads}); "
-        f"whole job {f['job_s']:.1f} s, of which export {t.get('export_s', 0):.1f} s: views "
+        f"One `preview` job ({N_PHOTOS} photos of `{MODEL}`, CPU, torch threads: {threads}; "
+        f"training: {trained or 'resumed'}); export {t.get('export_s', 0):.1f} s: views "
         f"{t.get('views_s', 0):.1f} s, orbit {t.get('orbit_s', 0):.1f} s, textured mesh "
         f"{t.get('mesh_s', 0):.1f} s, files for other tools and results.zip "
         f"{t.get('bundle_s', 0):.1f} s. Command: `python -m benchmarks.bench_export "
@@ -173,14 +178,17 @@ def report(f: dict[str, Any], threads: int) -> str:
 
 
 def run(quick: bool = False, threads: int | None = 2, library_dir: Path = LIBRARY_DIR,
-        model_id: str = MODEL) -> str:
+        model_id: str = MODEL, work: Path | None = None) -> str:
     """The markdown section (``quick`` changes nothing: one preview job is the smallest)."""
     import torch
 
     if threads:
         torch.set_num_threads(threads)
-    with tempfile.TemporaryDirectory(prefix="bench_export_") as work:
-        figures = measure(library_dir, model_id, Path(work))
+    if work is not None:
+        figures = measure(library_dir, model_id, work)
+    else:
+        with tempfile.TemporaryDirectory(prefix="bench_export_") as folder:
+            figures = measure(library_dir, model_id, Path(folder))
     return report(figures, torch.get_num_threads())
 
 
@@ -190,8 +198,10 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--threads", type=int, default=2, help="torch CPU threads")
     parser.add_argument("--model", default=MODEL, help="library model photographed")
     parser.add_argument("--library", type=Path, default=LIBRARY_DIR)
+    parser.add_argument("--work", type=Path, default=None,
+                        help="keep the job folder here (a second run resumes it)")
     args = parser.parse_args(argv)
-    sys.stdout.write(run(False, args.threads, args.library, args.model))
+    sys.stdout.write(run(False, args.threads, args.library, args.model, args.work))
     return 0
 
 
