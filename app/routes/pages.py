@@ -9,14 +9,14 @@ from pathlib import Path
 from fastapi import APIRouter
 from fastapi.responses import FileResponse
 
+from app.deps import SettingsDep
 from app.errors import ApiError
 
 STATIC_DIR = Path(__file__).resolve().parents[1] / "static"
-WEB_MODULES = Path(__file__).resolve().parents[2] / "web" / "node_modules"
-VENDOR: dict[str, Path] = {
-    "model-viewer.js": WEB_MODULES / "@google" / "model-viewer" / "dist" / "model-viewer.min.js",
+VENDOR: dict[str, str] = {
+    "model-viewer.js": "@google/model-viewer/dist/model-viewer.min.js",
 }
-"""Browser modules served from our own server (no CDN): name -> file of an npm package."""
+"""Browser modules served from our own server (no CDN): name -> file in ``web_modules``."""
 # The page is ES modules, which browsers run only when served as JavaScript; some systems' type
 # tables (the Windows registry) say text/plain for .js.
 mimetypes.add_type("text/javascript", ".js")
@@ -31,10 +31,10 @@ def index() -> FileResponse:
 
 
 @router.get("/vendor/{name}", include_in_schema=False)
-def vendor(name: str) -> FileResponse:
-    """A browser module from an installed npm package; 404 when it is not installed (the page
-    then falls back to what it can do without it)."""
-    path = VENDOR.get(name)
+def vendor(name: str, settings: SettingsDep) -> FileResponse:
+    """A browser module from an installed npm package (``CADNERF_WEB_MODULES``); 404 when it
+    is not installed (the page then falls back to what it can do without it)."""
+    path = settings.web_modules / VENDOR[name] if name in VENDOR else None
     if path is None or not path.is_file():
         raise ApiError(404, "not_installed", f"no browser module {name[:80]!r} on this server",
                        hint="run `make setup` (npm ci --prefix web) to install the 3D viewer")

@@ -34,6 +34,9 @@ class Settings(BaseSettings):
     """Broker and job-state store."""
     library_dir: Path = Field(Path("library_data/build"), description="The built CAD library.")
     """Folder with the library's manifest.json (read by the API, loaded by workers)."""
+    web_modules: Path = Field(Path("web/node_modules"), description="npm packages the web page "
+                              "loads (its 3D viewer); absent: the page does without them.")
+    """Installed by `make setup` (`npm ci --prefix web`); served under /vendor/, never a CDN."""
     mask_model: Path | None = Field(None, description="An ONNX background-removal model for "
                                     "learned masks; unset: the built-in one.")
     """A deployment's own model (a job's config cannot name server files); must exist."""

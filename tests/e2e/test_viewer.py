@@ -9,7 +9,6 @@ from pathlib import Path
 import httpx
 import pytest
 
-from app.routes.pages import VENDOR
 from tests.configs import tiny_request_json
 from tests.e2e.test_browser import CHROMIUM
 
@@ -19,6 +18,12 @@ pytestmark = [pytest.mark.slow, pytest.mark.browser]
 LAUNCH_ARGS = ["--headless", "--no-sandbox", "--use-angle=swiftshader",
                "--enable-unsafe-swiftshader", "--disable-background-networking",
                "--disable-component-update", "--disable-sync"]
+
+
+def _viewer_installed(service) -> bool:  # type: ignore[no-untyped-def]
+    from app.routes.pages import VENDOR
+
+    return (service.settings.web_modules / VENDOR["model-viewer.js"]).is_file()
 
 
 def _finished_job(url: str, photos: list[Path]) -> str:
@@ -40,7 +45,7 @@ def _finished_job(url: str, photos: list[Path]) -> str:
 
 def test_vendor_module_is_served_only_when_installed(live_service) -> None:
     response = httpx.get(f"{live_service.url}/vendor/model-viewer.js", timeout=30)
-    if VENDOR["model-viewer.js"].is_file():
+    if _viewer_installed(live_service):
         assert response.status_code == 200
         assert response.headers["content-type"].startswith("text/javascript")
     else:
@@ -77,7 +82,7 @@ def test_drag_spins_the_orbit_and_the_mesh_turns(live_service, photo_set: list[P
             # A quarter width to the left: a quarter turn forward.
             assert time_after == pytest.approx(0.25 * duration, abs=0.05 * duration)
             assert "drag across it" in page.inner_text("#orbit + figcaption")
-            if not VENDOR["model-viewer.js"].is_file():
+            if not _viewer_installed(live_service):
                 assert page.locator("model-viewer").count() == 0  # the fallback alone
                 return
             page.wait_for_function("() => document.getElementById('mesh-viewer')?.loaded",
