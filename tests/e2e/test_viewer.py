@@ -77,6 +77,7 @@ def test_drag_spins_the_orbit_and_the_mesh_turns(live_service, photo_set: list[P
             page.mouse.down()
             page.mouse.move(box["x"] + box["width"] * 0.35, y, steps=5)
             page.mouse.up()
+            assert page.evaluate("() => document.getElementById('orbit').paused")
             time_after = page.evaluate("() => document.getElementById('orbit').currentTime")
             duration = page.evaluate("() => document.getElementById('orbit').duration")
             # A quarter width to the left: a quarter turn forward.
