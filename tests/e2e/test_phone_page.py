@@ -159,6 +159,9 @@ def test_photos_reorder_submit_and_result(live_service, photo_set: list[Path], t
             page.add_init_script(TINY_CONFIG_SCRIPT)
             page.goto(live_service.url, timeout=30_000)
             page.wait_for_selector("#preset option", state="attached")
+            # The mobile viewport meta: laid out at the screen's width, not 980 px shrunk to fit.
+            width = PROFILES[profile]["viewport"]["width"]
+            assert page.evaluate("() => window.innerWidth") == width
             _fits(page, "page load")
             _check_presets(page, live_service.url)
             camera = page.locator("#camera")
@@ -194,13 +197,45 @@ def test_photos_reorder_submit_and_result(live_service, photo_set: list[Path], t
             # The whole page in one picture at the device's width: a screen as tall as the page,
             # so the submit bar sits where it belongs rather than stuck to a screen's foot.
             height = page.evaluate("() => document.documentElement.scrollHeight")
-            page.set_viewport_size({"width": PROFILES[profile]["viewport"]["width"],
-                                    "height": height})
+            page.set_viewport_size({"width": width, "height": height})
             page.wait_for_timeout(300)
             folder = Path(os.environ.get("CADNERF_SCREENSHOT_DIR") or tmp_path)
             shot = folder / f"web_page_{profile}.png"
-            page.screenshot(path=str(shot), full_page=True)
+            page.screenshot(path=str(shot), full_page=True, scale="css")
             assert shot.stat().st_size > 0
+        finally:
+            browser.close()
+
+
+@pytest.mark.parametrize("width", [360, 430])
+def test_the_smallest_and_largest_phones_fit(live_service, photo_set: list[Path],
+                                             width: int) -> None:
+    from playwright.sync_api import sync_playwright
+
+    with sync_playwright() as playwright:
+        browser = playwright.chromium.launch(executable_path=CHROMIUM, args=LAUNCH_ARGS)
+        try:
+            page = browser.new_context(viewport={"width": width, "height": 740}, is_mobile=True,
+                                       has_touch=True, device_scale_factor=3).new_page()
+            page.goto(live_service.url, timeout=30_000)
+            page.wait_for_selector("#preset option", state="attached")
+            assert page.evaluate("() => window.innerWidth") == width
+            _fits(page, "page load")
+            eight = [str(p) for p in photo_set] * 2  # a full walk of 8 photos
+            page.set_input_files("#photos", eight)
+            assert page.locator("#thumbs li").count() == len(eight)
+            page.click("details summary")
+            _fits(page, "8 photos, options open")
+            page.evaluate("() => window.scrollTo(0, 0)")
+            _submit_in_view(page)
+            page.evaluate("() => window.scrollTo(0, document.documentElement.scrollHeight)")
+            _submit_in_view(page)
+            page.focus("#thumbs li:nth-child(8) button.earlier")
+            page.keyboard.press("Enter")
+            assert page.locator("#thumbs li .order").all_inner_texts() == [
+                str(i + 1) for i in range(len(eight))]
+            assert page.get_attribute("#thumbs li:nth-child(7) img", "alt") == (
+                f"Photo 7: {photo_set[-1].name}")
         finally:
             browser.close()
 
