@@ -64,6 +64,9 @@ function thumbItem(photo, index, onChange) {
     state.photos.splice(index, 1);
     onChange();
     announce(`${photo.file.name} removed`);
+    // The keyboard goes to the photo now in its place (or the one before), else the chooser.
+    const next = $("thumbs").children[Math.min(index, state.photos.length - 1)];
+    (next?.querySelector(".remove") || $("photos")).focus();
   });
   const moves = document.createElement("div");
   moves.className = "move";

@@ -4,8 +4,9 @@ on the phone) and one by keyboard, submit, see progress move and the orbit play,
 results; nothing wider than the screen on any step; the CPU server's preset preselected with
 the expected times of the ETA table; an axe-core scan without serious or critical findings.
 
-Set CADNERF_SCREENSHOT_DIR to keep the finished phone page (docs/web_page_phone.png comes from
-`CADNERF_SCREENSHOT_DIR=docs pytest tests/e2e/test_phone_page.py -k phone`)."""
+Set CADNERF_SCREENSHOT_DIR to keep the finished page; docs/web_page_phone.png comes from
+``CADNERF_SCREENSHOT_DIR=docs .venv/bin/pytest tests/e2e/test_phone_page.py -k "result and not desktop"``.
+"""
 
 from __future__ import annotations
 
