@@ -5,8 +5,8 @@ results; nothing wider than the screen on any step; the CPU server's preset pres
 the expected times of the ETA table; an axe-core scan without serious or critical findings.
 
 Set CADNERF_SCREENSHOT_DIR to keep the finished page; docs/web_page_phone.png comes from
-``CADNERF_SCREENSHOT_DIR=docs .venv/bin/pytest tests/e2e/test_phone_page.py -k "result and not desktop"``.
-"""
+``CADNERF_SCREENSHOT_DIR=docs .venv/bin/pytest tests/e2e/test_phone_page.py
+-k "result and not desktop"``."""
 
 from __future__ import annotations
 
