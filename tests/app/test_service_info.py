@@ -8,7 +8,7 @@ import redis
 from fastapi.testclient import TestClient
 
 from app.main import create_app
-from app.state import DEFAULT_STAGE_SECONDS, StageHistory, Workers
+from app.state import DEFAULT_STAGE_SECONDS, PresetTime, StageHistory, Workers, preset_times
 from app.state.eta import expected_job_seconds
 
 
@@ -74,3 +74,10 @@ def test_info_answers_while_redis_is_down(make_settings) -> None:
                                default_preset="auto"))
     assert info["device"] == "cpu" and info["default_preset"] == "preview"
     assert info["preset_times"]["preview"]["measured"] is False
+
+
+def test_a_preset_without_a_table_or_a_measurement_has_no_time(clean_redis: redis.Redis) -> None:
+    times = preset_times(StageHistory(clean_redis), ["preview", "custom"], "cuda")
+    assert times["preview"] == PresetTime(sum(DEFAULT_STAGE_SECONDS["cuda"]["preview"].values()),
+                                          measured=False)
+    assert times["custom"] == PresetTime(None, measured=False)  # the page: "not measured yet"
