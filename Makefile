@@ -46,8 +46,10 @@ typecheck: setup
 # without npm those tests skip and say why.
 $(STAMP)/node: package.json package-lock.json
 	@mkdir -p $(STAMP)
-	@if command -v npm >/dev/null; then npm ci --no-audit --no-fund --loglevel=error && touch $@; \
-	else echo "npm not found: the browser tests' accessibility scan (axe-core) will be skipped"; fi
+	@if ! command -v npm >/dev/null; then \
+	  echo "npm not found: the browser tests' accessibility scan (axe-core) will be skipped"; \
+	elif npm ci --no-audit --no-fund --loglevel=error; then touch $@; \
+	else echo "npm ci failed: the browser tests' accessibility scan (axe-core) will be skipped"; fi
 
 pytest: setup $(STAMP)/node
 	$(VENV)/bin/pytest -q
