@@ -1,18 +1,18 @@
 # CAD-NeRF service image (API and worker share it). CPU torch goes in first, from PyTorch's CPU
 # index, so nothing installed later can pull a multi-gigabyte CUDA build.
 # The web page's 3D viewer (@google/model-viewer) comes from npm in a stage of its own: the image
-# serves it from /srv/cadnerf/web/node_modules and carries no node.
+# serves it from /srv/cadnerf/node_modules and carries no node (test-only packages left out).
 FROM node:20-slim AS web
 WORKDIR /web
-COPY web/package.json web/package-lock.json ./
-RUN npm ci --no-audit --no-fund
+COPY package.json package-lock.json ./
+RUN npm ci --omit=dev --no-audit --no-fund
 
 FROM python:3.11-slim
 
 ENV PYTHONDONTWRITEBYTECODE=1 PYTHONUNBUFFERED=1 PIP_NO_CACHE_DIR=1 \
     CADNERF_DATA_ROOT=/data/jobs \
     CADNERF_LIBRARY_DIR=/srv/cadnerf/library_data/build \
-    CADNERF_WEB_MODULES=/srv/cadnerf/web/node_modules
+    CADNERF_WEB_MODULES=/srv/cadnerf/node_modules
 
 RUN apt-get update \
     && apt-get install -y --no-install-recommends libglib2.0-0 \
@@ -27,7 +27,7 @@ COPY worker ./worker
 COPY cadnerf_core ./cadnerf_core
 COPY cadnerf_cli ./cadnerf_cli
 COPY library_data ./library_data
-COPY --from=web /web/node_modules ./web/node_modules
+COPY --from=web /web/node_modules ./node_modules
 RUN pip install . \
     && python -m cadnerf_cli.main library build --out "$CADNERF_LIBRARY_DIR"
 

@@ -16,7 +16,7 @@ export PIP_DISABLE_PIP_VERSION_CHECK := 1
 
 .PHONY: setup library run test lint typecheck pytest bench clean
 
-setup: $(STAMP)/venv $(STAMP)/web
+setup: $(STAMP)/venv $(STAMP)/node
 
 # torch goes in first, from the local CPU wheel: anything that depends on torch installed before
 # it would pull a multi-gigabyte CUDA build from the registry.
@@ -28,16 +28,6 @@ $(STAMP)/venv: pyproject.toml
 	@$(PY) -m pip install -qq torch==2.13.0
 	@$(PY) -m pip install -qq -e '.[dev]'
 	@touch $@
-
-# The result page's 3D viewer (@google/model-viewer, served by our own server) and the glTF
-# validator the tests run, from npm into web/node_modules (git-ignored). Without npm the page
-# falls back to spinning through the orbit frames and the validator test is skipped.
-$(STAMP)/web: web/package.json web/package-lock.json
-	@mkdir -p $(STAMP)
-	@if command -v npm >/dev/null; then \
-		echo "installing the web viewer and glTF validator from npm into web/node_modules"; \
-		npm ci --prefix web --no-audit --no-fund --silent && touch $@; \
-	else echo "npm not found: the result page spins orbit frames instead of the 3D viewer"; fi
 
 library: setup
 	@$(CADNERF) library build --out $(LIBRARY_DIR) --if-stale
@@ -52,6 +42,17 @@ lint: setup
 typecheck: setup
 	$(VENV)/bin/mypy app worker cadnerf_core cadnerf_cli library_data
 
+# npm packages, into the git-ignored node_modules: the result page's 3D viewer
+# (@google/model-viewer, served by our own server at /vendor/), and for the tests the glTF
+# validator and axe-core (the accessibility scan). Without npm the page spins the orbit video
+# instead of the viewer, and the tests that need these packages skip and say why.
+$(STAMP)/node: package.json package-lock.json
+	@mkdir -p $(STAMP)
+	@if ! command -v npm >/dev/null; then \
+	  echo "npm not found: no 3D viewer on the result page; the glTF validator and accessibility tests will be skipped"; \
+	elif npm ci --no-audit --no-fund --loglevel=error; then touch $@; \
+	else echo "npm ci failed: no 3D viewer on the result page; the glTF validator and accessibility tests will be skipped"; fi
+
 pytest: setup
 	$(VENV)/bin/pytest -q
 
@@ -61,4 +62,4 @@ bench: setup library
 	$(PY) -m benchmarks.run $(if $(QUICK),--quick,) --out docs/benchmarks.md
 
 clean:
-	rm -rf $(STAMP) $(VENV) $(LIBRARY_DIR)
+	rm -rf $(STAMP) $(VENV) $(LIBRARY_DIR) node_modules

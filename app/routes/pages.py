@@ -1,5 +1,5 @@
 """The web page at `/` (plain HTML, CSS and JavaScript in app/static) and the browser modules
-it loads from npm packages (`/vendor/...`, installed into web/node_modules by `make setup`)."""
+it loads from npm packages (`/vendor/...`, installed into node_modules by `make setup`)."""
 
 from __future__ import annotations
 
@@ -37,5 +37,5 @@ def vendor(name: str, settings: SettingsDep) -> FileResponse:
     path = settings.web_modules / VENDOR[name] if name in VENDOR else None
     if path is None or not path.is_file():
         raise ApiError(404, "not_installed", f"no browser module {name[:80]!r} on this server",
-                       hint="run `make setup` (npm ci --prefix web) to install the 3D viewer")
+                       hint="run `make setup` (npm ci) to install the 3D viewer")
     return FileResponse(path, media_type="text/javascript", headers={"Cache-Control": "no-cache"})

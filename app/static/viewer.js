@@ -2,7 +2,7 @@
 // - the orbit video becomes drag-to-spin: dragging across it scrubs through the orbit's frames
 //   (the rendered frames look better than the mesh), and it is what remains without the viewer;
 // - the textured mesh.glb in <model-viewer> (@google/model-viewer), installed from npm by
-//   `make setup` into web/node_modules and served by this server at /vendor/ (never a CDN).
+//   `make setup` into node_modules and served by this server at /vendor/ (never a CDN).
 import { artifactUrl } from "./api.js";
 
 const VIEWER_MODULE = "/vendor/model-viewer.js";
