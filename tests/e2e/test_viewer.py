@@ -10,7 +10,7 @@ import httpx
 import pytest
 
 from tests.configs import tiny_request_json
-from tests.e2e.test_browser import CHROMIUM
+from tests.e2e.pages import CHROMIUM
 
 pytestmark = [pytest.mark.slow, pytest.mark.browser]
 
