@@ -22,7 +22,7 @@ from app.errors import ApiError
 from app.multipart import ReceivedForm, StoredPart
 from app.schemas import JobCreate
 from app.state import Settings, non_public_reason
-from cadnerf_core.config import PipelineConfig, resolve_config
+from cadnerf_core.config import PipelineConfig, field_bounds, resolve_config
 from cadnerf_core.jobfolder import JobFolder
 
 _EXIF_ORIENTATION = 0x0112
@@ -248,7 +248,11 @@ def parse_config(raw: str | None, settings: Settings) -> PipelineConfig:
 def _config_error(exc: ValidationError) -> ApiError:
     err = exc.errors()[0]
     where = ".".join(str(p) for p in err.get("loc", ()))
-    message = f"{where}: {err.get('msg')}" if where else str(err.get("msg"))
+    text = str(err.get("msg")).removeprefix("Value error, ")
+    message = f"{where}: {text}" if where else text
+    bounds = field_bounds(tuple(err.get("loc", ())))
+    if bounds:  # name the bound whatever pydantic's wording (a huge number fails to parse)
+        message = f"{message} (allowed: {bounds})"
     if err.get("type") == "json_invalid":
         message = "`config` is not valid JSON"
     return ApiError(422, "invalid_config", message[:300], field="config",
