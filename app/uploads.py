@@ -23,6 +23,7 @@ from app.multipart import ReceivedForm, StoredPart
 from app.schemas import JobCreate
 from app.state import Settings, non_public_reason
 from cadnerf_core.config import PipelineConfig, field_bounds, resolve_config
+from cadnerf_core.intake.limits import COVER_SIDE, cover_problem, mask_cover, shape_problem
 from cadnerf_core.jobfolder import JobFolder
 
 _EXIF_ORIENTATION = 0x0112
@@ -130,6 +131,10 @@ def inspect_image(part: StoredPart, settings: Settings,
         raise ApiError(422, "image_too_small",
                        f"{width}x{height} pixels; each side needs {settings.min_side_px} or more",
                        photo=part.filename, field=part.field, hint="use a larger photo")
+    problem = shape_problem(width, height) if types is PHOTO_TYPES else None
+    if problem is not None:  # the core's own rule (a strip fails background removal)
+        raise ApiError(422, "image_shape", problem[0], photo=part.filename, field=part.field,
+                       hint=problem[1])
     oriented = (height, width) if orientation in (5, 6, 7, 8) else (width, height)
     return ImageInfo(ext, width, height, oriented)
 
@@ -222,7 +227,25 @@ def check_mask(mask: StoredPart, photo: StoredPart, photo_info: ImageInfo,
                        f"the photo is {photo_info.oriented[0]}x{photo_info.oriented[1]}",
                        photo=photo.filename, field="masks",
                        hint="give each mask the size of its photo, in the same order")
+    problem = cover_problem(_mask_cover(mask))
+    if problem is not None:
+        raise ApiError(422, "mask_unusable", problem[0], photo=photo.filename, field="masks",
+                       hint=problem[1])
     return info
+
+
+def _mask_cover(part: StoredPart) -> float:
+    """The fraction of its photo an uploaded mask marks as object (size already checked, so
+    decoding is bounded; a JPEG is decoded at a reduced scale)."""
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", Image.DecompressionBombWarning)
+            with Image.open(part.path) as image:
+                image.draft(None, (COVER_SIDE, COVER_SIDE))  # type: ignore[arg-type]
+                return mask_cover(image)
+    except Exception:  # a damaged body behind a good header; Pillow raises many types
+        raise ApiError(422, "unreadable_image", "the mask cannot be decoded", photo=part.filename,
+                       field="masks", hint="export the mask again as PNG") from None
 
 
 def parse_config(raw: str | None, settings: Settings) -> PipelineConfig:

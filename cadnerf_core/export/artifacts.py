@@ -218,8 +218,13 @@ def export_mesh(job_dir: Path, model: TrainedModel, progress: Progress | None = 
     write_mesh(JobFolder(job_dir).file(MESH), mesh, colors)
 
 
-def poses_json(model: TrainedModel, retrieval: RetrievalResult) -> list[dict[str, Any]]:
-    """Per photo: name, refined and initial c2w, IoU, discarded, K (crop and photo pixels)."""
+def poses_json(model: TrainedModel, retrieval: RetrievalResult,
+               scales: Sequence[float] | None = None) -> list[dict[str, Any]]:
+    """Per photo: name, refined and initial c2w, IoU, discarded, K (crop and photo pixels).
+
+    ``scales``: per photo index, uploaded pixels per working pixel (``Photo.scale``), so that
+    ``K_photo`` holds for the photo as uploaded; None: 1.
+    """
     from cadnerf_core.intake.crop import uncrop_intrinsics
 
     refined = dict(zip([m.index for m in retrieval.kept], model.c2w, strict=True))
@@ -230,7 +235,15 @@ def poses_json(model: TrainedModel, retrieval: RetrievalResult) -> list[dict[str
                     "c2w": None if pose is None else pose.tolist(),
                     "c2w_initial": m.c2w.tolist(), "library_view": m.view,
                     "K_canonical": m.K_canon.tolist(), "canonical_size": m.box.size,
-                    "K_photo": uncrop_intrinsics(m.K_canon, m.box).tolist()})
+                    "K_photo": _scaled(uncrop_intrinsics(m.K_canon, m.box),
+                                       1.0 if scales is None else scales[m.index]).tolist()})
+    return out
+
+
+def _scaled(K: np.ndarray, scale: float) -> np.ndarray:
+    """Intrinsics [3, 3] in pixels ``scale`` times larger (focal lengths and principal point)."""
+    out = np.array(K, dtype=np.float64)
+    out[:2] *= scale
     return out
 
 
@@ -259,7 +272,8 @@ def export_job(job_dir: Path, model: TrainedModel, retrieval: RetrievalResult,
     """Write every artifact of a trained job and return the service's summary.
 
     Args:
-        photos: the job's photos (cadnerf_core.intake.photos.Photo), for their pixel sizes.
+        photos: the job's photos (cadnerf_core.intake.photos.Photo), for their pixel sizes as
+            uploaded (working size times ``scale``).
     """
     import time
 
@@ -273,8 +287,9 @@ def export_job(job_dir: Path, model: TrainedModel, retrieval: RetrievalResult,
     export_mesh(job_dir, model, progress)
     progress.step("export", 2, 3)
     kept = retrieval.kept
-    sizes = [(photos[m.index].rgb.shape[1], photos[m.index].rgb.shape[0]) for m in kept]
-    poses = poses_json(model, retrieval)
+    scales = [float(p.scale) for p in photos]
+    sizes = [photos[m.index].size for m in kept]
+    poses = poses_json(model, retrieval, scales)
     folder = JobFolder(job_dir)
     folder.write_poses(retrieval.model_id, poses)
     K_photo = [np.asarray(p["K_photo"]) for p in poses if not p["discarded"]]
