@@ -212,6 +212,7 @@ def cleanup(store: JobStore, retention_s: float, now: float | None = None) -> in
             store.delete(record)
             removed += 1
     _remove_stale_staging(store.data_root, now)
+    store.remove_trash()
     return removed
 
 

@@ -34,6 +34,15 @@ redis.call('zrem', KEYS[3], ARGV[1])
 return 1
 """
 
+# KEYS: job, its tombstone, running set. ARGV: job id.
+# A worker's heartbeat puts its job back in the running set only while the job exists and was
+# not deleted (a deleted job must not come back through recovery).
+MARK_RUNNING = """
+if redis.call('exists', KEYS[1]) == 0 or redis.call('exists', KEYS[2]) == 1 then return 0 end
+redis.call('sadd', KEYS[3], ARGV[1])
+return 1
+"""
+
 # KEYS: job, its claim, running set, queue. ARGV: job id, dead worker, max attempts, now, error.
 # Running -> queued (or failed past the attempt bound), only while still held by the dead worker.
 REQUEUE = """

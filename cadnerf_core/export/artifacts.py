@@ -178,6 +178,7 @@ def render_views(job_dir: Path, model: TrainedModel, data: TrainData, progress: 
     for i, pose in enumerate([*c2w, *novel]):
         rgb, _ = model.render_image(pose, K[i] if i < len(c2w) else K_novel, size, size)
         path = JobFolder(job_dir).view_path(i)
+        progress.check()  # before any output: a cancelled or deleted job writes nothing more
         write_png(path, rgb)
         names.append(path.relative_to(job_dir).as_posix())
         if i < len(c2w):
@@ -199,6 +200,7 @@ def render_orbit(job_dir: Path, model: TrainedModel, data: TrainData, progress: 
         frames.append(to_uint8(rgb))
         progress.step("render", done + i + 1, total)
     folder = JobFolder(job_dir)
+    progress.check()
     write_video(folder.file(ORBIT_VIDEO), frames, ecfg.orbit_fps)
     write_gif(folder.file(ORBIT_GIF), frames, ecfg.orbit_fps)
     return [ORBIT_VIDEO, ORBIT_GIF]
@@ -215,6 +217,8 @@ def export_mesh(job_dir: Path, model: TrainedModel, progress: Progress | None = 
     mesh = extract_mesh(values, bound, cfg.export.mesh_level)
     normals = np.asarray(mesh.vertex_normals, dtype=np.float32)
     colors = model.colors(np.asarray(mesh.vertices, np.float32), -normals, check=check)
+    if progress is not None:
+        progress.check()  # before any output: a cancelled or deleted job writes nothing more
     write_mesh(JobFolder(job_dir).file(MESH), mesh, colors)
 
 
@@ -291,12 +295,14 @@ def export_job(job_dir: Path, model: TrainedModel, retrieval: RetrievalResult,
     sizes = [photos[m.index].size for m in kept]
     poses = poses_json(model, retrieval, scales)
     folder = JobFolder(job_dir)
+    progress.check()
     folder.write_poses(retrieval.model_id, poses)
     K_photo = [np.asarray(p["K_photo"]) for p in poses if not p["discarded"]]
     folder.write_transforms(transforms_json(model.c2w, K_photo, sizes,
                                             [folder.photo_ref(m.name) for m in kept]))
     model.extra.setdefault("timings", {})["export_s"] = time.perf_counter() - start
     metrics = metrics_json(model, retrieval, scores)
+    progress.check()
     folder.write_metrics(metrics)
     progress.step("export", 3, 3)
     artifacts += [MESH, POSES, TRANSFORMS, METRICS, RETRIEVAL, MASK_SOURCES, CONFIG, LOG]
