@@ -12,7 +12,6 @@ from typing import Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
-
 # Bounds on what scales a job's work or memory (the reasons: docs/reliability.md, "Bounds").
 # Each is several times what the largest preset (``paper``) uses; together with
 # ``MAX_POINT_WIDTH`` they keep the largest accepted job within a 4 GiB worker.

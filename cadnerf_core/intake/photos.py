@@ -29,7 +29,6 @@ from cadnerf_core.errors import InputError
 from cadnerf_core.intake.crop import DEFAULT_MARGIN, CropBox, apply_crop, canonical_box
 from cadnerf_core.intake.limits import (
     MAX_PIXELS,
-    MIN_SIDE,
     has_transparency,
     mask_array,
     shape_problem,
@@ -294,7 +293,8 @@ def load_photos(paths: Sequence[PhotoSource],
         One ``Photo`` per input, in order.
     Raises:
         InputError: naming the photo, for an unreadable, empty, damaged, tiny (< 64 px a side),
-            strip-shaped (one side over 4 times the other) or huge (> 40 MP) file, or a mask whose size differs from its photo's.
+            strip-shaped (one side over 4 times the other) or huge (> 40 MP) file, or a mask
+            whose size differs from its photo's.
     """
     if mask_paths is not None and len(mask_paths) != len(paths):
         raise InputError(f"{len(mask_paths)} masks for {len(paths)} photos", item="masks",

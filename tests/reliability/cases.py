@@ -9,8 +9,8 @@ import json
 from collections.abc import Callable
 from dataclasses import dataclass
 
-from tests.configs import TINY_PRESET, tiny_request
 from tests.app.images import mask_bytes
+from tests.configs import TINY_PRESET, tiny_request
 from tests.reliability.support import FileEntry, image_bytes, noisy_jpeg, photo_files, png_bomb
 
 
