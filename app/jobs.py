@@ -21,7 +21,15 @@ from app.errors import ApiError, store_unavailable
 from app.multipart import Limits, receive_form
 from app.queue import enqueue
 from app.schemas import DeleteResult, JobLinks, JobStatus
-from app.state import AsyncJobReader, JobRecord, JobState, JobStore, QueueEstimate, Settings
+from app.state import (
+    AsyncJobReader,
+    JobRecord,
+    JobState,
+    JobStore,
+    QueueEstimate,
+    Settings,
+    stage_work,
+)
 from app.uploads import lay_out
 
 log = logging.getLogger(__name__)
@@ -125,7 +133,8 @@ async def submit(request: Request, settings: Settings, store: JobStore, producer
         shutil.rmtree(staging, ignore_errors=True)
         raise
     record = JobRecord(id=job_id, preset=spec.preset, n_photos=len(spec.names), names=spec.names,
-                       owner=owner, created_at=time.time(), webhook_url=spec.webhook_url)
+                       owner=owner, created_at=time.time(), webhook_url=spec.webhook_url,
+                       work=stage_work(spec.config))
     await run_in_threadpool(_store_and_enqueue, store, producer, record)
     return record
 

@@ -20,6 +20,7 @@ from app.state.records import ANON_OWNER, ErrorDetail, JobRecord, JobState, is_j
 from app.state.recovery import MAX_ATTEMPTS, ORPHAN_GRACE_S, OrphanWatch, find_orphans, requeue
 from app.state.settings import Settings, SettingsError, load_settings, non_public_reason
 from app.state.store import JobStore, connect
+from app.state.work import scaled, stage_work, unscaled
 
 __all__ = [
     "ANON_OWNER", "DEFAULT_STAGE_SECONDS", "FINISH_RETRY_S", "HEARTBEAT_EVERY_S",
@@ -27,5 +28,6 @@ __all__ = [
     "TASK_NAME", "AsyncJobReader", "Claims", "ErrorDetail", "EtaModel", "JobRecord", "JobState",
     "JobStore", "OrphanWatch", "QueueEstimate", "Settings", "SettingsError", "StageHistory",
     "Workers", "celery_config", "connect", "default_stage_seconds", "find_orphans", "finish_job",
-    "is_job_id", "load_settings", "non_public_reason", "requeue",
+    "is_job_id", "load_settings", "non_public_reason", "requeue", "scaled", "stage_work",
+    "unscaled",
 ]
