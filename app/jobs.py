@@ -170,11 +170,13 @@ def _store_and_enqueue(store: JobStore, producer: Celery, record: JobRecord) -> 
                        hint="try again in a minute", headers={"Retry-After": "30"}) from None
 
 
-def delete_job(store: JobStore, record: JobRecord, wait_s: float = 15.0) -> DeleteResult:
+def delete_job(store: JobStore, record: JobRecord, wait_s: float = 5.0) -> DeleteResult:
     """Cancel a job if it is queued or running, then delete its state and folder.
 
     A running job's worker reads the cancel flag between steps; this waits up to ``wait_s``
-    for it to acknowledge, so files are not removed under a job that is still writing them.
+    for it to acknowledge (``worker_stopped``). Either way the folder is renamed away and
+    removed before the answer (``JobStore.delete``), and no writer re-creates a missing job
+    folder, so a worker still inside a step can no longer write the job's files.
     """
     previous = record.state
     stopped = True

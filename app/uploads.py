@@ -13,6 +13,7 @@ from __future__ import annotations
 import warnings
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import pillow_heif
 from PIL import Image, features
@@ -268,18 +269,28 @@ def parse_config(raw: str | None, settings: Settings) -> PipelineConfig:
                        hint='send JSON like {"preset": "preview", "overrides": {}}') from None
 
 
-def _config_error(exc: ValidationError) -> ApiError:
-    err = exc.errors()[0]
+def _config_error(exc: ValidationError, most: int = 4) -> ApiError:
+    """422 ``invalid_config`` naming each wrong field (up to ``most``) and its allowed range."""
+    errors = exc.errors()
+    if errors and errors[0].get("type") == "json_invalid":
+        message = "`config` is not valid JSON"
+    else:
+        message = "; ".join(_error_text(err)[:200] for err in errors[:most])
+        if len(errors) > most:
+            message += f"; and {len(errors) - most} more"
+    return ApiError(422, "invalid_config", message[:900], field="config",
+                    hint='send JSON like {"preset": "preview", "overrides": {"phase2.steps": 300}}')
+
+
+def _error_text(err: Any) -> str:
+    """One validation error: the field, pydantic's message, and the field's allowed range."""
     where = ".".join(str(p) for p in err.get("loc", ()))
     text = str(err.get("msg")).removeprefix("Value error, ")
     message = f"{where}: {text}" if where else text
     bounds = field_bounds(tuple(err.get("loc", ())))
     if bounds:  # name the bound whatever pydantic's wording (a huge number fails to parse)
         message = f"{message} (allowed: {bounds})"
-    if err.get("type") == "json_invalid":
-        message = "`config` is not valid JSON"
-    return ApiError(422, "invalid_config", message[:300], field="config",
-                    hint='send JSON like {"preset": "preview", "overrides": {"phase2.steps": 300}}')
+    return message
 
 
 def parse_webhook(raw: str | None, allow_private: bool = False) -> str | None:
