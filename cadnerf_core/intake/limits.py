@@ -19,10 +19,10 @@ MAX_PIXELS = 40_000_000
 MAX_ASPECT = 4.0
 """Longer over shorter side: a phone's widest photo (21:9) is 2.3; a strip beyond this holds
 no walk-around view (and background removal cannot seed itself on it)."""
-WORKING_PIXELS = 4_000_000
-"""Photos are decoded and kept at most this many pixels (their aspect kept): the canonical
-crops are at most 1024 px and masks are found on copies of about 512 px, so more pixels only
-cost memory (a 40 MP photo as float32 RGB is 480 MB; at this size 48 MB)."""
+WORKING_PIXELS = 3_000_000
+"""Photos are decoded and kept at most this many pixels (2000 x 1500 at 4:3, their aspect
+kept): the canonical crops are at most 1024 px and masks are found on copies of about 512 px,
+so more pixels only cost memory (a 40 MP photo as float32 RGB is 480 MB; at this size 36 MB)."""
 MIN_COVER, MAX_COVER = 0.01, 0.95
 """A mask covering less (or, uploaded or found, more) of its photo marks no usable object."""
 COVER_SIDE = 512

@@ -1,0 +1,117 @@
+"""Peak memory of a worker running one job of large photos (ten 40 MP JPEGs at ``preview``).
+
+A real API (uvicorn) and ``cadnerf worker`` process on 127.0.0.1 (Redis as in
+``bench_reliability``: database 13 of the local server, else an embedded one), the built library
+(``library_data/build``, else a small one). The photos are a chair rendered from ten azimuths,
+put on a light grey background with a little noise and scaled up to the size asked for, saved
+as JPEG (quality 90): no alpha, so background removal runs as for phone photos. The figure is
+the worker process's peak resident memory (``VmHWM`` in ``/proc/<pid>/status``), read after the
+job, minus nothing: start-up and the loaded library included.
+
+Run: ``.venv/bin/python -m benchmarks.bench_job_memory [--megapixels 40] [--quick]``;
+``--quick`` keeps the preset's sizes but runs a tenth of its steps and frames (the peak comes
+from intake and from one training step, not from their number).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import tempfile
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from PIL import Image
+
+from benchmarks.bench_reliability import _library, _redis_url
+from tests.reliability import jobs
+from tests.reliability.support import start_live, stop_live
+
+COMMAND = ".venv/bin/python -m benchmarks.bench_job_memory"
+QUICK = {"phase1.steps": 20, "phase2.steps": 40, "phase3.steps": 200, "phase3.scene_steps": 0,
+         "export.orbit_frames": 6}
+
+
+def make_photos(folder: Path, n: int, megapixels: float) -> list[Path]:
+    """``n`` JPEG photos of a chair walked around, ``megapixels`` each (4:3)."""
+    from cadnerf_cli.service_cmd import demo_mesh
+    from cadnerf_core.evaluation.dataset import render_dataset
+
+    dataset = render_dataset(demo_mesh(folder / "chair.ply"), folder / "dataset", n_views=n,
+                             size=384, seed=0)
+    height = int(math.sqrt(megapixels * 1e6 * 3 / 4))
+    width = height * 4 // 3
+    rng = np.random.default_rng(0)
+    out = []
+    for i, path in enumerate(sorted((dataset / "images").glob("*.png"))):
+        with Image.open(path) as rgba:
+            square = rgba.convert("RGBA")
+        canvas = Image.new("RGBA", (square.width * 4 // 3, square.height), (225, 225, 220, 255))
+        canvas.alpha_composite(square, ((canvas.width - square.width) // 2, 0))
+        noise = rng.normal(0, 3, (canvas.height, canvas.width, 1))
+        small = np.clip(np.asarray(canvas.convert("RGB"), np.float32) + noise, 0, 255)
+        big = Image.fromarray(small.astype(np.uint8)).resize((width, height),
+                                                             Image.Resampling.BICUBIC)
+        out.append(folder / f"photo_{i:02d}.jpg")
+        big.save(out[-1], format="JPEG", quality=90)
+    return out
+
+
+def peak_rss_mib(pid: int) -> float:
+    """A process's peak resident memory (VmHWM) in MiB."""
+    for line in Path(f"/proc/{pid}/status").read_text().splitlines():
+        if line.startswith("VmHWM:"):
+            return int(line.split()[1]) / 1024
+    raise RuntimeError("no VmHWM in /proc status")
+
+
+def run(megapixels: float, n: int, quick: bool) -> dict[str, Any]:
+    """Start the service, run one job of ``n`` photos, return the worker's peak memory."""
+    with tempfile.TemporaryDirectory(prefix="bench-memory-") as tmp:
+        folder = Path(tmp)
+        photos = make_photos(folder, n, megapixels)
+        sizes = [Image.open(p).size for p in photos]
+        url, server = _redis_url(folder)
+        live = start_live(folder, url, _library(folder), max_file_mb="25",
+                          max_total_mb="250")
+        try:
+            assert live.worker is not None
+            idle = peak_rss_mib(live.worker.pid)
+            config = {"preset": "preview", "overrides": QUICK if quick else {}}
+            started = time.monotonic()
+            job = jobs.submit(live.url, photos, config)
+            final, _ = jobs.wait_state(live.url, job["id"], 3600, every_s=1.0)
+            seconds = time.monotonic() - started
+            peak = peak_rss_mib(live.worker.pid)
+        finally:
+            stop_live(live)
+            if server is not None:
+                server.stop()
+    return {"photos": n, "megapixels": round(sizes[0][0] * sizes[0][1] / 1e6, 1),
+            "size": f"{sizes[0][0]}x{sizes[0][1]}", "preset": "preview",
+            "quick": quick, "state": final["state"], "error": final.get("error"),
+            "worker_idle_peak_mib": round(idle), "worker_peak_mib": round(peak),
+            "job_s": round(seconds, 1)}
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--megapixels", type=float, default=40.0)
+    parser.add_argument("--photos", type=int, default=10)
+    parser.add_argument("--quick", action="store_true")
+    args = parser.parse_args()
+    result = run(args.megapixels, args.photos, args.quick)
+    print(json.dumps(result))
+    print(f"| {result['photos']} photos of {result['size']} ({result['megapixels']} MP), "
+          f"{result['preset']}{' (quick)' if result['quick'] else ''} | {result['state']} in "
+          f"{result['job_s']} s | worker peak {result['worker_peak_mib']} MiB "
+          f"(idle {result['worker_idle_peak_mib']} MiB) |")
+    print(f"command: {COMMAND} --megapixels {args.megapixels:g} --photos {args.photos}"
+          f"{' --quick' if args.quick else ''}")
+
+
+if __name__ == "__main__":
+    main()
