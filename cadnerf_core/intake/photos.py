@@ -7,8 +7,9 @@ rotation on decode and resets the tag. A photo with real transparency (an alpha 
 opaque) gives its mask (alpha > one half) and is composited on white. The size is checked from
 the header before any pixel is decoded, so a huge photo costs nothing to refuse, and a photo is
 worked on at most ``limits.WORKING_PIXELS`` (a JPEG decoded at a reduced scale), so a 40 MP photo
-costs what a 12 MP one does. The EXIF focal length is kept as its 35 mm equivalent (a phone's own tag, or a camera's focal length over its
-sensor size): it tells the camera's field of view, which the silhouettes alone cannot.
+costs what a 12 MP one does. The EXIF focal length is kept as its 35 mm equivalent (a phone's
+own tag, or a camera's focal length over its sensor size): it tells the camera's field of view,
+which the silhouettes alone cannot.
 """
 
 from __future__ import annotations
