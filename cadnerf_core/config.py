@@ -12,27 +12,16 @@ from typing import Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
-# Bounds on what scales a job's work or memory (the reasons: docs/reliability.md, "Bounds").
-# Each is several times what the largest preset (``paper``) uses; together with
-# ``MAX_POINT_WIDTH`` they keep the largest accepted job within a 4 GiB worker.
-MAX_STEPS = 50_000
-"""Most steps of any phase (``paper``: 20 000 in phase three)."""
-MAX_POINTS = 262_144
-"""Most CAD occupancy points per phase-one step (``standard``: 32 768)."""
-MAX_RAYS = 65_536
-"""Most rays per training step, per rendering chunk or per pass (``standard``: 8192)."""
-MAX_SAMPLES = 512
-"""Most samples per ray (``paper``: 128)."""
-MAX_LR = 1.0
-"""Largest learning rate: Adam steps of this size already throw every weight away."""
-MAX_WEIGHT = 1000.0
-"""Largest loss weight (``paper``: 10)."""
-MAX_SEED = 2**31 - 1
-"""Largest seed (numpy and torch take it on every platform)."""
-MAX_POINT_WIDTH = 2**27
-"""Most (points evaluated in one pass) x (widest network) of a job: activations, the memory
-that grows with a configuration, stay under about 1 GiB (measured: about 7 bytes per unit in
-training). ``standard`` and ``paper`` use half of it in training."""
+from cadnerf_core.config_bounds import (
+    MAX_LR,
+    MAX_POINTS,
+    MAX_RAYS,
+    MAX_SAMPLES,
+    MAX_SEED,
+    MAX_STEPS,
+    MAX_WEIGHT,
+    check_point_budget,
+)
 
 
 class _Frozen(BaseModel):
@@ -315,32 +304,6 @@ class PipelineConfig(_Frozen):
         return self
 
 
-def point_loads(config: PipelineConfig) -> dict[str, int]:
-    """Points evaluated in one pass of each kind, named by the fields that set them."""
-    render = config.render
-    pass_rays = {name: min(rays, render.train_pass_rays or rays)
-                 for name, rays in (("phase2.rays", config.phase2.rays),
-                                    ("phase3.rays", config.phase3.rays))}
-    loads = {f"{name} x render.samples_per_ray": rays * render.samples_per_ray
-             for name, rays in pass_rays.items()}
-    loads["render.chunk_rays x render.samples_per_ray"] = render.chunk_rays * render.samples_per_ray
-    loads["phase1.batch_points"] = config.phase1.batch_points
-    return loads
-
-
-def check_point_budget(config: PipelineConfig) -> None:
-    """Raise ValueError naming the fields when points per pass x network width passes
-    ``MAX_POINT_WIDTH`` (each field within its own bound can still multiply past memory)."""
-    field = config.field
-    width = max(field.hidden, field.deform_hidden, field.color_hidden)
-    for what, points in point_loads(config).items():
-        if points * width > MAX_POINT_WIDTH:
-            raise ValueError(
-                f"{what} = {points} points per pass x network width {width} = "
-                f"{points * width}; the limit is {MAX_POINT_WIDTH}: lower one of them (width: "
-                "the largest of field.hidden, deform_hidden, color_hidden)")
-
-
 def _preset(name: str, **sections: Any) -> PipelineConfig:
     return PipelineConfig.model_validate({"preset": name, **sections})
 
@@ -447,29 +410,20 @@ def resolve_config(preset: str | None = None,
 
 
 def field_bounds(path: tuple[str | int, ...]) -> str | None:
-    """The allowed range of the config field at ``path`` (``("phase3", "steps")``), as text
-    such as ``"0 <= phase3.steps <= 50000"``; None for a path that is not a bounded field."""
-    model: type[BaseModel] = PipelineConfig
-    info = None
-    for i, part in enumerate(path):
-        info = model.model_fields.get(str(part))
+    """The allowed range of the config field at ``path`` (``("phase3", "steps")``) as text,
+    ``"0 <= phase3.steps <= 50000"``; None for a path that is not a bounded field."""
+    model: Any = PipelineConfig
+    for part in path:
+        info = getattr(model, "model_fields", {}).get(str(part))
         if info is None:
             return None
-        annotation = info.annotation
-        if i < len(path) - 1:
-            if not (isinstance(annotation, type) and issubclass(annotation, BaseModel)):
-                return None
-            model = annotation
-    if info is None:
+        model = info.annotation
+    limits = {name: getattr(item, name) for item in info.metadata
+              for name in ("ge", "gt", "le", "lt") if getattr(item, name, None) is not None}
+    if not limits:
         return None
-    low = high = None
-    for item in info.metadata:
-        for name, sign in (("ge", "<="), ("gt", "<")):
-            if getattr(item, name, None) is not None:
-                low = f"{getattr(item, name)} {sign} "
-        for name, sign in (("le", "<="), ("lt", "<")):
-            if getattr(item, name, None) is not None:
-                high = f" {sign} {getattr(item, name)}"
-    if low is None and high is None:
-        return None
-    return f"{low or ''}{'.'.join(str(p) for p in path)}{high or ''}"
+    low = next((f"{limits[k]} {sign} " for k, sign in (("ge", "<="), ("gt", "<"))
+                if k in limits), "")
+    high = next((f" {sign} {limits[k]}" for k, sign in (("le", "<="), ("lt", "<"))
+                 if k in limits), "")
+    return f"{low}{'.'.join(str(p) for p in path)}{high}"

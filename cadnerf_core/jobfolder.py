@@ -5,8 +5,8 @@ One job is one folder, written by the app at upload (or the CLI), then by the pi
     inputs/NNN_<stem>.<ext>   the photos; NNN (000, 001, ...) is the photo order
     inputs/masks/NNN_<stem>.png   uploaded masks, each named after ITS PHOTO (not its own name)
     config.json               the resolved PipelineConfig, written once at the door
-    masks/NNN.png             the mask photo NNN used (8-bit, 255 = object, the photo's size
-                              after EXIF orientation)
+    masks/NNN.png             the mask photo NNN used (8-bit, 255 = object, the photo's
+                              working size after EXIF orientation)
     masks/NNN_overlay.jpg     a picture of that mask over the photo, to look at
     masks.json                per photo: name, mask source (uploaded, alpha, learned, grabcut),
                               warnings, and the mask and overlay file names
