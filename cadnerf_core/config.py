@@ -413,11 +413,14 @@ def field_bounds(path: tuple[str | int, ...]) -> str | None:
     """The allowed range of the config field at ``path`` (``("phase3", "steps")``) as text,
     ``"0 <= phase3.steps <= 50000"``; None for a path that is not a bounded field."""
     model: Any = PipelineConfig
+    info = None
     for part in path:
         info = getattr(model, "model_fields", {}).get(str(part))
         if info is None:
             return None
         model = info.annotation
+    if info is None:
+        return None
     limits = {name: getattr(item, name) for item in info.metadata
               for name in ("ge", "gt", "le", "lt") if getattr(item, name, None) is not None}
     if not limits:
