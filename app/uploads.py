@@ -275,10 +275,10 @@ def _config_error(exc: ValidationError, most: int = 4) -> ApiError:
     if errors and errors[0].get("type") == "json_invalid":
         message = "`config` is not valid JSON"
     else:
-        message = "; ".join(_error_text(err)[:200] for err in errors[:most])
+        message = "; ".join(_error_text(err)[:300] for err in errors[:most])
         if len(errors) > most:
             message += f"; and {len(errors) - most} more"
-    return ApiError(422, "invalid_config", message[:900], field="config",
+    return ApiError(422, "invalid_config", message[:1200], field="config",
                     hint='send JSON like {"preset": "preview", "overrides": {"phase2.steps": 300}}')
 
 

@@ -10,7 +10,8 @@ job, minus nothing: start-up and the loaded library included.
 
 Run: ``.venv/bin/python -m benchmarks.bench_job_memory [--megapixels 40] [--quick]``;
 ``--quick`` keeps the preset's sizes but runs a tenth of its steps and frames (the peak comes
-from intake and from one training step, not from their number).
+from intake and from one training step, not from their number). ``--largest-pass WIDTH``
+measures instead one training step at the configuration's bound on points x network width.
 """
 
 from __future__ import annotations
@@ -97,12 +98,77 @@ def run(megapixels: float, n: int, quick: bool) -> dict[str, Any]:
             "job_s": round(seconds, 1)}
 
 
+LARGEST_PASS = """
+import sys, numpy as np, torch
+from cadnerf_core.cameras import intrinsics_from_fov, orbit_pose
+from cadnerf_core.config import resolve_config
+from cadnerf_core.config_bounds import MAX_POINT_WIDTH
+from cadnerf_core.nerf import phases
+from cadnerf_core.nerf.state import TrainData, TrainState
+def hwm():
+    status = open('/proc/self/status').read()
+    return int(status.split('VmHWM:')[1].split()[0]) / 1024
+phase, width = sys.argv[1], int(sys.argv[2])
+c2w = np.stack([orbit_pose(a, 20.0, 4.0) for a in (0.0, 120.0, 240.0)])
+if phase == 'phase1':
+    points = MAX_POINT_WIDTH // width
+    config = resolve_config('preview', {'field.hidden': width, 'phase1.batch_points': points})
+else:
+    rays = MAX_POINT_WIDTH // width // 64
+    points = rays * 64
+    config = resolve_config('preview', {
+        'use_deformation': True, 'field.hidden': width, 'field.deform_hidden': width,
+        'field.color_hidden': width, 'render.samples_per_ray': 64, 'render.use_grid': False,
+        'render.train_pass_rays': rays, 'phase3.rays': rays, 'phase3.steps': 1,
+        'phase3.scene_steps': 0})
+state = TrainState.create(config, c2w, torch.device('cpu'), None)
+before = hwm()
+if phase == 'phase1':
+    optimizer = phases.adam(state.fields.density.parameters(), 1e-3, state.device)
+    phases.phase1_step(state, optimizer, torch.rand(points, 3) * 2 - 1, torch.zeros(points))
+else:
+    K = np.repeat(intrinsics_from_fov(40.0, 64)[None], 3, 0)
+    masks = np.zeros((3, 64, 64), bool)
+    masks[:, 16:48, 16:48] = True
+    data = TrainData.from_numpy(np.random.rand(3, 64, 64, 3), masks, K, state.device)
+    phases.run_phase3(state, data)
+print(points, before, hwm())
+"""
+
+
+def largest_pass(phase: str, width: int) -> dict[str, Any]:
+    """Peak memory of one training step of ``phase`` ("phase1": occupancy points; "phase3":
+    rays x 64 samples through D, G and the colour net, every sample evaluated) at the bound
+    points x ``width`` = MAX_POINT_WIDTH, in a fresh process: what one pass at the bound adds."""
+    import subprocess
+    import sys
+
+    from tests.reliability.support import ROOT
+
+    done = subprocess.run([sys.executable, "-c", LARGEST_PASS, phase, str(width)], cwd=ROOT,
+                          capture_output=True, text=True, check=True,
+                          env={"PYTHONPATH": str(ROOT), "OMP_NUM_THREADS": "2",
+                               "PATH": "/usr/bin:/bin"})
+    points, before, after = done.stdout.split()[-3:]
+    return {"phase": phase, "width": width, "points": int(points),
+            "process_before_mib": round(float(before)), "step_peak_mib": round(float(after)),
+            "added_mib": round(float(after) - float(before))}
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--megapixels", type=float, default=40.0)
     parser.add_argument("--photos", type=int, default=10)
     parser.add_argument("--quick", action="store_true")
+    parser.add_argument("--largest-pass", type=int, metavar="WIDTH", default=0,
+                        help="only the peak of one training step of phases one and three at "
+                             "the points x width bound, networks WIDTH wide")
     args = parser.parse_args()
+    if args.largest_pass:
+        for phase in ("phase1", "phase3"):
+            print(json.dumps(largest_pass(phase, args.largest_pass)))
+        print(f"command: {COMMAND} --largest-pass {args.largest_pass}")
+        return
     result = run(args.megapixels, args.photos, args.quick)
     print(json.dumps(result))
     print(f"| {result['photos']} photos of {result['size']} ({result['megapixels']} MP), "

@@ -2,7 +2,7 @@
 scales a job's work or memory, and the budget on points per pass x network width.
 
 Each bound is several times what the largest preset uses, so no sensible job is refused;
-with ``MAX_POINT_WIDTH`` they keep the largest accepted job within a 4 GiB worker
+with ``MAX_POINT_WIDTH`` they keep the largest accepted job within a 6 GiB worker
 (``docs/reliability.md``, section 6).
 """
 
@@ -20,21 +20,22 @@ MAX_SAMPLES = 512  # samples per ray (``paper``: 128)
 MAX_LR = 1.0  # Adam steps this large already throw every weight away
 MAX_WEIGHT = 1000.0  # loss weights (``paper``: 10)
 MAX_SEED = 2**31 - 1  # numpy and torch take it on every platform
-MAX_POINT_WIDTH = 2**27
-"""Most (points evaluated in one pass) x (widest network) of a job: activations, the memory
-that grows with a configuration, stay under about 1 GiB (measured: about 7 bytes per unit in
-training). ``standard`` and ``paper`` use half of it in training."""
+MAX_POINT_WIDTH = 2**26
+"""Most (points evaluated in one training pass) x (widest network): the activations a pass keeps
+for its backward pass, the memory that grows with a configuration (``benchmarks.bench_job_memory
+--largest-pass``). ``standard`` and ``paper`` are at it on a GPU (one pass of all rays)."""
+MAX_RENDER_POINT_WIDTH = 4 * MAX_POINT_WIDTH
+"""The same for a rendering chunk, which keeps no activations for a backward pass."""
 
 
 def point_loads(config: PipelineConfig) -> dict[str, int]:
-    """Points evaluated in one pass of each kind, named by the fields that set them."""
+    """Points evaluated in one training pass of each kind, named by the fields setting them."""
     render = config.render
     pass_rays = {name: min(rays, render.train_pass_rays or rays)
                  for name, rays in (("phase2.rays", config.phase2.rays),
                                     ("phase3.rays", config.phase3.rays))}
     loads = {f"{name} x render.samples_per_ray": rays * render.samples_per_ray
              for name, rays in pass_rays.items()}
-    loads["render.chunk_rays x render.samples_per_ray"] = render.chunk_rays * render.samples_per_ray
     loads["phase1.batch_points"] = config.phase1.batch_points
     return loads
 
@@ -42,11 +43,14 @@ def point_loads(config: PipelineConfig) -> dict[str, int]:
 def check_point_budget(config: PipelineConfig) -> None:
     """Raise ValueError naming the fields when points per pass x network width passes
     ``MAX_POINT_WIDTH`` (each field within its own bound can still multiply past memory)."""
-    field = config.field
+    field, render = config.field, config.render
     width = max(field.hidden, field.deform_hidden, field.color_hidden)
-    for what, points in point_loads(config).items():
-        if points * width > MAX_POINT_WIDTH:
+    loads = [(what, points, MAX_POINT_WIDTH) for what, points in point_loads(config).items()]
+    loads.append(("render.chunk_rays x render.samples_per_ray",
+                  render.chunk_rays * render.samples_per_ray, MAX_RENDER_POINT_WIDTH))
+    for what, points, limit in loads:
+        if points * width > limit:
             raise ValueError(
                 f"{what} = {points} points per pass x network width {width} = "
-                f"{points * width}; the limit is {MAX_POINT_WIDTH}: lower one of them (width: "
-                "the largest of field.hidden, deform_hidden, color_hidden)")
+                f"{points * width}; the limit is {limit}: lower one of them (width: the "
+                "largest of field.hidden, deform_hidden, color_hidden)")

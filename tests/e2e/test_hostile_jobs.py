@@ -54,7 +54,8 @@ def _photos(photo_set: list[Path]) -> list[Any]:
     ({"seed": 1e23}, "seed", "2147483647"),
     ({"phase3.lr": 1e308}, "phase3.lr", "1.0"),
     ({"phase2.pose_lr": 1e308}, "phase2.pose_lr", "1.0"),
-    ({"phase2.rays": 65536, "render.samples_per_ray": 512}, "phase2.rays", "134217728"),
+    ({"phase2.rays": 65536, "render.samples_per_ray": 512}, "phase2.rays", "67108864"),
+    ({"phase1.batch_points": 262144, "field.hidden": 512}, "phase1.batch_points", "67108864"),
 ])
 def test_configs_that_scale_work_past_their_bounds_answer_422(
         live_service, photo_set: list[Path], overrides: dict[str, Any], field: str,
