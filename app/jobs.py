@@ -28,6 +28,8 @@ from app.state import (
     JobStore,
     QueueEstimate,
     Settings,
+    default_preset,
+    serving_device,
     stage_work,
 )
 from app.uploads import lay_out
@@ -123,7 +125,10 @@ async def submit(request: Request, settings: Settings, store: JobStore, producer
         settings.data_root.mkdir(parents=True, exist_ok=True)
         staging.mkdir()
         form = await receive_form(request, staging, limits)
-        spec = await run_in_threadpool(lay_out, form, staging, settings)
+        def preset() -> str:  # asked only when the config names no preset
+            return default_preset(settings, serving_device(store.workers, settings.device))
+
+        spec = await run_in_threadpool(lay_out, form, staging, settings, preset)
         job_id = str(uuid.uuid4())
         os.rename(staging, store.job_dir(job_id))
     except OSError as exc:

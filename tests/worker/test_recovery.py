@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import time
+
 from app.state import MAX_ATTEMPTS, JobState, JobStore, OrphanWatch, find_orphans, requeue
 from worker import runner
 from worker.runner import _FixedClaim
@@ -132,3 +134,21 @@ def test_a_deleted_job_is_never_brought_back(store: JobStore, new_job) -> None:
     assert record.id not in store.running_ids()
     assert find_orphans(store) == [] and store.get(record.id) is None
     assert not folder.exists() and store.remove_trash() == 0
+
+
+def test_the_heartbeat_announces_the_device_the_api_offers_presets_for(store: JobStore,
+                                                                     redis_url: str) -> None:
+    from app.state import load_settings
+    from worker.liveness import Liveness
+
+    settings = load_settings(redis_url=redis_url, data_root=store.data_root, device="cpu")
+    liveness = Liveness(settings, "host-cpu", send=lambda job_id: None, startup_watch_s=0)
+    liveness.start()
+    try:
+        deadline = time.monotonic() + 10
+        while not store.workers.devices() and time.monotonic() < deadline:
+            time.sleep(0.05)
+        assert store.workers.devices() == ["cpu"]
+    finally:
+        liveness.stop()
+    assert store.workers.devices() == []
