@@ -34,12 +34,13 @@ redis.call('zrem', KEYS[3], ARGV[1])
 return 1
 """
 
-# KEYS: job, its tombstone, running set. ARGV: job id.
-# A worker's heartbeat puts its job back in the running set only while the job exists and was
-# not deleted (a deleted job must not come back through recovery).
+# KEYS: its tombstone, running set. ARGV: job id.
+# A worker's heartbeat puts its job back in the running set unless the job was deleted (a job
+# Redis lost in a restart is re-seeded from state.json through that set; a deleted one must
+# not come back).
 MARK_RUNNING = """
-if redis.call('exists', KEYS[1]) == 0 or redis.call('exists', KEYS[2]) == 1 then return 0 end
-redis.call('sadd', KEYS[3], ARGV[1])
+if redis.call('exists', KEYS[1]) == 1 then return 0 end
+redis.call('sadd', KEYS[2], ARGV[1])
 return 1
 """
 

@@ -257,11 +257,9 @@ class JobStore:
         return sorted(str(i) for i in self._r.smembers(keys.RUNNING))  # type: ignore[union-attr]
 
     def mark_running(self, job_id: str, running: bool) -> None:
-        """Add the job to (or remove it from) the running set; a job that is gone from Redis
-        or was deleted is never added."""
+        """Add the job to (or remove it from) the running set; a deleted job is never added."""
         if running:
-            self._mark_running(keys=[keys.job(job_id), keys.deleted(job_id), keys.RUNNING],
-                               args=[job_id])
+            self._mark_running(keys=[keys.deleted(job_id), keys.RUNNING], args=[job_id])
         else:
             self._r.srem(keys.RUNNING, job_id)
 
