@@ -69,7 +69,7 @@ def peak_rss_mib(pid: int) -> float:
     raise RuntimeError("no VmHWM in /proc status")
 
 
-def run(megapixels: float, n: int, quick: bool) -> dict[str, Any]:
+def measure(megapixels: float, n: int, quick: bool) -> dict[str, Any]:
     """Start the service, run one job of ``n`` photos, return the worker's peak memory."""
     with tempfile.TemporaryDirectory(prefix="bench-memory-") as tmp:
         folder = Path(tmp)
@@ -169,14 +169,30 @@ def main() -> None:
             print(json.dumps(largest_pass(phase, args.largest_pass)))
         print(f"command: {COMMAND} --largest-pass {args.largest_pass}")
         return
-    result = run(args.megapixels, args.photos, args.quick)
+    result = measure(args.megapixels, args.photos, args.quick)
     print(json.dumps(result))
-    print(f"| {result['photos']} photos of {result['size']} ({result['megapixels']} MP), "
-          f"{result['preset']}{' (quick)' if result['quick'] else ''} | {result['state']} in "
-          f"{result['job_s']} s | worker peak {result['worker_peak_mib']} MiB "
-          f"(idle {result['worker_idle_peak_mib']} MiB) |")
+    print(_row(result))
     print(f"command: {COMMAND} --megapixels {args.megapixels:g} --photos {args.photos}"
           f"{' --quick' if args.quick else ''}")
+
+
+def _row(result: dict[str, Any]) -> str:
+    return (f"| {result['photos']} photos of {result['size']} ({result['megapixels']} MP), "
+            f"{result['preset']}{' (quick)' if result['quick'] else ''} | {result['state']} in "
+            f"{result['job_s']} s | {result['worker_peak_mib']} MiB "
+            f"(idle {result['worker_idle_peak_mib']} MiB) |")
+
+
+def run(quick: bool) -> str:
+    """``make bench``'s section: ten 40-megapixel photos through a live service at preview
+    (``quick``: the cut-down schedule, which keeps the photo work and drops training steps)."""
+    result = measure(40.0, 10, quick)
+    return "\n".join([
+        "## Job memory", "",
+        f"Command: `python -m benchmarks.bench_job_memory --megapixels 40 --photos 10"
+        f"{' --quick' if quick else ''}` (a live service and worker; the worker's peak "
+        "resident memory, VmHWM). Goal: under 2 GB.", "",
+        "| job | result | worker peak |", "| --- | --- | ---: |", _row(result), ""])
 
 
 if __name__ == "__main__":

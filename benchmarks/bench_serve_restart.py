@@ -36,7 +36,7 @@ def _pids(url: str, log: Path) -> tuple[int, int]:
     return worker, int(server["process_id"])
 
 
-def run(n_jobs: int) -> dict[str, Any]:
+def measure(n_jobs: int) -> dict[str, Any]:
     """Kill -9 a serve with ``n_jobs`` submitted, start another; the figures."""
     with tempfile.TemporaryDirectory(prefix="bench-serve-") as tmp:
         folder = Path(tmp)
@@ -72,9 +72,25 @@ def run(n_jobs: int) -> dict[str, Any]:
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--jobs", type=int, default=3)
-    result = run(parser.parse_args().jobs)
+    result = measure(parser.parse_args().jobs)
     print(json.dumps(result))
     print(f"command: {COMMAND}")
+
+
+def run(quick: bool) -> str:
+    """``make bench``'s section: kill -9 of a serve holding three queued jobs, then a second
+    serve on the same data root (the same in QUICK mode: the jobs are tiny)."""
+    result = measure(3)
+    left = result["first_run_processes_left"]
+    return "\n".join([
+        "## Restart after kill -9", "",
+        "Command: `python -m benchmarks.bench_serve_restart --jobs 3`", "",
+        f"- second serve ready after {result['ready_s']} s (goal: within 60 s); all "
+        f"{result['jobs']} queued jobs ended {', '.join(result['states'])} after "
+        f"{result['all_done_s']} s",
+        f"- stale embedded Redis found and stopped (logged): "
+        f"{'yes' if result['stale_redis_stopped_logged'] else 'no'}; processes of the first "
+        f"run left at the end: {len(left)}", ""])
 
 
 if __name__ == "__main__":
