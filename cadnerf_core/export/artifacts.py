@@ -35,9 +35,14 @@ if TYPE_CHECKING:
 
 
 def poses_json(model: TrainedModel, retrieval: RetrievalResult,
-               sizes: dict[int, tuple[int, int]]) -> list[dict[str, Any]]:
+               sizes: dict[int, tuple[int, int]],
+               scales: dict[int, float] | None = None) -> list[dict[str, Any]]:
     """Per photo: name, refined and initial c2w, IoU, discarded, K (crop and photo pixels),
-    and the photo's width and height (``sizes``: photo index -> (width, height))."""
+    and the photo's width and height (``sizes``: photo index -> (width, height) as uploaded).
+
+    ``scales``: per photo index, uploaded pixels per working pixel (``Photo.scale``), so that
+    ``K_photo`` holds for the photo as uploaded; None: 1.
+    """
     from cadnerf_core.intake.crop import uncrop_intrinsics
 
     refined = dict(zip([m.index for m in retrieval.kept], model.c2w, strict=True))
@@ -49,8 +54,16 @@ def poses_json(model: TrainedModel, retrieval: RetrievalResult,
                     "c2w": None if pose is None else pose.tolist(),
                     "c2w_initial": m.c2w.tolist(), "library_view": m.view,
                     "K_canonical": m.K_canon.tolist(), "canonical_size": m.box.size,
-                    "K_photo": uncrop_intrinsics(m.K_canon, m.box).tolist(),
+                    "K_photo": _scaled(uncrop_intrinsics(m.K_canon, m.box),
+                                       (scales or {}).get(m.index, 1.0)).tolist(),
                     "width": width, "height": height})
+    return out
+
+
+def _scaled(K: np.ndarray, scale: float) -> np.ndarray:
+    """Intrinsics [3, 3] in pixels ``scale`` times larger (focal lengths and principal point)."""
+    out = np.array(K, dtype=np.float64)
+    out[:2] *= scale
     return out
 
 
@@ -82,7 +95,8 @@ def export_job(job_dir: Path, model: TrainedModel, retrieval: RetrievalResult,
     ``mesh_s`` with the texture bake, ``bundle_s``, and their sum ``export_s``).
 
     Args:
-        photos: the job's photos (cadnerf_core.intake.photos.Photo), for their pixel sizes.
+        photos: the job's photos (cadnerf_core.intake.photos.Photo), for their pixel sizes as
+            uploaded (working size times ``scale``).
     """
     import time
 
@@ -105,10 +119,11 @@ def export_job(job_dir: Path, model: TrainedModel, retrieval: RetrievalResult,
     mesh = export_mesh(job_dir, model, progress)
     lap("mesh_s")
     progress.step("export", 2, 3)
-    sizes = {i: (p.rgb.shape[1], p.rgb.shape[0]) for i, p in enumerate(photos)}
-    poses = poses_json(model, retrieval, sizes)
+    sizes = {i: tuple(p.size) for i, p in enumerate(photos)}
+    poses = poses_json(model, retrieval, sizes, {i: float(p.scale) for i, p in enumerate(photos)})
     novel, K_novel = novel_cameras(model, data)
     folder = JobFolder(job_dir)
+    progress.check()  # before any output: a cancelled or deleted job writes nothing more
     folder.write_poses(retrieval.model_id, poses, {
         "conventions": CONVENTIONS,
         "novel_views": novel_view_entries(views[data.n_images:], novel, K_novel,
@@ -117,7 +132,9 @@ def export_job(job_dir: Path, model: TrainedModel, retrieval: RetrievalResult,
     lap("bundle_s")
     timings["export_s"] = time.perf_counter() - start
     metrics = metrics_json(model, retrieval, scores)
+    progress.check()
     folder.write_metrics(metrics)
+    progress.check()
     write_bundle(folder)
     progress.step("export", 3, 3)
     psnr_by_name = {p["name"]: p for p in metrics["photos"]}

@@ -110,6 +110,19 @@ def write_bundle(folder: JobFolder) -> list[str]:
     return members
 
 
+def mask_for(folder: JobFolder, index: int, size: tuple[int, int]) -> str | None:
+    """``masks/NNN.png`` when it matches its photo as uploaded pixel for pixel, else None (a
+    photo over the working size has its mask at the working size, which tools reading masks
+    beside images would reject)."""
+    from PIL import Image
+
+    name = numbered_name(MASKS, index)
+    if not folder.file(name).is_file():
+        return None
+    with Image.open(folder.file(name)) as mask:
+        return name if mask.size == size else None
+
+
 def nerfstudio_transforms(c2w: np.ndarray, K_photo: Sequence[np.ndarray],
                           sizes: Sequence[tuple[int, int]], images: Sequence[str],
                           masks: Sequence[str | None]) -> dict[str, Any]:
@@ -158,14 +171,11 @@ def export_for_tools(job_dir: Path, poses: list[dict[str, Any]], c2w: np.ndarray
     """
     folder = JobFolder(job_dir)
     images = write_images(folder)
-    masks_present = {p.index for p in folder.photos()
-                     if (folder.root / numbered_name(MASKS, p.index)).is_file()}
     kept = [p for p in poses if not p["discarded"]]
     K_photo = [np.asarray(p["K_photo"]) for p in kept]
     sizes = [(int(p["width"]), int(p["height"])) for p in kept]
     image_names = [images[p["index"]] for p in kept]
-    mask_names = [numbered_name(MASKS, p["index"]) if p["index"] in masks_present else None
-                  for p in kept]
+    mask_names = [mask_for(folder, p["index"], size) for p, size in zip(kept, sizes, strict=True)]
     folder.write_transforms(nerfstudio_transforms(c2w, K_photo, sizes, image_names, mask_names))
     cameras = [ColmapCamera(name=name.removeprefix(f"{IMAGES}/"), c2w=np.asarray(pose), K=K,
                             width=w, height=h)

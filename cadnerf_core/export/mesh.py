@@ -105,6 +105,8 @@ def export_mesh(job_dir: Path, model: TrainedModel,
         return model.colors(p, d, check=check)
 
     textured = bake_texture(mesh, color, ecfg.texture_size)
+    if progress is not None:
+        progress.check()  # before any output: a cancelled or deleted job writes nothing more
     folder = JobFolder(job_dir)
     write_glb(folder.file(MESH), textured)
     write_obj(folder, textured)

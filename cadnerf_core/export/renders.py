@@ -96,6 +96,7 @@ def render_views(job_dir: Path, model: TrainedModel, data: TrainData, progress: 
         else:
             rgb, _ = model.render_image(pose, K_novel, size, size)
         path = JobFolder(job_dir).view_path(i)
+        progress.check()  # before any output: a cancelled or deleted job writes nothing more
         write_png(path, rgb)
         names.append(path.relative_to(job_dir).as_posix())
         progress.step("render", i + 1, total)
@@ -114,6 +115,7 @@ def render_orbit(job_dir: Path, model: TrainedModel, data: TrainData, progress: 
         frames.append(to_uint8(rgb))
         progress.step("render", done + i + 1, total)
     folder = JobFolder(job_dir)
+    progress.check()
     write_video(folder.file(ORBIT_VIDEO), frames, ecfg.orbit_fps)
     write_gif(folder.file(ORBIT_GIF), frames, ecfg.orbit_fps)
     return [ORBIT_VIDEO, ORBIT_GIF]
