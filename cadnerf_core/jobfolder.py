@@ -149,7 +149,7 @@ def media_type(name: str) -> str:
     return "application/octet-stream"
 
 
-SUBFOLDERS = (MASK_UPLOADS, INPUTS, MASKS, VIEWS, CHECKPOINTS, EVAL)
+SUBFOLDERS = (MASK_UPLOADS, SPARSE, INPUTS, MASKS, VIEWS, IMAGES, CHECKPOINTS, EVAL)
 """The folders inside a job folder (nested ones first), created on demand; the job folder
 itself never is."""
 

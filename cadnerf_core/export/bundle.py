@@ -33,6 +33,7 @@ from cadnerf_core.jobfolder import (
     JobFolder,
     atomic_path,
     bundle_image_name,
+    ensure_folder,
     numbered_name,
 )
 
@@ -80,7 +81,7 @@ def add_image(folder: JobFolder, photo: InputPhoto, pixels: np.ndarray | None) -
 
     name = bundle_image_name(photo.path, pixels is None)
     target = folder.file(name)
-    target.parent.mkdir(parents=True, exist_ok=True)
+    ensure_folder(target.parent)
     target.unlink(missing_ok=True)
     if pixels is not None:
         with atomic_path(target) as tmp:
