@@ -242,6 +242,18 @@ class RetrievalConfig(_Frozen):
     ambiguous_walk: Literal["ccw", "best"] = "ccw"
     """DP, "auto": the walk taken when ambiguous: "ccw" (the paper's order; a lead of a few
     hundredths of IoU never decides) or "best" (the higher objective, however slight)."""
+    exclude_models: tuple[str, ...] = ()
+    """Library model ids never retrieved (a leave-out evaluation: the object's own look-alike
+    left out, so the figures say how the method does on objects the library has not seen).
+    Ids the library lacks are an error when the job runs."""
+
+    @model_validator(mode="after")
+    def _check_excluded(self) -> RetrievalConfig:
+        if any(not name.strip() for name in self.exclude_models):
+            raise ValueError("exclude_models: model ids must not be empty")
+        if len(set(self.exclude_models)) != len(self.exclude_models):
+            raise ValueError(f"exclude_models lists a model twice: {list(self.exclude_models)}")
+        return self
 
 
 class MasksConfig(_Frozen):

@@ -17,6 +17,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from cadnerf_core.config import AMBIGUOUS_HINT, RetrievalConfig
+from cadnerf_core.errors import InputError
 from cadnerf_core.intake.crop import CropBox, apply_crop
 from cadnerf_core.intake.photos import canonical_masks
 from cadnerf_core.progress import Progress
@@ -127,13 +128,14 @@ def retrieve(masks: Sequence[np.ndarray], names: Sequence[str], library: Library
         The RetrievalResult.
     """
     config = config or RetrievalConfig()
+    allowed = allowed_models(library, config.exclude_models)
     spec = library.spec  # both silhouette sets share the crop size and margin
     crops, boxes = canonical_masks(masks, spec.silhouette_size, spec.margin)
     evidence = 0.0
     if images is not None and config.solver == "dp" and config.appearance_weight > 0:
         evidence = direction_evidence(images, masks, boxes)
     photos = _Photos(names, [mask.shape[:2] for mask in masks], crops, boxes, evidence, focals,
-                     crop_size or spec.silhouette_size)
+                     crop_size or spec.silhouette_size, allowed)
     near = library.near
     known = [f for f in focals or [] if f is not None]
     wanted = config.perspective
@@ -155,6 +157,27 @@ def retrieve(masks: Sequence[np.ndarray], names: Sequence[str], library: Library
     return chosen
 
 
+def allowed_models(library: Library, exclude: Sequence[str]) -> np.ndarray:
+    """Indices of the library models retrieval may choose: all but the ``exclude``d ids.
+
+    Returns:
+        [M'] int64, increasing.
+    Raises:
+        InputError: an id the library does not hold, or every model excluded.
+    """
+    known = {m.id for m in library.models}
+    unknown = sorted(set(exclude) - known)
+    if unknown:
+        raise InputError(f"no model {', '.join(map(repr, unknown))} in the library",
+                         item="retrieval.exclude_models",
+                         hint=f"choose among {', '.join(sorted(known))}")
+    allowed = np.array([i for i, m in enumerate(library.models) if m.id not in set(exclude)],
+                       dtype=np.int64)
+    if not len(allowed):
+        raise InputError("every library model is excluded", item="retrieval.exclude_models")
+    return allowed
+
+
 @dataclass
 class _Photos:
     """What retrieval needs of the photos, computed once for every silhouette set."""
@@ -166,6 +189,7 @@ class _Photos:
     evidence: float  # texture evidence for the walking direction
     focals: Sequence[float | None] | None
     crop_size: int  # side of the crop that K_canon and box refer to
+    allowed: np.ndarray  # [M'] library indices of the models that may be chosen
 
 
 def _retrieve_from(photos: _Photos, library: Library, config: RetrievalConfig,
@@ -175,7 +199,11 @@ def _retrieve_from(photos: _Photos, library: Library, config: RetrievalConfig,
     ``steps``: (steps done before, total) of the "retrieval" stage; this search adds two."""
     spec = library.spec
     names, boxes, evidence = photos.names, photos.boxes, photos.evidence
-    iou = iou_table(photos.crops, library.silhouettes)
+    allowed = photos.allowed
+    silhouettes = library.silhouettes
+    if len(allowed) < len(silhouettes):
+        silhouettes = silhouettes[allowed]
+    iou = iou_table(photos.crops, silhouettes)  # [P, M', V]: model axis over ``allowed``
     voted, ranking = vote_models(iou)
     if progress is not None:
         progress.step("retrieval", steps[0] + 1, steps[1])
@@ -194,13 +222,14 @@ def _retrieve_from(photos: _Photos, library: Library, config: RetrievalConfig,
         discarded = bool(view < 0)
         v = int(np.argmax(iou[p, m])) if discarded else int(view)
         box = CropBox(boxes[p].x0, boxes[p].y0, boxes[p].side, photos.crop_size)
-        matches.append(photo_match(library, m, p, names[p], v, discarded, float(iou[p, m, v]),
-                                   box))
+        matches.append(photo_match(library, int(allowed[m]), p, names[p], v, discarded,
+                                   float(iou[p, m, v]), box))
     if config.shared_focal:
         matches = share_focal(matches, photos.sizes, photos.focals)
-    top = [{"model_id": library.models[i].id, "category": library.models[i].category,
+    models = [library.models[i] for i in allowed]
+    top = [{"model_id": models[i].id, "category": models[i].category,
             "votes": votes, "score": score} for i, votes, score in ranking[:TOP_MODELS]]
-    entry = library.models[m]
+    entry = models[m]
     log.info("retrieved %s (%s) with %s: %d of %d photos kept", entry.id, entry.category,
              config.solver, sum(not x.discarded for x in matches), len(matches))
     if progress is not None:

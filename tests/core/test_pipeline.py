@@ -176,16 +176,18 @@ def test_cli_reconstructs_into_the_output_folder(tmp_path: Path, tiny_library: A
                                       *[arg for m in masks for arg in ("--masks", str(m))],
                                       *tiny_cli_options(), "--device", "cpu", "--library",
                                       str(tiny_library_dir), "--walk", "ccw", "--own-focal",
-                                      "--perspective", "near", "--focal-35mm", "30"])
+                                      "--perspective", "near", "--focal-35mm", "30",
+                                      "--exclude-models", "chair_wood"])
     assert result.exit_code == 0, result.output
     assert "results in" in result.output
     # The walk write_job rendered is counter-clockwise (increasing azimuth), as told.
     resolved = JobFolder(out).read_config()
     assert resolved == tiny_config(retrieval={"walk": "ccw", "shared_focal": False,
-                                              "perspective": "near", "focal_35mm": 30.0})
+                                              "perspective": "near", "focal_35mm": 30.0,
+                                              "exclude_models": ("chair_wood",)})
     retrieval = JobFolder(out).read_retrieval()
     assert retrieval is not None
-    assert retrieval["perspective"] == "near"
+    assert retrieval["perspective"] == "near" and retrieval["model_id"] != "chair_wood"
     assert retrieval["direction"] == 1 and retrieval["direction_lead"] is None
     assert sorted(p.name for p in (out / "inputs").iterdir() if p.is_file()) == \
         ["000_000_p.png", "001_001_p.png", "002_002_p.png"]
@@ -215,6 +217,14 @@ def test_cli_retrieve_warns_of_a_guessed_direction_unless_given(tmp_path: Path,
     assert told.exit_code == 0, told.output
     data = json.loads(told.output)
     assert data["direction"] == -1 and data["direction_ambiguous"] is False
+    left_out = CliRunner().invoke(app, [*common, "--json", "--exclude-models", "cuboid_slab"])
+    assert left_out.exit_code == 0, left_out.output
+    data = json.loads(left_out.stdout)
+    assert data["model_id"] != "cuboid_slab"
+    assert "cuboid_slab" not in {t["model_id"] for t in data["top_models"]}
+    unknown = CliRunner().invoke(app, [*common, "--exclude-models", "mug,no_such_model"])
+    assert unknown.exit_code == 2
+    assert "no model 'no_such_model' in the library" in unknown.output
 
 
 def test_a_focal_length_given_for_photos_without_exif_sets_their_cameras(
