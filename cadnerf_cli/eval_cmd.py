@@ -72,7 +72,9 @@ def _summary(report: dict[str, Any]) -> str:
             f"PSNR {num(img['psnr'])} SSIM {num(img['ssim'], 3)} LPIPS {num(img['lpips'], 3)} "
             f"Avg {num(img['average'], 3)} | rotation {num(ret['rotation_deg'])} -> "
             f"{num(ref['rotation_deg'])} deg, translation x100 {num(ret['translation_x100'])} -> "
-            f"{num(ref['translation_x100'])} | {report['seconds']:.0f} s")
+            f"{num(ref['translation_x100'])} | focal error "
+            f"{num(100 * report['focal_error_retrieved'], 0)} -> "
+            f"{num(100 * report['focal_error'], 0)} % | {report['seconds']:.0f} s")
 
 
 def eval_command(

@@ -118,6 +118,13 @@ class Phase2Config(_Frozen):
     0 (off): the retrieved model is another object; held to it, the poses do not move."""
     prior_points: int = Field(default=1024, ge=16)
     """CAD occupancy points per step for ``prior_weight``."""
+    focal_bound: float = Field(default=1.0, ge=1.0, le=4.0)
+    """Where no photo's EXIF (nor ``retrieval.focal_35mm``) gives the focal length: the one
+    focal length the photos share is refined with the poses, in both phases' pose windows (as
+    NeRF-- does), by a factor kept within [1 / bound, bound] (1: fixed at retrieval's
+    estimate, which assumes the library's 40-degree camera)."""
+    focal_lr: float = Field(default=1e-2, gt=0.0)
+    """Adam learning rate of the focal factor's logit (``focal_bound``), in either phase."""
 
     @model_validator(mode="after")
     def _check_windows(self) -> Phase2Config:

@@ -248,3 +248,26 @@ def test_a_focal_length_given_for_photos_without_exif_sets_their_cameras(
     assert blind.retrieval.matches[0].K_photo[0, 0] != pytest.approx(true_focal_px, rel=1e-3)
     # Known, it lets retrieval choose the perspective: these photos are the far set's.
     assert told.retrieval.perspective == "far"
+
+
+def test_the_focal_length_is_learned_only_where_the_photos_do_not_give_it(
+        tmp_path: Path, tiny_library: Any) -> None:
+    from cadnerf_core.pipeline import run_job
+
+    learn = {"phase2": {"focal_bound": 1.5, "focal_lr": 0.05}}
+    write_job(tmp_path / "blind", tiny_library, overrides=learn)
+    write_job(tmp_path / "told", tiny_library,
+              overrides={**learn, "retrieval": {"focal_35mm": 50.0}})
+    scales = {}
+    for name in ("blind", "told"):
+        run_job(tmp_path / name, tiny_library, Progress(), "cpu")
+        folder = JobFolder(tmp_path / name)
+        scales[name] = folder.read_metrics()["focal_scale"]  # type: ignore[index]
+        retrieved = {m["index"]: np.asarray(m["K_photo"])
+                     for m in folder.read_retrieval()["matches"]}  # type: ignore[index]
+        for photo in folder.read_poses()["photos"]:  # type: ignore[index]
+            K, before = np.asarray(photo["K_photo"]), retrieved[photo["index"]]
+            assert K[0, 0] == pytest.approx(scales[name] * before[0, 0], rel=1e-5)
+            assert K[1, 1] == pytest.approx(scales[name] * before[1, 1], rel=1e-5)
+    assert scales["told"] == 1.0
+    assert scales["blind"] != 1.0 and 1 / 1.5 <= scales["blind"] <= 1.5
