@@ -249,6 +249,14 @@ class RetrievalConfig(_Frozen):
     ambiguous_walk: Literal["ccw", "best"] = "ccw"
     """DP, "auto": the walk taken when ambiguous: "ccw" (the paper's order; a lead of a few
     hundredths of IoU never decides) or "best" (the higher objective, however slight)."""
+    hypotheses: int = Field(default=1, ge=1, le=10)
+    """Start hypotheses (model, walking direction, poses) each given a short coarse silhouette
+    fit before training, the best fit kept: the retrieved walk and the next best walks of the
+    most voted models either way round (1: the retrieved walk alone)."""
+    hypothesis_steps: int = Field(default=60, ge=1, le=2000)
+    """Phase-two steps of each hypothesis's coarse fit (phase one gets half as many)."""
+    hypothesis_size: int = Field(default=32, ge=16, le=256)
+    """Side in pixels of the crops a hypothesis is fitted and scored on."""
     exclude_models: tuple[str, ...] = ()
     """Library model ids never retrieved (a leave-out evaluation: the object's own look-alike
     left out, so the figures say how the method does on objects the library has not seen).

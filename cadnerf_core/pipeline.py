@@ -254,8 +254,9 @@ def run_job(job_dir: Path, library: Library, progress: Progress | None = None,
         start = time.perf_counter()
         intake = run_intake(job_dir, library, config, progress, mask_model)
         intake_s = time.perf_counter() - start
-        data = training_data(intake, config, library.spec.margin, dev)
         learn_focal = all(p.focal_pixels is None for p in intake.photos)
+        intake = robust_start(job_dir, intake, library, config, dev, learn_focal, progress)
+        data = training_data(intake, config, library.spec.margin, dev)
         state, extra = train(job_dir, library, intake.retrieval, data, config, dev, progress,
                              learn_focal)
         extra["timings"]["intake_s"] = intake_s
@@ -264,6 +265,21 @@ def run_job(job_dir: Path, library: Library, progress: Progress | None = None,
         return export_job(job_dir, model, retrieval, intake.photos, data, progress)
     finally:
         _detach_log(handler)
+
+
+def robust_start(job_dir: Path, intake: Intake, library: Library, config: PipelineConfig,
+                 device: torch.device, learn_focal: bool, progress: Progress) -> Intake:
+    """The intake with the retrieval hypothesis whose short silhouette fit is best
+    (``RetrievalConfig.hypotheses``; ``nerf.start``), its ``retrieval.json`` rewritten with
+    every fit's score; unchanged when retrieval gave no alternatives."""
+    if not intake.retrieval.alternatives:
+        return intake
+    from cadnerf_core.nerf.start import choose_start
+
+    chosen = choose_start(intake.retrieval, intake.photos, intake.masks, library, config,
+                          device, learn_focal, progress)
+    JobFolder(job_dir).write_retrieval(chosen.to_json())
+    return dataclasses.replace(intake, retrieval=chosen)
 
 
 def with_focal_scale(retrieval: RetrievalResult, data: TrainData,

@@ -23,7 +23,7 @@ from cadnerf_core.intake.photos import canonical_masks
 from cadnerf_core.progress import Progress
 from cadnerf_core.retrieval.cameras import angle_mismatch, photo_match, share_focal
 from cadnerf_core.retrieval.posesearch import PoseSearchResult, cyclic_dp, paper_algorithm1
-from cadnerf_core.retrieval.result import RetrievalResult
+from cadnerf_core.retrieval.result import PhotoMatch, RetrievalResult
 from cadnerf_core.retrieval.scoring import azimuth_bins, iou_table, vote_models
 
 if TYPE_CHECKING:
@@ -198,7 +198,7 @@ def _retrieve_from(photos: _Photos, library: Library, config: RetrievalConfig,
     """``retrieve`` against one silhouette set (``library`` is the set's own Library).
     ``steps``: (steps done before, total) of the "retrieval" stage; this search adds two."""
     spec = library.spec
-    names, boxes, evidence = photos.names, photos.boxes, photos.evidence
+    evidence = photos.evidence
     allowed = photos.allowed
     silhouettes = library.silhouettes
     if len(allowed) < len(silhouettes):
@@ -217,23 +217,58 @@ def _retrieve_from(photos: _Photos, library: Library, config: RetrievalConfig,
         lead = found.direction_lead
         m, found = _choose_walk(iou, voted, ranking, az_index, spec.n_azimuths, ccw, evidence)
         found = dataclasses.replace(found, direction_lead=lead)
+    models = [library.models[i] for i in allowed]
+    top = [{"model_id": models[i].id, "category": models[i].category,
+            "votes": votes, "score": score} for i, votes, score in ranking[:TOP_MODELS]]
+    matches = _matches(photos, library, iou, m, found, config)
+    log.info("retrieved %s (%s) with %s: %d of %d photos kept", models[m].id,
+             models[m].category, config.solver, sum(not x.discarded for x in matches),
+             len(matches))
+    if progress is not None:
+        progress.step("retrieval", steps[0] + 2, steps[1])
+    others = [RetrievalResult(models[o].id, models[o].category, top,
+                              _matches(photos, library, iou, o, walk, config), config.solver,
+                              walk.direction, walk.score, evidence, perspective=perspective)
+              for o, walk in _alternatives(iou, ranking, az_index, spec.n_azimuths, config,
+                                           evidence, (m, found.direction))]
+    return RetrievalResult(models[m].id, models[m].category, top, matches, config.solver,
+                           found.direction, found.score, evidence, found.direction_lead,
+                           perspective=perspective, direction_ambiguous=ambiguous,
+                           alternatives=others)
+
+
+def _matches(photos: _Photos, library: Library, iou: np.ndarray, m: int,
+             found: PoseSearchResult, config: RetrievalConfig) -> list[PhotoMatch]:
+    """Every photo's match to model ``m`` (an index into ``photos.allowed``) along the walk
+    ``found``; a discarded photo keeps its own best view, flagged."""
     matches = []
     for p, view in enumerate(found.views):
         discarded = bool(view < 0)
         v = int(np.argmax(iou[p, m])) if discarded else int(view)
-        box = CropBox(boxes[p].x0, boxes[p].y0, boxes[p].side, photos.crop_size)
-        matches.append(photo_match(library, int(allowed[m]), p, names[p], v, discarded,
-                                   float(iou[p, m, v]), box))
+        b = photos.boxes[p]
+        box = CropBox(b.x0, b.y0, b.side, photos.crop_size)
+        matches.append(photo_match(library, int(photos.allowed[m]), p, photos.names[p], v,
+                                   discarded, float(iou[p, m, v]), box))
     if config.shared_focal:
         matches = share_focal(matches, photos.sizes, photos.focals)
-    models = [library.models[i] for i in allowed]
-    top = [{"model_id": models[i].id, "category": models[i].category,
-            "votes": votes, "score": score} for i, votes, score in ranking[:TOP_MODELS]]
-    entry = models[m]
-    log.info("retrieved %s (%s) with %s: %d of %d photos kept", entry.id, entry.category,
-             config.solver, sum(not x.discarded for x in matches), len(matches))
-    if progress is not None:
-        progress.step("retrieval", steps[0] + 2, steps[1])
-    return RetrievalResult(entry.id, entry.category, top, matches, config.solver,
-                           found.direction, found.score, evidence, found.direction_lead,
-                           perspective=perspective, direction_ambiguous=ambiguous)
+    return matches
+
+
+def _alternatives(iou: np.ndarray, ranking: Sequence[tuple[int, int, float]],
+                  az_index: np.ndarray, n_azimuths: int, config: RetrievalConfig,
+                  evidence: float, chosen: tuple[int, int]) -> list[tuple[int, PoseSearchResult]]:
+    """The best walks after the ``chosen`` (model, direction), best score first: each of the
+    ``TOP_MODELS`` most voted models walked each allowed way round; ``config.hypotheses`` - 1
+    of them. Returns (model index, walk) pairs."""
+    if config.hypotheses <= 1:
+        return []
+    walks = {"ccw": ("ccw",), "cw": ("cw",)}.get(config.walk, ("ccw", "cw"))
+    found = []
+    for other, _, _ in ranking[:TOP_MODELS]:
+        for walk in walks:
+            given = config.model_copy(update={"walk": walk})
+            result = solve_poses(iou[:, other, :], az_index, n_azimuths, given, evidence)
+            if (other, result.direction) != chosen:
+                found.append((other, result))
+    found.sort(key=lambda pair: -pair[1].score)
+    return found[:config.hypotheses - 1]

@@ -271,3 +271,20 @@ def test_the_focal_length_is_learned_only_where_the_photos_do_not_give_it(
             assert K[1, 1] == pytest.approx(scales[name] * before[1, 1], rel=1e-5)
     assert scales["told"] == 1.0
     assert scales["blind"] != 1.0 and 1 / 1.5 <= scales["blind"] <= 1.5
+
+
+def test_several_start_hypotheses_are_fitted_and_the_best_kept(tmp_path: Path,
+                                                               tiny_library: Any) -> None:
+    from cadnerf_core.pipeline import run_job
+
+    write_job(tmp_path, tiny_library, overrides={"retrieval": {
+        "hypotheses": 3, "hypothesis_steps": 4, "hypothesis_size": 16}})
+    summary = run_job(tmp_path, tiny_library, Progress(), "cpu")
+    retrieval = JobFolder(tmp_path).read_retrieval()
+    assert retrieval is not None
+    fits = retrieval["hypotheses"]
+    assert len(fits) == 3 and sum(h["chosen"] for h in fits) == 1
+    best = max(fits, key=lambda h: h["fit"])
+    assert best["chosen"] and best["model_id"] == retrieval["model_id"] == summary["model_id"]
+    assert len({(h["model_id"], h["direction"]) for h in fits}) == 3
+    assert all(-1.0 <= h["fit"] <= 1.0 for h in fits)

@@ -373,3 +373,22 @@ def test_exclude_models_rejects_blanks_and_repeats() -> None:
         RetrievalConfig(exclude_models=("a", "a"))
     with pytest.raises(ValidationError, match="empty"):
         RetrievalConfig(exclude_models=(" ",))
+
+
+def test_hypotheses_are_the_next_best_distinct_walks(tiny_library: Any) -> None:
+    library = tiny_library
+    model = next(i for i, m in enumerate(library.models) if m.id == "chair_wood")
+    n_el = len(library.spec.elevations)
+    masks = _render_views(library, model, [a * n_el for a in (1, 3, 5, 7)], (0, 0))
+    names = [f"p{i}.png" for i in range(len(masks))]
+    assert retrieve(masks, names, library, RetrievalConfig()).alternatives == []
+    result = retrieve(masks, names, library, RetrievalConfig(hypotheses=3))
+    assert len(result.alternatives) == 2
+    seen = [(h.model_id, h.direction) for h in (result, *result.alternatives)]
+    assert len(set(seen)) == 3
+    scores = [h.score for h in result.alternatives]
+    assert scores == sorted(scores, reverse=True)
+    assert all(len(h.matches) == len(masks) for h in result.alternatives)
+    assert "hypotheses" not in result.to_json()
+    told = retrieve(masks, names, library, RetrievalConfig(hypotheses=3, walk="cw"))
+    assert {h.direction for h in (told, *told.alternatives)} == {-1}
