@@ -63,6 +63,8 @@ PRESET = "preview"
 LEVERS: dict[str, tuple[str, dict[str, Any], dict[str, Any]]] = {
     "focal": ("focal length learned with the poses", {"phase2.focal_bound": 1.0},
               {"phase2.focal_bound": 1.6}),
+    "hypotheses": ("three start hypotheses, each a short silhouette fit",
+                   {"retrieval.hypotheses": 1}, {"retrieval.hypotheses": 3}),
 }
 
 
@@ -76,16 +78,21 @@ class Plan:
     lever_fovs: tuple[float, ...]
     lever_meshes: tuple[str, ...]
     eval_size: int | None
+    variants: tuple[str, ...] | None = None  # only these rows (None: all)
 
 
-def make_plan(quick: bool, names: list[str] | None = None) -> Plan:
-    """The quick or the full plan (``names``: only these meshes)."""
+def make_plan(quick: bool, names: list[str] | None = None,
+              variants: list[str] | None = None) -> Plan:
+    """The quick or the full plan (``names``: only these meshes; ``variants``: only these
+    rows, of "leave-out", "with look-alike" and ``lever_variants``)."""
     every = tuple(sorted(p.name for p in (EVAL_ROOT / "meshes").iterdir() if p.is_dir()))
+    only = tuple(variants) if variants else None
     if quick:
         meshes = tuple(names or QUICK_MESHES)
-        return Plan(meshes, dict(QUICK_OVERRIDES), (40.0,), (40.0, 70.0), meshes, 64)
+        return Plan(meshes, dict(QUICK_OVERRIDES), (40.0,), (40.0, 70.0), meshes, 64, only)
     meshes = tuple(names or every)
-    return Plan(meshes, {}, FOVS, FOVS, tuple(m for m in meshes if m in QUICK_MESHES), None)
+    return Plan(meshes, {}, FOVS, FOVS, tuple(m for m in meshes if m in QUICK_MESHES), None,
+                only)
 
 
 def lever_variants() -> dict[str, tuple[str, dict[str, Any]]]:
@@ -121,6 +128,7 @@ def run_job(name: str, fov: float, variant: str, overrides: dict[str, Any],
             protocol: Protocol, plan: Plan, library: Any, work: Path) -> dict[str, Any]:
     """One job, scored. Returns its row (``error`` set when it failed)."""
     from cadnerf_core.evaluation.evaluate import evaluate_dataset
+    from cadnerf_core.jobfolder import JobFolder
 
     row: dict[str, Any] = {"mesh": name, "fov": fov, "variant": variant}
     config = {**plan.overrides, **exclude_overrides(name, protocol), **overrides, "seed": SEED}
@@ -133,21 +141,28 @@ def run_job(name: str, fov: float, variant: str, overrides: dict[str, Any],
         return {**row, "error": f"{type(exc).__name__}: {exc}"}
     log.info("%s %s at %g deg: %.2f dB, %.1f deg, %.0f s", name, variant, fov,
              report.image.psnr, report.pose_refined.rotation_deg, report.seconds)
+    fits = (JobFolder(report.job_dir).read_retrieval() or {}).get("hypotheses", [])
     return {**row, "model": report.model_id, "psnr": report.image.psnr,
             "rot": report.pose_refined.rotation_deg, "r_rot": report.pose_retrieved.rotation_deg,
             "focal_err": 100.0 * report.focal_error,
             "r_focal_err": 100.0 * report.focal_error_retrieved,
-            "job_s": report.seconds - report.render_seconds}
+            "job_s": report.seconds - report.render_seconds, "hypotheses": len(fits),
+            "fit_s": statistics.fmean(h["seconds"] for h in fits) if fits else None,
+            "switched": any(h["chosen"] for h in fits[1:])}
 
 
 def run_rows(plan: Plan, library: Any, work: Path) -> list[dict[str, Any]]:
     """Every job of the plan, in order."""
     rows = []
-    levers = lever_variants()
+    levers = {k: v for k, v in lever_variants().items()
+              if plan.variants is None or k in plan.variants}
+    wanted = plan.variants or ("leave-out", "with look-alike")
     for name in plan.meshes:
         for fov in FOVS:
-            rows.append(run_job(name, fov, "leave-out", {}, "leave-out", plan, library, work))
-            if fov in plan.lookalike_fovs:
+            if "leave-out" in wanted:
+                rows.append(run_job(name, fov, "leave-out", {}, "leave-out", plan, library,
+                                    work))
+            if fov in plan.lookalike_fovs and "with look-alike" in wanted:
                 rows.append(run_job(name, fov, "with look-alike", {}, "with look-alike", plan,
                                     library, work))
             if fov in plan.lever_fovs and name in plan.lever_meshes:
@@ -169,7 +184,10 @@ def summary_rows(rows: list[dict[str, Any]]) -> list[dict[str, Any]]:
             pairs = {(r["mesh"], r["fov"]) for r in group}
             base = [r for r in done if r["variant"] == "leave-out"
                     and (r["mesh"], r["fov"]) in pairs]
+            fits = [r["fit_s"] for r in group if r.get("fit_s") is not None]
             out.append({
+                "fit_s": statistics.fmean(fits) if fits else None,
+                "switched": sum(bool(r.get("switched")) for r in group),
                 "variant": variant, "fov": "all" if fov is None else f"{fov:g}",
                 "jobs": len(group), "psnr": statistics.fmean(r["psnr"] for r in group),
                 "base_psnr": statistics.fmean(r["psnr"] for r in base) if base else None,
@@ -185,6 +203,8 @@ def section(plan: Plan, rows: list[dict[str, Any]], seconds: float, quick: bool,
             names: list[str] | None) -> str:
     """The markdown section."""
     flags = (" --quick" if quick else "") + (f" --meshes {' '.join(names)}" if names else "")
+    if plan.variants:
+        flags += " --variants " + " ".join(f'"{v}"' if " " in v else v for v in plan.variants)
     labels = {name: label for name, (label, _) in lever_variants().items()}
     lines = [
         "## Objects the library has not seen (leave-out, three fields of view)", "",
@@ -204,12 +224,14 @@ def section(plan: Plan, rows: list[dict[str, Any]], seconds: float, quick: bool,
         "its kept photos (after similarity alignment); focal error: the job's focal length "
         "against the truth, |%|, mean; job s: whole job (retrieval, training, export) "
         "without the held-out renders. `base` columns: the leave-out jobs of the same "
-        "meshes and fields of view.", "",
+        "meshes and fields of view. s per hypothesis: mean wall time of one hypothesis's "
+        "coarse fit; start switched: jobs whose best fit was not the retrieved walk.", "",
         markdown_table([("variant", "variant", 0), ("fov", "fov", 0), ("jobs", "jobs", 0),
                         ("PSNR", "psnr", 2), ("base PSNR", "base_psnr", 2),
                         ("rot. err. (deg)", "rot", 1), ("base rot.", "base_rot", 1),
                         ("|focal err.| %", "focal", 0), ("mean job s", "job_s", 0),
-                        ("max job s", "max_s", 0)], summary_rows(rows)), "",
+                        ("max job s", "max_s", 0), ("s per hypothesis", "fit_s", 1),
+                        ("start switched", "switched", 0)], summary_rows(rows)), "",
         markdown_table([("mesh", "mesh", 0), ("fov", "fov", 0), ("variant", "variant", 0),
                         ("model", "model", 0), ("PSNR", "psnr", 2),
                         ("rot. retrieved", "r_rot", 1), ("rot. refined", "rot", 1),
@@ -224,15 +246,15 @@ def section(plan: Plan, rows: list[dict[str, Any]], seconds: float, quick: bool,
     return "\n".join(lines) + "\n"
 
 
-def run(quick: bool, names: list[str] | None = None) -> str:
-    """Run the benchmark. Returns its markdown section."""
+def run(quick: bool, names: list[str] | None = None, variants: list[str] | None = None) -> str:
+    """Run the benchmark (``variants``: only these rows). Returns its markdown section."""
     import torch
 
     from cadnerf_core.library.format import load_library
 
     if not (EVAL_ROOT / "meshes").is_dir():
         return "## Objects the library has not seen\n\nNot run: `../shared/eval` is absent.\n"
-    plan = make_plan(quick, names)
+    plan = make_plan(quick, names, variants)
     library = load_library(LIBRARY_DIR)
     shutil.rmtree(WORK_DIR, ignore_errors=True)
     threads = torch.get_num_threads()
@@ -250,10 +272,13 @@ def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--quick", action="store_true")
     parser.add_argument("--meshes", nargs="*", default=None, help="mesh folder names")
+    parser.add_argument("--variants", nargs="*", default=None,
+                        help='only these rows: "leave-out", "with look-alike", '
+                             'focal_on/focal_off, hypotheses_on/hypotheses_off')
     args = parser.parse_args(argv)
     logging.basicConfig(level=logging.INFO,
                         format="%(asctime)s %(levelname)s %(name)s: %(message)s")
-    sys.stdout.write(run(args.quick, args.meshes))
+    sys.stdout.write(run(args.quick, args.meshes, args.variants))
     return 0
 
 

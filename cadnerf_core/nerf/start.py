@@ -11,6 +11,7 @@ best with the masks at its refined poses is the one the job trains from.
 from __future__ import annotations
 
 import logging
+import time
 from collections.abc import Sequence
 from functools import partial
 from typing import TYPE_CHECKING, Any
@@ -110,17 +111,19 @@ def choose_start(retrieval: RetrievalResult, photos: Sequence[Any], masks: Seque
     candidates = [retrieval, *[h for h in retrieval.alternatives if len(h.kept) >= 2]]
     if len(candidates) < 2:
         return retrieval
-    scores = []
+    scores, seconds = [], []
     for i, hypothesis in enumerate(candidates):
+        start = time.perf_counter()
         scores.append(fit_hypothesis(hypothesis, photos, masks, library, config, device,
                                      learn_focal))
+        seconds.append(time.perf_counter() - start)
         log.info("start hypothesis %d: %s, direction %+d, retrieval score %.3f, fit %.3f", i,
                  hypothesis.model_id, hypothesis.direction, hypothesis.score, scores[-1])
         progress.step("retrieval", i + 1, len(candidates))
     best = int(np.argmax(scores))
     record = [{"model_id": h.model_id, "direction": h.direction, "score": h.score,
-               "fit": s, "chosen": i == best}
-              for i, (h, s) in enumerate(zip(candidates, scores, strict=True))]
+               "fit": s, "seconds": t, "chosen": i == best}
+              for i, (h, s, t) in enumerate(zip(candidates, scores, seconds, strict=True))]
     chosen = candidates[best]
     if best:
         log.info("starting from hypothesis %d (%s) rather than the retrieved walk", best,
