@@ -121,7 +121,8 @@ def choose_start(retrieval: RetrievalResult, photos: Sequence[Any], masks: Seque
                  hypothesis.model_id, hypothesis.direction, hypothesis.score, scores[-1])
         progress.step("retrieval", i + 1, len(candidates))
     best = int(np.argmax(scores))
-    record = [{"model_id": h.model_id, "direction": h.direction, "score": h.score,
+    record = [{"model_id": h.model_id, "direction": h.direction,
+               "perspective": h.perspective, "score": h.score,
                "fit": s, "seconds": t, "chosen": i == best}
               for i, (h, s, t) in enumerate(zip(candidates, scores, seconds, strict=True))]
     chosen = candidates[best]

@@ -143,6 +143,13 @@ def retrieve(masks: Sequence[np.ndarray], names: Sequence[str], library: Library
         single = "far" if wanted == "auto" else wanted
         chosen = _retrieve_from(photos, library.view_set(single), config, progress, single,
                                 (0, 2))
+        if wanted == "auto" and near is not None and config.hypotheses > 1:
+            # No focal length to choose the set by: the near set's best walk (a wide lens
+            # near the object) is the first alternative, for the start's fits to judge.
+            wide = _retrieve_from(photos, near, config.model_copy(update={"hypotheses": 1}),
+                                  None, "near", (0, 2))
+            others = [wide, *chosen.alternatives][:config.hypotheses - 1]
+            chosen = dataclasses.replace(chosen, alternatives=others)
     else:
         results = [_retrieve_from(photos, lib, config, progress, label, steps)
                    for lib, label, steps in ((library, "far", (0, 4)), (near, "near", (2, 4)))]

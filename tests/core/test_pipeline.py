@@ -286,5 +286,6 @@ def test_several_start_hypotheses_are_fitted_and_the_best_kept(tmp_path: Path,
     assert len(fits) == 3 and sum(h["chosen"] for h in fits) == 1
     best = max(fits, key=lambda h: h["fit"])
     assert best["chosen"] and best["model_id"] == retrieval["model_id"] == summary["model_id"]
-    assert len({(h["model_id"], h["direction"]) for h in fits}) == 3
+    assert len({(h["model_id"], h["direction"], h["perspective"]) for h in fits}) == 3
+    assert fits[1]["perspective"] == "near"  # no focal length known: the near set's walk
     assert all(-1.0 <= h["fit"] <= 1.0 for h in fits)

@@ -382,13 +382,17 @@ def test_hypotheses_are_the_next_best_distinct_walks(tiny_library: Any) -> None:
     masks = _render_views(library, model, [a * n_el for a in (1, 3, 5, 7)], (0, 0))
     names = [f"p{i}.png" for i in range(len(masks))]
     assert retrieve(masks, names, library, RetrievalConfig()).alternatives == []
-    result = retrieve(masks, names, library, RetrievalConfig(hypotheses=3))
-    assert len(result.alternatives) == 2
-    seen = [(h.model_id, h.direction) for h in (result, *result.alternatives)]
+    # No focal length known: the near set's best walk comes first, then the far set's next.
+    result = retrieve(masks, names, library, RetrievalConfig(hypotheses=4))
+    assert result.perspective == "far" and len(result.alternatives) == 3
+    assert [h.perspective for h in result.alternatives] == ["near", "far", "far"]
+    seen = [(h.model_id, h.direction) for h in (result, *result.alternatives[1:])]
     assert len(set(seen)) == 3
-    scores = [h.score for h in result.alternatives]
+    scores = [h.score for h in result.alternatives[1:]]
     assert scores == sorted(scores, reverse=True)
     assert all(len(h.matches) == len(masks) for h in result.alternatives)
     assert "hypotheses" not in result.to_json()
-    told = retrieve(masks, names, library, RetrievalConfig(hypotheses=3, walk="cw"))
+    told = retrieve(masks, names, library, RetrievalConfig(hypotheses=3, walk="cw",
+                                                           perspective="far"))
     assert {h.direction for h in (told, *told.alternatives)} == {-1}
+    assert {h.perspective for h in told.alternatives} == {"far"}
