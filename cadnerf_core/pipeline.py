@@ -252,10 +252,12 @@ def run_job(job_dir: Path, library: Library, progress: Progress | None = None,
             JobFolder(job_dir).write_config(config)
         dev = resolve_device(device)
         start = time.perf_counter()
+        recorded = (JobFolder(job_dir).read_retrieval() or {}).get("hypotheses", [])
         intake = run_intake(job_dir, library, config, progress, mask_model)
         intake_s = time.perf_counter() - start
         learn_focal = all(p.focal_pixels is None for p in intake.photos)
-        intake = robust_start(job_dir, intake, library, config, dev, learn_focal, progress)
+        intake = robust_start(job_dir, intake, library, config, dev, learn_focal, progress,
+                              recorded)
         data = training_data(intake, config, library.spec.margin, dev)
         state, extra = train(job_dir, library, intake.retrieval, data, config, dev, progress,
                              learn_focal)
@@ -268,16 +270,18 @@ def run_job(job_dir: Path, library: Library, progress: Progress | None = None,
 
 
 def robust_start(job_dir: Path, intake: Intake, library: Library, config: PipelineConfig,
-                 device: torch.device, learn_focal: bool, progress: Progress) -> Intake:
+                 device: torch.device, learn_focal: bool, progress: Progress,
+                 recorded: list[dict[str, Any]]) -> Intake:
     """The intake with the retrieval hypothesis whose short silhouette fit is best
     (``RetrievalConfig.hypotheses``; ``nerf.start``), its ``retrieval.json`` rewritten with
-    every fit's score; unchanged when retrieval gave no alternatives."""
+    every fit's score; unchanged when retrieval gave no alternatives. ``recorded``: the fits
+    an earlier run of this job wrote (kept when they cover the same hypotheses)."""
     if not intake.retrieval.alternatives:
         return intake
     from cadnerf_core.nerf.start import choose_start
 
     chosen = choose_start(intake.retrieval, intake.photos, intake.masks, library, config,
-                          device, learn_focal, progress)
+                          device, learn_focal, progress, recorded)
     JobFolder(job_dir).write_retrieval(chosen.to_json())
     return dataclasses.replace(intake, retrieval=chosen)
 

@@ -99,18 +99,31 @@ def fit_hypothesis(hypothesis: RetrievalResult, photos: Sequence[Any],
     return float(np.mean(ious)) - penalty
 
 
+def _key(model_id: str, direction: int, perspective: str) -> tuple[str, int, str]:
+    return model_id, int(direction), perspective
+
+
 def choose_start(retrieval: RetrievalResult, photos: Sequence[Any], masks: Sequence[np.ndarray],
                  library: Library, config: PipelineConfig, device: torch.device,
-                 learn_focal: bool, progress: Progress) -> RetrievalResult:
+                 learn_focal: bool, progress: Progress,
+                 recorded: Sequence[dict[str, Any]] = ()) -> RetrievalResult:
     """The hypothesis to train from: ``retrieval`` itself when it has no alternatives, else
     the best coarse fit among it and its alternatives, with every fit's score recorded
     (``RetrievalResult.hypotheses``). Reports stage "retrieval" after each fit (cancellable).
+    ``recorded``: the fits of an earlier run of the same job; when they cover the same
+    hypotheses their choice is kept without fitting again (a resumed job).
     """
     import dataclasses
 
     candidates = [retrieval, *[h for h in retrieval.alternatives if len(h.kept) >= 2]]
     if len(candidates) < 2:
         return retrieval
+    keys = [_key(h.model_id, h.direction, h.perspective) for h in candidates]
+    if [_key(r["model_id"], r["direction"], r["perspective"]) for r in recorded] == keys:
+        best = next((i for i, r in enumerate(recorded) if r.get("chosen")), 0)
+        return dataclasses.replace(candidates[best], alternatives=[], hypotheses=list(recorded),
+                                   direction_ambiguous=retrieval.direction_ambiguous
+                                   and not best)
     scores, seconds = [], []
     for i, hypothesis in enumerate(candidates):
         start = time.perf_counter()
