@@ -42,7 +42,16 @@ lint: setup
 typecheck: setup
 	$(VENV)/bin/mypy app worker cadnerf_core cadnerf_cli library_data
 
-pytest: setup
+# The browser tests' accessibility scan needs axe-core (npm, into the git-ignored node_modules);
+# without npm those tests skip and say why.
+$(STAMP)/node: package.json package-lock.json
+	@mkdir -p $(STAMP)
+	@if ! command -v npm >/dev/null; then \
+	  echo "npm not found: the browser tests' accessibility scan (axe-core) will be skipped"; \
+	elif npm ci --no-audit --no-fund --loglevel=error; then touch $@; \
+	else echo "npm ci failed: the browser tests' accessibility scan (axe-core) will be skipped"; fi
+
+pytest: setup $(STAMP)/node
 	$(VENV)/bin/pytest -q
 
 test: lint typecheck pytest
@@ -51,4 +60,4 @@ bench: setup library
 	$(PY) -m benchmarks.run $(if $(QUICK),--quick,) --out docs/benchmarks.md
 
 clean:
-	rm -rf $(STAMP) $(VENV) $(LIBRARY_DIR)
+	rm -rf $(STAMP) $(VENV) $(LIBRARY_DIR) node_modules

@@ -21,7 +21,16 @@ from app.errors import ApiError, store_unavailable
 from app.multipart import Limits, receive_form
 from app.queue import enqueue
 from app.schemas import DeleteResult, JobLinks, JobStatus
-from app.state import AsyncJobReader, JobRecord, JobState, JobStore, QueueEstimate, Settings
+from app.state import (
+    AsyncJobReader,
+    JobRecord,
+    JobState,
+    JobStore,
+    QueueEstimate,
+    Settings,
+    default_preset,
+    serving_device,
+)
 from app.uploads import lay_out
 
 log = logging.getLogger(__name__)
@@ -115,7 +124,10 @@ async def submit(request: Request, settings: Settings, store: JobStore, producer
         settings.data_root.mkdir(parents=True, exist_ok=True)
         staging.mkdir()
         form = await receive_form(request, staging, limits)
-        spec = await run_in_threadpool(lay_out, form, staging, settings)
+        def preset() -> str:  # asked only when the config names no preset
+            return default_preset(settings, serving_device(store.workers, settings.device))
+
+        spec = await run_in_threadpool(lay_out, form, staging, settings, preset)
         job_id = str(uuid.uuid4())
         os.rename(staging, store.job_dir(job_id))
     except OSError as exc:

@@ -159,11 +159,25 @@ class Readiness(BaseModel):
     ready: bool
 
 
+class PresetTimePublic(BaseModel):
+    """A preset's expected time for a whole job on this server (`GET /v1/info`)."""
+
+    seconds: float | None = Field(description="Expected seconds of a job (queue wait not "
+                                  "included); null: not measured yet and no table entry.")
+    measured: bool = Field(description="Measured by this server's workers; false: the ETA "
+                           "table's default for the device.")
+
+
 class ServiceInfo(BaseModel):
     """Presets and upload limits (`GET /v1/info`)."""
 
     presets: list[str]
-    default_preset: str
+    default_preset: str = Field(description="Used when a job names none: the deployment's "
+                                "choice, else preview without a GPU and standard with one.")
+    device: Literal["cpu", "cuda"] = Field("cpu", description="Where this server's workers "
+                                           "train (what default_preset and preset_times are for).")
+    preset_times: dict[str, PresetTimePublic] = Field(
+        default_factory=dict, description="Each preset's expected job time on this server.")
     min_photos: int
     max_photos: int
     max_file_mb: float

@@ -11,6 +11,7 @@ its photo's name): the client's name never becomes a path.
 from __future__ import annotations
 
 import warnings
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -225,8 +226,13 @@ def check_mask(mask: StoredPart, photo: StoredPart, photo_info: ImageInfo,
     return info
 
 
-def parse_config(raw: str | None, settings: Settings) -> PipelineConfig:
+def parse_config(raw: str | None, preset_default: Callable[[], str]) -> PipelineConfig:
     """Resolve the `config` JSON field (preset and overrides) into the job's one config.
+
+    Args:
+        raw: the field's JSON text (absent: the default preset, no overrides).
+        preset_default: gives the preset of a config that names none (asked only then: it may
+            read the workers' device from Redis).
 
     Returns:
         The resolved configuration, written to the job folder as it is.
@@ -235,7 +241,7 @@ def parse_config(raw: str | None, settings: Settings) -> PipelineConfig:
         create = JobCreate.model_validate_json(raw or "{}")
     except ValidationError as exc:
         raise _config_error(exc) from None
-    preset = create.preset or settings.default_preset
+    preset = create.preset or preset_default()
     try:
         return resolve_config(preset, create.overrides)
     except ValidationError as exc:
@@ -302,20 +308,22 @@ def _host_refusal(host: str) -> str | None:
         return None
 
 
-def lay_out(form: ReceivedForm, staging: Path, settings: Settings) -> JobSpec:
+def lay_out(form: ReceivedForm, staging: Path, settings: Settings,
+            preset_default: Callable[[], str]) -> JobSpec:
     """Validate a received form and move its files into the job-folder layout in ``staging``.
 
     Args:
         form: the streamed parts (in ``staging``).
         staging: the staging folder that becomes the job folder.
-        settings: limits and the default preset.
+        settings: limits.
+        preset_default: gives the preset of a job whose config names none.
 
     Returns:
         The job's names, resolved config and webhook URL; ``staging`` now holds the photos,
         their masks (each stored under its photo's name) and the resolved config.
     """
     check_counts(form, settings)
-    config = parse_config(form.texts.get("config"), settings)
+    config = parse_config(form.texts.get("config"), preset_default)
     webhook = parse_webhook(form.texts.get("webhook_url"), settings.webhook_allow_private)
     images, masks = form.files["images"], form.files["masks"]
     infos = [inspect_image(part, settings) for part in images]

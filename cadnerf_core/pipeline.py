@@ -57,21 +57,6 @@ def read_job_config(job_dir: Path) -> PipelineConfig:
         raise InputError(f"invalid configuration: {exc}", item=CONFIG) from exc
 
 
-def _overlay_sized(rgb: np.ndarray, mask: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """The photo and its mask shrunk to the stored overlay's size (``OVERLAY_SIDE``), so the
-    picture costs milliseconds, not a pass over 12 megapixels."""
-    import cv2
-
-    height, width = mask.shape
-    scale = OVERLAY_SIDE / max(height, width)
-    if scale >= 1.0:
-        return rgb, mask
-    size = (max(1, round(width * scale)), max(1, round(height * scale)))
-    small = cv2.resize(np.asarray(rgb, np.float32), size, interpolation=cv2.INTER_AREA)
-    cover = cv2.resize(mask.astype(np.float32), size, interpolation=cv2.INTER_AREA)
-    return small, cover > 0.5
-
-
 def run_intake(job_dir: Path, library: Library, config: PipelineConfig,
                progress: Progress, mask_model: Path | None = None) -> Intake:
     """Read photos and masks, remove backgrounds where needed (``mask_model``: the ONNX model
@@ -79,6 +64,7 @@ def run_intake(job_dir: Path, library: Library, config: PipelineConfig,
     sources and warnings, and retrieve model and poses."""
     from cadnerf_core.intake.masks import mask_overlay, photo_masks
     from cadnerf_core.intake.photos import load_photo, with_focal
+    from cadnerf_core.intake.resize import downscaled, shrunk_mask
     from cadnerf_core.retrieval.retrieve import retrieve
 
     folder = JobFolder(job_dir)
@@ -90,8 +76,9 @@ def run_intake(job_dir: Path, library: Library, config: PipelineConfig,
     names = [entry.name for entry in inputs]
     found = photo_masks(photos, config.masks.method, model_path=mask_model, progress=progress)
     masks = [result.mask for result in found]
-    folder.write_masks(inputs, found, (mask_overlay(*_overlay_sized(p.rgb, m))
-                                       for p, m in zip(photos, masks, strict=True)))
+    folder.write_masks(inputs, found, (  # overlays are small: milliseconds, not 12 megapixels
+        mask_overlay(downscaled(p.rgb, OVERLAY_SIDE), shrunk_mask(m, OVERLAY_SIDE))
+        for p, m in zip(photos, masks, strict=True)))
     for result in found:
         for warning in result.warnings:
             log.warning("%s", warning)

@@ -18,6 +18,7 @@ from typing import Any
 import redis
 
 from app.state import HEARTBEAT_EVERY_S, ORPHAN_GRACE_S, JobStore, OrphanWatch, Settings
+from worker.runner import device_kind
 
 log = logging.getLogger(__name__)
 
@@ -40,6 +41,7 @@ class Liveness:
     def __init__(self, settings: Settings, name: str, send: Callable[[str], Any],
                  startup_watch_s: float = 3 * ORPHAN_GRACE_S) -> None:
         self.store = JobStore.open(settings.redis_url, settings.data_root)
+        self.device_setting = settings.device
         self.name = name
         self.send = send
         self.startup_watch_s = startup_watch_s
@@ -72,7 +74,10 @@ class Liveness:
             log.warning("could not release the claim on job %s: %s", job_id, exc)
 
     def _loop(self) -> None:
-        info = {"pid": os.getpid(), "host": socket.gethostname()}
+        # The device tells the API which preset to offer by default (app.state.serving);
+        # resolving "auto" imports torch, so it happens here, after start-up, not at import.
+        info = {"pid": os.getpid(), "host": socket.gethostname(),
+                "device": device_kind(self.device_setting)}
         started = time.monotonic()
         watch = OrphanWatch(self.store, self.send)
         while not self._stop.is_set():

@@ -12,10 +12,10 @@ from fastapi import APIRouter
 from fastapi import Path as PathParam
 from fastapi.responses import Response
 
-from app.deps import OwnerDep, SettingsDep
+from app.deps import OwnerDep, SettingsDep, StoreDep
 from app.errors import ApiError
-from app.schemas import ErrorBody, LibraryModel, LibraryPublic, ServiceInfo
-from app.state import Settings
+from app.schemas import ErrorBody, LibraryModel, LibraryPublic, PresetTimePublic, ServiceInfo
+from app.state import Settings, default_preset, preset_times, serving_device
 
 router = APIRouter(prefix="/v1", tags=["library"])
 
@@ -57,12 +57,16 @@ def get_library(settings: SettingsDep, owner: OwnerDep) -> LibraryPublic:
 
 @router.get("/info", response_model=ServiceInfo, summary="Presets and upload limits",
             responses={401: {"model": ErrorBody}})
-def get_info(settings: SettingsDep, owner: OwnerDep) -> ServiceInfo:
-    """What the web page (or any client) needs to build a valid upload."""
+def get_info(settings: SettingsDep, store: StoreDep, owner: OwnerDep) -> ServiceInfo:
+    """What the web page (or any client) needs to build a valid upload and pick a preset."""
     del owner
     from cadnerf_core.config import PRESETS  # torch-free by contract
 
-    return ServiceInfo(presets=sorted(PRESETS), default_preset=settings.default_preset,
+    device = serving_device(store.workers, settings.device)
+    times = {name: PresetTimePublic(seconds=t.seconds, measured=t.measured)
+             for name, t in preset_times(store.history, sorted(PRESETS), device).items()}
+    return ServiceInfo(presets=sorted(PRESETS), default_preset=default_preset(settings, device),
+                       device=device, preset_times=times,  # type: ignore[arg-type]
                        min_photos=settings.min_photos, max_photos=settings.max_photos,
                        max_file_mb=settings.max_file_mb, max_total_mb=settings.max_total_mb,
                        max_megapixels=settings.max_megapixels, min_side_px=settings.min_side_px)

@@ -18,6 +18,7 @@ from app.state.lifecycle import FINISH_RETRY_S, finish_job
 from app.state.messaging import QUEUE, SEND_RETRY_POLICY, TASK_NAME, celery_config
 from app.state.records import ANON_OWNER, ErrorDetail, JobRecord, JobState, is_job_id
 from app.state.recovery import MAX_ATTEMPTS, ORPHAN_GRACE_S, OrphanWatch, find_orphans, requeue
+from app.state.serving import PresetTime, default_preset, preset_times, serving_device
 from app.state.settings import Settings, SettingsError, load_settings, non_public_reason
 from app.state.store import JobStore, connect
 
@@ -25,7 +26,8 @@ __all__ = [
     "ANON_OWNER", "DEFAULT_STAGE_SECONDS", "FINISH_RETRY_S", "HEARTBEAT_EVERY_S",
     "HEARTBEAT_TTL_S", "MAX_ATTEMPTS", "ORPHAN_GRACE_S", "QUEUE", "SEND_RETRY_POLICY", "STAGES",
     "TASK_NAME", "AsyncJobReader", "Claims", "ErrorDetail", "EtaModel", "JobRecord", "JobState",
-    "JobStore", "OrphanWatch", "QueueEstimate", "Settings", "SettingsError", "StageHistory",
-    "Workers", "celery_config", "connect", "default_stage_seconds", "find_orphans", "finish_job",
-    "is_job_id", "load_settings", "non_public_reason", "requeue",
+    "JobStore", "OrphanWatch", "PresetTime", "QueueEstimate", "Settings", "SettingsError",
+    "StageHistory", "Workers", "celery_config", "connect", "default_preset",
+    "default_stage_seconds", "find_orphans", "finish_job", "is_job_id", "load_settings",
+    "non_public_reason", "preset_times", "requeue", "serving_device",
 ]

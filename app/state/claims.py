@@ -65,6 +65,23 @@ class Workers:
         pipe.zrem(keys.WORKERS, name)
         pipe.execute()
 
+    def devices(self) -> list[str]:
+        """The ``device`` each live worker announces in its heartbeat ("" when it names none)."""
+        names = self.live()
+        if not names:
+            return []
+        infos = self._r.mget([keys.worker(name) for name in names])
+        return [_device(info) for info in infos]  # type: ignore[union-attr]
+
     def live(self) -> list[str]:
         """Names of the workers whose heartbeat has not expired (one call, no key scan)."""
         return sorted(str(n) for n in self._live(keys=[keys.WORKERS]))  # type: ignore[union-attr]
+
+
+def _device(info: object) -> str:
+    """The ``device`` field of a heartbeat's JSON info ("" when absent or unreadable)."""
+    try:
+        device = json.loads(str(info)).get("device", "") if info else ""
+    except (ValueError, AttributeError):
+        return ""
+    return device if isinstance(device, str) else ""

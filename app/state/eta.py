@@ -109,6 +109,11 @@ class StageHistory:
             flat = {}
         return stage_table(preset, device, preset_history(flat, preset))  # type: ignore[arg-type]
 
+    def measured(self, device: str) -> dict[str, str]:
+        """Every preset's measured stage seconds on ``device``, fields ``<preset>/<stage>``
+        (``preset_history`` picks one preset's); raises ``redis.RedisError``."""
+        return dict(self._r.hgetall(keys.stage_seconds(device)))  # type: ignore[arg-type]
+
     def record(self, preset: str, device: str, durations: Mapping[str, float]) -> None:
         """Fold one job's measured stage durations into the averages of its preset."""
         if not durations:

@@ -16,6 +16,7 @@ from pydantic import Field, ValidationError, field_validator, model_validator
 from pydantic_settings import BaseSettings, SettingsConfigDict
 
 ENV_PREFIX = "CADNERF_"
+AUTO_PRESET = "auto"  # the default preset follows the workers' device (app.state.serving)
 MB = 1024 * 1024
 
 
@@ -39,8 +40,10 @@ class Settings(BaseSettings):
     """A deployment's own model (a job's config cannot name server files); must exist."""
     device: Literal["auto", "cpu", "cuda"] = Field("auto", description="Worker torch device.")
     """Where the worker trains: auto picks CUDA when available."""
-    default_preset: str = Field("standard", description="Preset used when a job names none.")
-    """One of cadnerf_core.config.PRESETS."""
+    default_preset: str = Field(AUTO_PRESET, description="Preset used when a job names none; "
+                                "auto: preview without a GPU, standard with one.")
+    """One of cadnerf_core.config.PRESETS, or auto: the workers' device decides, so a CPU
+    server offers the preset that finishes in minutes and a GPU server the quality one."""
     min_photos: int = Field(3, ge=1, le=100, description="Fewest photos per job.")
     """Retrieval needs a few views; the paper uses 3 or more."""
     max_photos: int = Field(10, ge=1, le=100, description="Most photos per job.")
@@ -91,8 +94,8 @@ class Settings(BaseSettings):
     def _known_preset(cls, value: str) -> str:
         from cadnerf_core.config import PRESETS  # torch-free by contract
 
-        if value not in PRESETS:
-            raise ValueError(f"must be one of {', '.join(sorted(PRESETS))}")
+        if value != AUTO_PRESET and value not in PRESETS:
+            raise ValueError(f"must be one of {', '.join([AUTO_PRESET, *sorted(PRESETS)])}")
         return value
 
     @field_validator("mask_model", mode="before")

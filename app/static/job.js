@@ -1,5 +1,5 @@
 // Following a job: polling with back-off, the progress bar, queue position and ETA, errors.
-import { $, state, showError, showNotice } from "./page.js";
+import { $, state, formatDuration, showError, showNotice } from "./page.js";
 import { api } from "./api.js";
 import { showResult } from "./result.js";
 
@@ -35,12 +35,8 @@ export function follow(jobId) {
 
 function formatEta(seconds) {
   // "about 40 s left", "about 3 min left", "about 2.5 h left"; "" when there is no estimate.
-  if (seconds === null || seconds === undefined || !Number.isFinite(seconds)) return "";
-  const s = Math.max(0, seconds);
-  if (s < 90) return `about ${Math.round(s)} s left`;
-  if (s < 90 * 60) return `about ${Math.round(s / 60)} min left`;
-  const hours = Math.round(s / 360) / 10;  // one decimal: 1.5 h, 12 h
-  return `about ${hours} h left`;
+  const text = formatDuration(seconds);
+  return text ? `${text} left` : "";
 }
 
 function queueText(position) {

@@ -9,6 +9,11 @@ export async function showResult(jobId) {
   $("result").hidden = false;
   const video = $("orbit");
   if (result.artifacts["orbit.mp4"]) {
+    // Inline, silent and looping: phones play only muted videos by themselves, and without
+    // playsinline iOS takes over the whole screen.
+    video.muted = true;
+    video.playsInline = true;
+    video.loop = true;
     video.src = await artifactUrl(result.artifacts["orbit.mp4"]);
     video.play().catch(() => {});
   }

@@ -2,12 +2,13 @@
 import { $, state, showError } from "./page.js";
 import { upload } from "./api.js";
 import { follow } from "./job.js";
+import { renderThumbs as drawThumbs } from "./thumbs.js";
 
 const MIB = 2 ** 20;
 const PHOTO_TYPES = /^image\/(jpeg|png|webp|heic|heif|avif)$/;
 const PHOTO_EXTENSIONS = /\.(jpe?g|png|webp|heic|heif|hif|avif)$/i;
 
-// --- photos: choose, drop, reorder ---------------------------------------------------------
+// --- photos: choose, take, drop (thumbs.js reorders them) -----------------------------------
 function isSupportedPhoto(file) {
   // Some systems report no type at all: then trust the file name's extension.
   return PHOTO_TYPES.test(file.type) || (!file.type && PHOTO_EXTENSIONS.test(file.name));
@@ -67,53 +68,8 @@ export function renderCount() {
   $("photo-count").classList.toggle("warning", Boolean(problem));
 }
 
-function thumbPlaceholder(fileName) {
-  const box = document.createElement("div");
-  box.className = "placeholder";
-  box.setAttribute("role", "img");
-  box.setAttribute("aria-label", fileName);
-  box.textContent = fileName;
-  return box;
-}
-
 function renderThumbs() {
-  const list = $("thumbs");
-  list.replaceChildren();
-  state.photos.forEach((photo, index) => {
-    const item = document.createElement("li");
-    item.draggable = true;
-    item.dataset.index = String(index);
-    const img = document.createElement("img");
-    img.src = photo.url;
-    img.alt = photo.file.name;
-    // Browsers other than Safari cannot show HEIC: a placeholder with the name stands in.
-    img.addEventListener("error", () => img.replaceWith(thumbPlaceholder(photo.file.name)));
-    const order = document.createElement("span");
-    order.className = "order";
-    order.textContent = String(index + 1);
-    const name = document.createElement("div");
-    name.className = "name";
-    name.textContent = photo.file.name;
-    const remove = document.createElement("button");
-    remove.type = "button";
-    remove.textContent = "\u00d7";
-    remove.title = "Remove";
-    remove.addEventListener("click", () => { state.photos.splice(index, 1); renderThumbs(); });
-    item.append(img, order, name, remove);
-    item.addEventListener("dragstart", () => { state.dragFrom = index; item.classList.add("dragging"); });
-    item.addEventListener("dragend", () => item.classList.remove("dragging"));
-    item.addEventListener("dragover", (event) => event.preventDefault());
-    item.addEventListener("drop", (event) => {
-      event.preventDefault();
-      event.stopPropagation();
-      if (state.dragFrom === null || state.dragFrom === index) return;
-      const [moved] = state.photos.splice(state.dragFrom, 1);
-      state.photos.splice(index, 0, moved);
-      state.dragFrom = null;
-      renderThumbs();
-    });
-    list.append(item);
-  });
+  drawThumbs(renderThumbs);
   $("submit").disabled = state.photos.length === 0;
   renderCount();
 }
@@ -127,6 +83,8 @@ export function setUpDropZone() {
   ["dragleave", "drop"].forEach((name) => drop.addEventListener(name, () => drop.classList.remove("over")));
   drop.addEventListener("drop", (event) => { event.preventDefault(); addPhotos(event.dataTransfer.files); });
   $("photos").addEventListener("change", (event) => { addPhotos(event.target.files); event.target.value = ""; });
+  // The camera gives one photo a time: each goes after the last, in walking order.
+  $("camera").addEventListener("change", (event) => { addPhotos(event.target.files); event.target.value = ""; });
 }
 
 // --- submit ----------------------------------------------------------------------------------

@@ -9,9 +9,10 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 
-import cv2
 import numpy as np
 from scipy import ndimage
+
+from cadnerf_core.intake.resize import shrunk_mask
 
 ALMOST_EMPTY = 0.03  # of the photo: the object is small (under 1% is refused outright)
 ALMOST_FULL = 0.80  # of the photo: little background is left to tell the object by
@@ -30,15 +31,6 @@ def median_cover(masks: Sequence[np.ndarray]) -> float | None:
     if len(masks) < MIN_PHOTOS_FOR_MEDIAN:
         return None
     return float(np.median([float(m.mean()) for m in masks]))
-
-
-def _small(mask: np.ndarray) -> np.ndarray:
-    """[H, W] bool -> a bool copy about ``CHECK_SIDE`` on its longer side (never enlarged)."""
-    scale = min(1.0, CHECK_SIDE / max(mask.shape))
-    if scale == 1.0:
-        return mask
-    size = (max(1, round(mask.shape[1] * scale)), max(1, round(mask.shape[0] * scale)))
-    return cv2.resize(mask.astype(np.uint8) * 255, size, interpolation=cv2.INTER_AREA) > 127
 
 
 def edges_touched(mask: np.ndarray) -> list[str]:
@@ -81,7 +73,7 @@ def mask_warnings(name: str, mask: np.ndarray, kept: np.ndarray | None = None,
         found.append(f"{name}: the mask covers {100 * cover:.0f}% of the photo, so the "
                      f"background was probably kept: retake it with space around the object, "
                      f"{UPLOAD}")
-    edges = edges_touched(_small(mask))
+    edges = edges_touched(shrunk_mask(mask, CHECK_SIDE))
     if len(edges) >= MAX_EDGES:
         found.append(f"{name}: the mask runs off the {', '.join(edges)} edges of the photo: "
                      f"retake it with the whole object in view, {UPLOAD}")
@@ -90,7 +82,7 @@ def mask_warnings(name: str, mask: np.ndarray, kept: np.ndarray | None = None,
         found.append(f"{name}: the mask covers {100 * cover:.1f}% of the photo against "
                      f"{100 * median:.1f}% for the set's median: check its overlay; crop or "
                      f"retake it at the others' distance, {UPLOAD}")
-    if kept is not None and second_object(_small(kept)):
+    if kept is not None and second_object(shrunk_mask(kept, CHECK_SIDE)):
         found.append(f"{name}: a second object of similar size was found beside the one kept: "
                      f"check its overlay; crop the photo to the object or retake it, {UPLOAD}")
     return found

@@ -25,6 +25,7 @@ from cadnerf_core.errors import InputError
 from cadnerf_core.intake import saliency
 from cadnerf_core.intake.mask_checks import mask_warnings, median_cover
 from cadnerf_core.intake.photos import Photo
+from cadnerf_core.intake.resize import downscaled, resized_mask
 from cadnerf_core.jobfolder import MaskSource
 from cadnerf_core.progress import Progress
 
@@ -140,15 +141,6 @@ def refine_saliency(image: np.ndarray, sal: np.ndarray) -> tuple[np.ndarray, np.
     return largest_component(own, weight), own
 
 
-def downscaled(rgb: np.ndarray, side: int) -> np.ndarray:
-    """[H, W, 3] float in [0, 1] -> uint8 copy about ``side`` on its longer side (never
-    enlarged). Resized before conversion, so no full-size copy is made."""
-    scale = min(1.0, side / max(rgb.shape[:2]))
-    size = (max(1, round(rgb.shape[1] * scale)), max(1, round(rgb.shape[0] * scale)))
-    small = cv2.resize(rgb, size, interpolation=cv2.INTER_AREA)
-    return np.clip(small * 255.0 + 0.5, 0, 255).astype(np.uint8)
-
-
 def _learned(rgb: np.ndarray, session: Any) -> tuple[np.ndarray, np.ndarray]:
     """The network's object: a first pass on the whole photo finds it; a second on its box
     (cut from the full photo, about ``WORK_SIDE`` pixels) sees it closer, and GrabCut refines
@@ -173,14 +165,8 @@ def _learned(rgb: np.ndarray, session: Any) -> tuple[np.ndarray, np.ndarray]:
     sal = cv2.resize(saliency.predict(session, crop), (crop.shape[1], crop.shape[0]))
     cut = refine_saliency(crop, sal)[0]
     mask = np.zeros((height, width), bool)
-    mask[top:bottom, left:right] = _upsampled(cut, bottom - top, right - left)
+    mask[top:bottom, left:right] = resized_mask(cut, right - left, bottom - top)
     return mask, salient
-
-
-def _upsampled(small: np.ndarray, height: int, width: int) -> np.ndarray:
-    """[h, w] bool -> [height, width] bool, smooth edges, through uint8 (no float copy)."""
-    up = cv2.resize(small.astype(np.uint8) * 255, (width, height), interpolation=cv2.INTER_LINEAR)
-    return up > 127
 
 
 def check_cover(mask: np.ndarray, name: str, automatic: bool) -> None:
@@ -221,7 +207,7 @@ def found_mask(photo: Photo, method: Literal["grabcut", "learned"],
         mask, kept = _learned(photo.rgb, session)
     else:
         small, kept = _grabcut(downscaled(photo.rgb, GRABCUT_SIDE))
-        mask = _upsampled(small, height, width)
+        mask = resized_mask(small, width, height)
     check_cover(mask, photo.name, automatic=True)
     return mask, kept
 

@@ -310,10 +310,38 @@ def test_runner_records_missing_and_failing_areas(monkeypatch: pytest.MonkeyPatc
     assert "**FAILED**" in text and "boom quick=True" in text
     text, _ = runner.run_area("nonexistent_area", True)
     assert "does not exist yet" in text
-    sections = [("fine", runner.run_area("fine", False)[0], 1.5)]
-    doc = runner.build_document(sections, False, "python -m benchmarks.run")
-    assert "- Mode: full" in doc and "quick=False" in doc and "| fine | 1.5 |" in doc
-    assert "- Commit: " in doc and "- CPU: " in doc and "torch " in doc
+    sections = [runner.Section("fine", runner.run_area("fine", False)[0], 1.5, "full",
+                               "abc1234", "2026-01-01 00:00 UTC", "python -m benchmarks.run")]
+    doc = runner.build_document(sections)
+    assert "quick=False" in doc and "| fine | 1.5 | full | abc1234 |" in doc
+    assert "- CPU: " in doc and "torch " in doc
+    assert runner.read_sections(doc) == {"fine": sections[0]}
+
+
+def test_runner_only_replaces_the_areas_it_runs(tmp_path: Path,
+                                                monkeypatch: pytest.MonkeyPatch) -> None:
+    """``--only`` re-measures its areas and keeps every other section of the document."""
+    import sys
+    import types
+
+    monkeypatch.syspath_prepend(str(Path(__file__).resolve().parents[2]))
+    from benchmarks import run as runner
+
+    calls = {"renderer": 0, "library": 0}
+    for area in calls:
+        def run(quick: bool, area: str = area) -> str:
+            calls[area] += 1
+            return f"## {area}\n\nrun {calls[area]}\n"
+        module = types.ModuleType(f"benchmarks.bench_{area}")
+        module.run = run  # type: ignore[attr-defined]
+        monkeypatch.setitem(sys.modules, f"benchmarks.bench_{area}", module)
+    out = tmp_path / "benchmarks.md"
+    assert runner.main(["--quick", "--only", "library", "renderer", "--out", str(out)]) == 0
+    assert runner.main(["--quick", "--only", "library", "--out", str(out)]) == 0
+    sections = runner.read_sections(out.read_text())
+    assert list(sections) == ["renderer", "library"]  # the areas' own order
+    assert "run 1" in sections["renderer"].text and "run 2" in sections["library"].text
+    assert sections["library"].command.endswith("--only library --out " + str(out))
 
 
 def test_true_cameras_oracle_gives_the_job_the_ground_truth(tmp_path: Path,

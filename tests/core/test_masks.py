@@ -207,3 +207,21 @@ def test_learned_masks_match_the_shipped_masks_of_real_phone_photos(name: str) -
     found = photo_masks([Photo(p.name, p.rgb) for p in shipped], "auto")
     ious = [_iou(r.mask, p.mask) for r, p in zip(found, shipped, strict=True) if p.mask is not None]
     assert len(ious) == len(paths) and np.mean(ious) > 0.88 and min(ious) > 0.7
+
+
+def test_working_copies_share_one_size_rule_and_are_never_enlarged() -> None:
+    from cadnerf_core.intake.resize import downscaled, fitted_size, resized_mask, shrunk_mask
+
+    assert fitted_size((3000, 4000, 3), 512) == (512, 384)
+    assert fitted_size((300, 400), 512) is None
+    mask = np.zeros((300, 400), bool)
+    mask[:, :200] = True  # the left half
+    small = shrunk_mask(mask, 100)
+    assert small.shape == (75, 100) and small[:, :50].all() and not small[:, 50:].any()
+    assert shrunk_mask(mask, 512) is mask
+    back = resized_mask(small, 400, 300)
+    assert back.shape == (300, 400) and abs(float(back.mean()) - 0.5) < 0.01
+    rgb = np.full((300, 400, 3), 0.5, np.float32)
+    copy = downscaled(rgb, 100)
+    assert copy.shape == (75, 100, 3) and copy.dtype == np.uint8 and int(copy[0, 0, 0]) == 128
+    assert downscaled(rgb, 1000).shape == (300, 400, 3)

@@ -22,7 +22,6 @@ if str(ROOT) not in sys.path:
 
 from app.embedded import free_port  # noqa: E402
 from app.state import Settings, load_settings  # noqa: E402
-from tests.configs import TINY_PRESET  # noqa: E402
 
 
 @dataclass
@@ -71,16 +70,19 @@ def _wait_ready(url: str, worker: subprocess.Popen[bytes], timeout_s: float) -> 
 @pytest.fixture(scope="module")
 def live_service(tiny_library_dir: Path, redis_url: str,
                  tmp_path_factory: pytest.TempPathFactory) -> Iterator[LiveService]:
-    """API + worker on a fresh data root on the CPU; tests send the suite's tiny config."""
+    """API + worker on a fresh data root on the CPU; tests send the suite's tiny config.
+
+    The default preset is left to follow the device (CADNERF_DEFAULT_PRESET=auto), so the page
+    offers what a CPU server offers."""
     import redis
 
     redis.Redis.from_url(redis_url).flushdb()
     folder = tmp_path_factory.mktemp("service")
     env = {**os.environ, "CADNERF_REDIS_URL": redis_url, "CADNERF_DATA_ROOT": str(folder / "jobs"),
            "CADNERF_LIBRARY_DIR": str(tiny_library_dir), "CADNERF_DEVICE": "cpu",
-           "CADNERF_DEFAULT_PRESET": TINY_PRESET, "OMP_NUM_THREADS": "1"}
+           "CADNERF_DEFAULT_PRESET": "auto", "OMP_NUM_THREADS": "1"}
     settings = load_settings(redis_url=redis_url, data_root=folder / "jobs",
-                             library_dir=tiny_library_dir, device="cpu", default_preset=TINY_PRESET)
+                             library_dir=tiny_library_dir, device="cpu", default_preset="auto")
     log_path = folder / "worker.log"
     with log_path.open("wb") as log_file:
         worker = subprocess.Popen([sys.executable, "-m", "cadnerf_cli.main", "worker"], env=env,

@@ -4,40 +4,14 @@ next to the matched silhouettes, screenshot (wide and narrow)."""
 from __future__ import annotations
 
 import json
-import shutil
 from pathlib import Path
 
 import pytest
 
-from tests.configs import TINY_OVERRIDES, TINY_PRESET
+from tests.configs import TINY_PRESET
+from tests.e2e.pages import CHROMIUM, LAUNCH_ARGS, TINY_CONFIG_SCRIPT, progress_samples
 
 pytestmark = [pytest.mark.slow, pytest.mark.browser]
-
-CHROMIUM = shutil.which("chromium") or ("/usr/bin/chromium" if Path("/usr/bin/chromium").exists()
-                                         else None)
-# The suite's tiny config is no public preset: the page sends the preset it offers, and this
-# script merges the tiny overrides into the config field it posts, as an API client could.
-TINY_CONFIG_SCRIPT = """
-(() => {
-  const tiny = TINY_JSON;
-  const append = FormData.prototype.append;
-  FormData.prototype.append = function (name, value, ...rest) {
-    if (name === "config") {
-      const config = JSON.parse(value);
-      const overrides = config.overrides || {};
-      for (const [key, val] of Object.entries(tiny)) {
-        overrides[key] = (val && typeof val === "object" && overrides[key])
-          ? { ...val, ...overrides[key] } : val;
-      }
-      config.overrides = overrides;
-      value = JSON.stringify(config);
-    }
-    return append.call(this, name, value, ...rest);
-  };
-})();
-""".replace("TINY_JSON", json.dumps(TINY_OVERRIDES))
-LAUNCH_ARGS = ["--headless", "--no-sandbox", "--disable-gpu", "--disable-background-networking",
-               "--disable-component-update", "--disable-sync"]
 
 
 @pytest.mark.skipif(CHROMIUM is None, reason="chromium is not installed (apt-get install chromium)")
@@ -65,7 +39,7 @@ def test_upload_progress_video_and_screenshot(live_service, photo_set: list[Path
             page.fill("#focal", "42")
             page.click("#submit")
             page.wait_for_selector("#status", state="visible", timeout=30_000)
-            widths = _progress_samples(page)
+            widths = progress_samples(page)
             page.wait_for_selector("#result", state="visible", timeout=300_000)
             duration = page.wait_for_function(
                 "() => { const v = document.getElementById('orbit');"
@@ -115,17 +89,3 @@ def _check_masks(page, n_photos: int) -> None:  # type: ignore[no-untyped-def]
     assert silhouettes and all(w > 0 for w in silhouettes), silhouettes
     captions = page.locator("#mask-gallery .mask-caption").all_inner_texts()
     assert len(captions) == n_photos and all("mask: alpha" in c for c in captions), captions
-
-
-def _progress_samples(page) -> list[float]:  # type: ignore[no-untyped-def]
-    """Widths (percent) of the progress bar, sampled until the job ends."""
-    widths: list[float] = []
-    for _ in range(1500):
-        width = page.evaluate("() => parseFloat(document.getElementById('bar-fill').style.width)"
-                              " || 0")
-        widths.append(float(width))
-        if not page.locator("#result").is_hidden() or page.locator("#job-error").is_visible():
-            break
-        page.wait_for_timeout(200)
-    assert not page.locator("#job-error").is_visible(), page.inner_text("#job-error")
-    return widths

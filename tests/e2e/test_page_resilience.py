@@ -417,3 +417,11 @@ def test_failed_job_without_detail_shows_error(page: Any, fake_api: FakeApi) -> 
     error.wait_for(state="visible")
     assert error.inner_text() == "phase1: out of GPU memory"
     assert page.locator("#job-error strong").count() == 0
+
+
+def test_presets_without_times_say_not_measured_yet(page: Any) -> None:
+    # A server that gives no preset_times (an older one): every preset reads "not measured yet".
+    texts = page.eval_on_selector_all("#preset option", "(os) => os.map((o) => o.textContent)")
+    assert texts == ["fast \u2013 not measured yet", "test \u2013 not measured yet"]
+    assert page.input_value("#preset") == "test"
+    assert page.inner_text("#preset-time") == "test: not measured yet on this server."

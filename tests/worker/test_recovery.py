@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import time
+
 from app.state import MAX_ATTEMPTS, JobState, JobStore, OrphanWatch, find_orphans, requeue
 from worker import runner
 from worker.runner import _FixedClaim
@@ -117,3 +119,22 @@ def test_the_fixed_claim_blocks_other_workers(store: JobStore, new_job) -> None:
     assert not store.claims.take(job.id, "someone-else")
     mine.drop(job.id)
     assert store.claims.holder(job.id) is None
+
+
+
+def test_the_heartbeat_announces_the_device_the_api_offers_presets_for(store: JobStore,
+                                                                     redis_url: str) -> None:
+    from app.state import load_settings
+    from worker.liveness import Liveness
+
+    settings = load_settings(redis_url=redis_url, data_root=store.data_root, device="cpu")
+    liveness = Liveness(settings, "host-cpu", send=lambda job_id: None, startup_watch_s=0)
+    liveness.start()
+    try:
+        deadline = time.monotonic() + 10
+        while not store.workers.devices() and time.monotonic() < deadline:
+            time.sleep(0.05)
+        assert store.workers.devices() == ["cpu"]
+    finally:
+        liveness.stop()
+    assert store.workers.devices() == []

@@ -1,0 +1,73 @@
+"""What the browser tests share: where Chromium is, how it starts, the script that makes the
+page send the suite's tiny config, the progress bar's samples, and the axe-core scan."""
+
+from __future__ import annotations
+
+import json
+import shutil
+from pathlib import Path
+from typing import Any
+
+from tests.configs import TINY_OVERRIDES
+
+ROOT = Path(__file__).resolve().parents[2]
+CHROMIUM = shutil.which("chromium") or ("/usr/bin/chromium" if Path("/usr/bin/chromium").exists()
+                                         else None)
+LAUNCH_ARGS = ["--headless", "--no-sandbox", "--disable-gpu", "--disable-background-networking",
+               "--disable-component-update", "--disable-sync"]
+AXE = ROOT / "node_modules" / "axe-core" / "axe.min.js"
+# The suite's tiny config is no public preset: the page sends the preset it offers, and this
+# script merges the tiny overrides into the config field it posts, as an API client could.
+TINY_CONFIG_SCRIPT = """
+(() => {
+  const tiny = TINY_JSON;
+  const append = FormData.prototype.append;
+  FormData.prototype.append = function (name, value, ...rest) {
+    if (name === "config") {
+      const config = JSON.parse(value);
+      const overrides = config.overrides || {};
+      for (const [key, val] of Object.entries(tiny)) {
+        overrides[key] = (val && typeof val === "object" && overrides[key])
+          ? { ...val, ...overrides[key] } : val;
+      }
+      config.overrides = overrides;
+      value = JSON.stringify(config);
+    }
+    return append.call(this, name, value, ...rest);
+  };
+})();
+""".replace("TINY_JSON", json.dumps(TINY_OVERRIDES))
+
+
+def axe_missing_reason() -> str | None:
+    """Why the axe-core scan cannot run here, or None when it can."""
+    if AXE.is_file():
+        return None
+    if shutil.which("npm") is None:
+        return "node/npm is absent, so axe-core (npm) is not installed for the accessibility scan"
+    return "axe-core is not installed: run `make test`, or `npm ci` in the repository root"
+
+
+def axe_violations(page: Any) -> list[dict[str, Any]]:
+    """Run axe-core on the page as it is; its violations (id, impact, nodes' targets)."""
+    if not page.evaluate("() => typeof window.axe === 'object'"):
+        page.add_script_tag(path=str(AXE))
+    found = page.evaluate(
+        "async () => (await axe.run(document, { resultTypes: ['violations'] })).violations"
+        ".map((v) => ({ id: v.id, impact: v.impact, help: v.help,"
+        " targets: v.nodes.map((n) => n.target.join(' ')) }))")
+    return list(found)
+
+
+def progress_samples(page: Any) -> list[float]:
+    """Widths (percent) of the progress bar, sampled until the job ends."""
+    widths: list[float] = []
+    for _ in range(1500):
+        width = page.evaluate("() => parseFloat(document.getElementById('bar-fill').style.width)"
+                              " || 0")
+        widths.append(float(width))
+        if not page.locator("#result").is_hidden() or page.locator("#job-error").is_visible():
+            break
+        page.wait_for_timeout(200)
+    assert not page.locator("#job-error").is_visible(), page.inner_text("#job-error")
+    return widths
