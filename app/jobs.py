@@ -30,6 +30,7 @@ from app.state import (
     Settings,
     default_preset,
     serving_device,
+    stage_work,
 )
 from app.uploads import lay_out
 
@@ -137,7 +138,8 @@ async def submit(request: Request, settings: Settings, store: JobStore, producer
         shutil.rmtree(staging, ignore_errors=True)
         raise
     record = JobRecord(id=job_id, preset=spec.preset, n_photos=len(spec.names), names=spec.names,
-                       owner=owner, created_at=time.time(), webhook_url=spec.webhook_url)
+                       owner=owner, created_at=time.time(), webhook_url=spec.webhook_url,
+                       work=stage_work(spec.config))
     await run_in_threadpool(_store_and_enqueue, store, producer, record)
     return record
 
@@ -173,11 +175,13 @@ def _store_and_enqueue(store: JobStore, producer: Celery, record: JobRecord) -> 
                        hint="try again in a minute", headers={"Retry-After": "30"}) from None
 
 
-def delete_job(store: JobStore, record: JobRecord, wait_s: float = 15.0) -> DeleteResult:
+def delete_job(store: JobStore, record: JobRecord, wait_s: float = 5.0) -> DeleteResult:
     """Cancel a job if it is queued or running, then delete its state and folder.
 
     A running job's worker reads the cancel flag between steps; this waits up to ``wait_s``
-    for it to acknowledge, so files are not removed under a job that is still writing them.
+    for it to acknowledge (``worker_stopped``). Either way the folder is renamed away and
+    removed before the answer (``JobStore.delete``), and no writer re-creates a missing job
+    folder, so a worker still inside a step can no longer write the job's files.
     """
     previous = record.state
     stopped = True
@@ -224,6 +228,7 @@ def cleanup(store: JobStore, retention_s: float, now: float | None = None) -> in
             store.delete(record)
             removed += 1
     _remove_stale_staging(store.data_root, now)
+    store.remove_trash()
     return removed
 
 

@@ -148,7 +148,9 @@ class DeleteResult(BaseModel):
     id: str
     deleted: bool
     previous_state: JobState
-    worker_stopped: bool = Field(description="A running job's worker acknowledged the cancel.")
+    worker_stopped: bool = Field(description="A running job's worker acknowledged the cancel "
+                                 "within CADNERF_DELETE_WAIT_S. Either way the job's files are "
+                                 "gone and its worker can no longer write them.")
 
 
 class Readiness(BaseModel):

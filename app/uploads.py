@@ -14,6 +14,7 @@ import warnings
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import pillow_heif
 from PIL import Image, features
@@ -23,7 +24,8 @@ from app.errors import ApiError
 from app.multipart import ReceivedForm, StoredPart
 from app.schemas import JobCreate
 from app.state import Settings, non_public_reason
-from cadnerf_core.config import PipelineConfig, resolve_config
+from cadnerf_core.config import PipelineConfig, field_bounds, resolve_config
+from cadnerf_core.intake.limits import COVER_SIDE, cover_problem, mask_cover, shape_problem
 from cadnerf_core.jobfolder import JobFolder
 
 _EXIF_ORIENTATION = 0x0112
@@ -131,6 +133,10 @@ def inspect_image(part: StoredPart, settings: Settings,
         raise ApiError(422, "image_too_small",
                        f"{width}x{height} pixels; each side needs {settings.min_side_px} or more",
                        photo=part.filename, field=part.field, hint="use a larger photo")
+    problem = shape_problem(width, height) if types is PHOTO_TYPES else None
+    if problem is not None:  # the core's own rule (a strip fails background removal)
+        raise ApiError(422, "image_shape", problem[0], photo=part.filename, field=part.field,
+                       hint=problem[1])
     oriented = (height, width) if orientation in (5, 6, 7, 8) else (width, height)
     return ImageInfo(ext, width, height, oriented)
 
@@ -223,7 +229,25 @@ def check_mask(mask: StoredPart, photo: StoredPart, photo_info: ImageInfo,
                        f"the photo is {photo_info.oriented[0]}x{photo_info.oriented[1]}",
                        photo=photo.filename, field="masks",
                        hint="give each mask the size of its photo, in the same order")
+    problem = cover_problem(_mask_cover(mask))
+    if problem is not None:
+        raise ApiError(422, "mask_unusable", problem[0], photo=photo.filename, field="masks",
+                       hint=problem[1])
     return info
+
+
+def _mask_cover(part: StoredPart) -> float:
+    """The fraction of its photo an uploaded mask marks as object (size already checked, so
+    decoding is bounded; a JPEG is decoded at a reduced scale)."""
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", Image.DecompressionBombWarning)
+            with Image.open(part.path) as image:
+                image.draft(None, (COVER_SIDE, COVER_SIDE))  # type: ignore[arg-type]
+                return mask_cover(image)
+    except Exception:  # a damaged body behind a good header; Pillow raises many types
+        raise ApiError(422, "unreadable_image", "the mask cannot be decoded", photo=part.filename,
+                       field="masks", hint="export the mask again as PNG") from None
 
 
 def parse_config(raw: str | None, preset_default: Callable[[], str]) -> PipelineConfig:
@@ -251,14 +275,28 @@ def parse_config(raw: str | None, preset_default: Callable[[], str]) -> Pipeline
                        hint='send JSON like {"preset": "preview", "overrides": {}}') from None
 
 
-def _config_error(exc: ValidationError) -> ApiError:
-    err = exc.errors()[0]
-    where = ".".join(str(p) for p in err.get("loc", ()))
-    message = f"{where}: {err.get('msg')}" if where else str(err.get("msg"))
-    if err.get("type") == "json_invalid":
+def _config_error(exc: ValidationError, most: int = 4) -> ApiError:
+    """422 ``invalid_config`` naming each wrong field (up to ``most``) and its allowed range."""
+    errors = exc.errors()
+    if errors and errors[0].get("type") == "json_invalid":
         message = "`config` is not valid JSON"
-    return ApiError(422, "invalid_config", message[:300], field="config",
+    else:
+        message = "; ".join(_error_text(err)[:300] for err in errors[:most])
+        if len(errors) > most:
+            message += f"; and {len(errors) - most} more"
+    return ApiError(422, "invalid_config", message[:1200], field="config",
                     hint='send JSON like {"preset": "preview", "overrides": {"phase2.steps": 300}}')
+
+
+def _error_text(err: Any) -> str:
+    """One validation error: the field, pydantic's message, and the field's allowed range."""
+    where = ".".join(str(p) for p in err.get("loc", ()))
+    text = str(err.get("msg")).removeprefix("Value error, ")
+    message = f"{where}: {text}" if where else text
+    bounds = field_bounds(tuple(err.get("loc", ())))
+    if bounds:  # name the bound whatever pydantic's wording (a huge number fails to parse)
+        message = f"{message} (allowed: {bounds})"
+    return message
 
 
 def parse_webhook(raw: str | None, allow_private: bool = False) -> str | None:

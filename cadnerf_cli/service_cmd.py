@@ -104,15 +104,30 @@ def _start_backends(settings: Settings,
                     verbose: bool) -> tuple[Settings, EmbeddedRedis, Supervisor]:
     """Start the embedded Redis and a supervised worker (``--quiet`` unless ``verbose``);
     returns the settings that use them."""
-    from app.embedded import EmbeddedRedis, Supervisor
+    from app.embedded import (
+        PARENT_PID_ENV,
+        EmbeddedRedis,
+        Supervisor,
+        record_process,
+        stop_leftovers,
+    )
     from app.state import load_settings
 
-    embedded = EmbeddedRedis(settings.data_root.resolve().parent / "redis" / "cadnerf.rdb")
+    folder = _run_folder(settings)
+    folder.mkdir(parents=True, exist_ok=True)
+    try:  # a serve killed with -9 may have left its worker (and Redis, see start) running
+        stop_leftovers(folder)
+    except RuntimeError as exc:
+        typer.echo(f"error: {exc}", err=True)
+        raise typer.Exit(2) from None
+    record_process(folder, "serve", os.getpid())
+    embedded = EmbeddedRedis(folder / "cadnerf.rdb")
     try:
         os.environ["CADNERF_REDIS_URL"] = embedded.start()  # inherited by the worker
         command = [sys.executable, "-m", "cadnerf_cli.main", "worker"]
         supervisor = Supervisor(command if verbose else [*command, "--quiet"],
-                                env=dict(os.environ))
+                                env={**os.environ, PARENT_PID_ENV: str(os.getpid())},
+                                on_spawn=lambda pid: record_process(folder, "worker", pid))
         supervisor.start()
     except BaseException:
         embedded.stop()
@@ -120,14 +135,22 @@ def _start_backends(settings: Settings,
     return load_settings(), embedded, supervisor
 
 
+def _run_folder(settings: Settings) -> Path:
+    """Where the embedded Redis keeps its data and ``serve.json`` its pids (beside the jobs)."""
+    return settings.data_root.resolve().parent / "redis"
+
+
 def _stop_backends(supervisor: Supervisor | None, embedded: EmbeddedRedis | None) -> None:
     """Stop the worker first (it may still write to Redis), then save and stop Redis."""
+    from app.embedded import SERVE_FILE
+
     try:
         if supervisor is not None:
             supervisor.stop()
     finally:
         if embedded is not None:
             embedded.stop()
+            (embedded.db_file.parent / SERVE_FILE).unlink(missing_ok=True)
 
 
 def _when_ready(url: str, demo_preset: str | None) -> None:
@@ -164,6 +187,7 @@ def worker(loglevel: str = typer.Option("INFO", help="Celery log level."),
     """Run one Celery worker (solo pool, concurrency 1, queue `cadnerf`)."""
     from celery.exceptions import SecurityWarning
 
+    from app.embedded import die_with_parent
     from app.state import QUEUE
     from worker.celery_app import create_celery
 
@@ -172,6 +196,7 @@ def worker(loglevel: str = typer.Option("INFO", help="Celery log level."),
         typer.echo("error: CADNERF_REDIS_URL is empty (`cadnerf serve` sets it for its worker)",
                    err=True)
         raise typer.Exit(2)
+    die_with_parent()  # under `cadnerf serve`: never outlive it, even killed with -9
     celery = create_celery(settings)
     options = ["worker", "--pool", "solo", "--concurrency", "1", "--queues", QUEUE,
                "--loglevel", "WARNING" if quiet else loglevel,

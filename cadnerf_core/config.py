@@ -12,6 +12,17 @@ from typing import Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
+from cadnerf_core.config_bounds import (
+    MAX_LR,
+    MAX_POINTS,
+    MAX_RAYS,
+    MAX_SAMPLES,
+    MAX_SEED,
+    MAX_STEPS,
+    MAX_WEIGHT,
+    check_point_budget,
+)
+
 
 class _Frozen(BaseModel):
     """Base: immutable, unknown keys rejected (a typo in an override must fail loudly)."""
@@ -54,23 +65,23 @@ class FieldConfig(_Frozen):
 class RenderConfig(_Frozen):
     """Ray sampling and empty-space skipping."""
 
-    samples_per_ray: int = Field(default=48, ge=4, le=1024)
+    samples_per_ray: int = Field(default=48, ge=4, le=MAX_SAMPLES)
     """Samples along each ray between its entry and exit of the bounding sphere."""
     bound: float = Field(default=1.1, gt=0.5, le=4.0)
     """Radius of the sampling sphere: the object fills the unit sphere, G may grow it."""
-    grid_resolution: int = Field(default=32, ge=4, le=256)
+    grid_resolution: int = Field(default=32, ge=4, le=128)
     """Cells per side of the empty-space-skipping grid over [-bound, bound]^3."""
     grid_dilation: int = Field(default=2, ge=0, le=16)
     """Cells added around occupied cells, so the deformation can grow the shape into them."""
     grid_threshold: float = Field(default=0.01, ge=0.0, lt=1.0)
     """Occupancy above which a grid cell counts as occupied when updated from the learned field."""
-    grid_update_every: int = Field(default=100, ge=1)
+    grid_update_every: int = Field(default=100, ge=1, le=MAX_STEPS)
     """Training steps between two updates of the grid from the learned density."""
     use_grid: bool = True
     """Skip samples in empty grid cells (off: every sample is evaluated)."""
-    chunk_rays: int = Field(default=4096, ge=64)
+    chunk_rays: int = Field(default=4096, ge=64, le=MAX_RAYS)
     """Rays per chunk when rendering images (memory bound, not a quality setting)."""
-    train_pass_rays: int = Field(default=0, ge=0)
+    train_pass_rays: int = Field(default=0, ge=0, le=MAX_RAYS)
     """Rays per forward and backward pass; a step's passes add their gradients (same loss, less
     memory). 0: one pass on a GPU, 2048 on the CPU, where larger passes are slower per ray."""
 
@@ -78,26 +89,26 @@ class RenderConfig(_Frozen):
 class Phase1Config(_Frozen):
     """Phase one: D pretrained to the retrieved CAD model's occupancy (binary cross entropy)."""
 
-    steps: int = Field(default=400, ge=0)
+    steps: int = Field(default=400, ge=0, le=MAX_STEPS)
     """Optimisation steps."""
-    batch_points: int = Field(default=4096, ge=16)
+    batch_points: int = Field(default=4096, ge=16, le=MAX_POINTS)
     """Points per step, sampled from the library occupancy grid."""
     near_surface: float = Field(default=0.5, ge=0.0, le=1.0)
     """Fraction of points drawn near the surface (the rest uniformly in the cube)."""
-    lr: float = Field(default=1e-3, gt=0.0)
+    lr: float = Field(default=1e-3, gt=0.0, le=MAX_LR)
     """Adam learning rate."""
 
 
 class Phase2Config(_Frozen):
     """Phase two: deformation G and camera poses from silhouettes (accumulated opacity vs mask)."""
 
-    steps: int = Field(default=600, ge=0)
+    steps: int = Field(default=600, ge=0, le=MAX_STEPS)
     """Optimisation steps."""
-    rays: int = Field(default=1024, ge=16)
+    rays: int = Field(default=1024, ge=16, le=MAX_RAYS)
     """Rays per step, drawn from all training photos."""
-    lr: float = Field(default=5e-4, gt=0.0)
+    lr: float = Field(default=5e-4, gt=0.0, le=MAX_LR)
     """Adam learning rate of G (of D when the deformation is off)."""
-    pose_lr: float = Field(default=2e-3, gt=0.0)
+    pose_lr: float = Field(default=2e-3, gt=0.0, le=MAX_LR)
     """Adam learning rate of the SE(3) pose corrections."""
     pose_window: tuple[float, float] = (0.5, 1.0)
     """Fractions of phase two's steps in which poses are optimised. Late, as in the paper, once
@@ -109,21 +120,21 @@ class Phase2Config(_Frozen):
     """Train D with G (ours) rather than deform a frozen D (the paper): the poses move closer
     to the truth. Without G, off holds the CAD shape while phase two refines the poses
     against it (its steps outside the pose window skipped)."""
-    lambda_offset: float = Field(default=0.1, ge=0.0)
+    lambda_offset: float = Field(default=0.1, ge=0.0, le=MAX_WEIGHT)
     """Weight of the mean offset norm ||o||_2 in phase two (ours; 10 on a mean pins G at 0)."""
-    lambda_correction: float = Field(default=0.01, ge=0.0)
+    lambda_correction: float = Field(default=0.01, ge=0.0, le=MAX_WEIGHT)
     """Weight of the mean |c| (logit units) in phase two (ours, as above)."""
-    prior_weight: float = Field(default=0.0, ge=0.0)
+    prior_weight: float = Field(default=0.0, ge=0.0, le=MAX_WEIGHT)
     """Weight of a CAD prior holding D to the retrieved model's occupancy while G deforms it.
     0 (off): the retrieved model is another object; held to it, the poses do not move."""
-    prior_points: int = Field(default=1024, ge=16)
+    prior_points: int = Field(default=1024, ge=16, le=MAX_RAYS)
     """CAD occupancy points per step for ``prior_weight``."""
     focal_bound: float = Field(default=1.0, ge=1.0, le=4.0)
     """Where no photo's EXIF (nor ``retrieval.focal_35mm``) gives the focal length: the one
     focal length the photos share is refined with the poses, in both phases' pose windows (as
     NeRF-- does), by a factor kept within [1 / bound, bound] (1: fixed at retrieval's
     estimate, which assumes the library's 40-degree camera)."""
-    focal_lr: float = Field(default=1e-2, gt=0.0)
+    focal_lr: float = Field(default=1e-2, gt=0.0, le=MAX_LR)
     """Adam learning rate of the focal factor's logit (``focal_bound``), in either phase."""
 
     @model_validator(mode="after")
@@ -136,32 +147,32 @@ class Phase2Config(_Frozen):
 class Phase3Config(_Frozen):
     """Phase three: colour network; D, G and colour trained on colour re-rendering."""
 
-    steps: int = Field(default=1000, ge=0)
+    steps: int = Field(default=1000, ge=0, le=MAX_STEPS)
     """Optimisation steps."""
-    rays: int = Field(default=1024, ge=16)
+    rays: int = Field(default=1024, ge=16, le=MAX_RAYS)
     """Rays per step."""
-    lr: float = Field(default=5e-4, gt=0.0)
+    lr: float = Field(default=5e-4, gt=0.0, le=MAX_LR)
     """Adam learning rate (the paper: 5e-4)."""
-    lambda_offset: float = Field(default=0.1, ge=0.0)
+    lambda_offset: float = Field(default=0.1, ge=0.0, le=MAX_WEIGHT)
     """Weight of the mean offset norm ||o||_2 (the paper's lambda_a, 10, kept by ``paper``;
     ours 0.1 lets phase two's deformation survive phase three)."""
-    lambda_correction: float = Field(default=0.01, ge=0.0)
+    lambda_correction: float = Field(default=0.01, ge=0.0, le=MAX_WEIGHT)
     """Weight of the mean |c| (the paper's lambda_b: 0.1 in ``paper``, 0.01 in ours)."""
-    mask_weight: float = Field(default=0.1, ge=0.0)
+    mask_weight: float = Field(default=0.1, ge=0.0, le=MAX_WEIGHT)
     """Weight of the silhouette loss kept during phase three (ours; the paper uses none)."""
-    prior_weight: float = Field(default=0.0, ge=0.0)
+    prior_weight: float = Field(default=0.0, ge=0.0, le=MAX_WEIGHT)
     """Weight of the CAD prior on D in phase three (as ``Phase2Config.prior_weight``)."""
-    prior_points: int = Field(default=1024, ge=16)
+    prior_points: int = Field(default=1024, ge=16, le=MAX_RAYS)
     """CAD occupancy points per step for ``prior_weight``."""
     pose_window: tuple[float, float] = (0.0, 0.75)
     """Fractions of phase three's steps in which the colour loss refines poses ((0, 0): frozen,
     the paper). Ours: three quarters, then the sharp photos are fitted with poses settled."""
-    pose_lr: float = Field(default=2e-3, gt=0.0)
+    pose_lr: float = Field(default=2e-3, gt=0.0, le=MAX_LR)
     """Adam learning rate of the pose corrections in phase three's window."""
     pose_blur: float = Field(default=0.0625, ge=0.0, le=0.5)
     """Blur (Gaussian sigma, a fraction of the image side) of the colour targets in the pose
     window, halved each third of it (0: never): it widens the loss's basin in pose."""
-    scene_steps: int = Field(default=0, ge=0)
+    scene_steps: int = Field(default=0, ge=0, le=MAX_STEPS)
     """Scene mode only: steps after the object's, training object and background together."""
 
     @model_validator(mode="after")
@@ -173,17 +184,17 @@ class Phase3Config(_Frozen):
 class ExportConfig(_Frozen):
     """What the job writes."""
 
-    orbit_frames: int = Field(default=60, ge=2, le=720)
+    orbit_frames: int = Field(default=60, ge=2, le=240)
     """Frames in orbit.mp4 and orbit.gif."""
     orbit_fps: int = Field(default=30, ge=1, le=120)
     """Frames per second of the video."""
     orbit_elevation: float = Field(default=20.0, ge=-89.0, le=89.0)
     """Elevation of the orbit camera in degrees."""
-    orbit_size: int = Field(default=256, ge=16, le=2048)
+    orbit_size: int = Field(default=256, ge=16, le=1024)
     """Side of orbit frames in pixels (even, for H.264 yuv420p)."""
     novel_views: int = Field(default=4, ge=0, le=64)
     """Extra views rendered at new poses into views/, after the ones at the photo poses."""
-    mesh_resolution: int = Field(default=96, ge=16, le=512)
+    mesh_resolution: int = Field(default=96, ge=16, le=256)
     """Marching-cubes grid side for mesh.glb."""
     mesh_level: float = Field(default=0.5, gt=0.0, lt=1.0)
     """Occupancy level of the extracted surface."""
@@ -286,7 +297,7 @@ class PipelineConfig(_Frozen):
 
     preset: str = "standard"
     """Name of the preset these values started from (informational)."""
-    seed: int = Field(default=0, ge=0)
+    seed: int = Field(default=0, ge=0, le=MAX_SEED)
     """Random seed: two runs with the same seed on the CPU give the same result."""
     image_size: int = Field(default=128, ge=16, le=1024)
     """Side of the canonical photo crops the NeRF is trained on (and retrieval's ``K_canon``)."""
@@ -316,6 +327,11 @@ class PipelineConfig(_Frozen):
     """Model and pose retrieval."""
     export: ExportConfig = Field(default_factory=ExportConfig)
     """Outputs."""
+
+    @model_validator(mode="after")
+    def _check_budget(self) -> PipelineConfig:
+        check_point_budget(self)
+        return self
 
 
 def _preset(name: str, **sections: Any) -> PipelineConfig:
@@ -421,3 +437,26 @@ def resolve_config(preset: str | None = None,
     data = _merge(PRESETS[name].model_dump(), nested)
     data["preset"] = name
     return PipelineConfig.model_validate(data)
+
+
+def field_bounds(path: tuple[str | int, ...]) -> str | None:
+    """The allowed range of the config field at ``path`` (``("phase3", "steps")``) as text,
+    ``"0 <= phase3.steps <= 50000"``; None for a path that is not a bounded field."""
+    model: Any = PipelineConfig
+    info = None
+    for part in path:
+        info = getattr(model, "model_fields", {}).get(str(part))
+        if info is None:
+            return None
+        model = info.annotation
+    if info is None:
+        return None
+    limits = {name: getattr(item, name) for item in info.metadata
+              for name in ("ge", "gt", "le", "lt") if getattr(item, name, None) is not None}
+    if not limits:
+        return None
+    low = next((f"{limits[k]} {sign} " for k, sign in (("ge", "<="), ("gt", "<"))
+                if k in limits), "")
+    high = next((f" {sign} {limits[k]}" for k, sign in (("le", "<="), ("lt", "<"))
+                 if k in limits), "")
+    return f"{low}{'.'.join(str(p) for p in path)}{high}"

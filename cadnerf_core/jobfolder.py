@@ -5,8 +5,8 @@ One job is one folder, written by the app at upload (or the CLI), then by the pi
     inputs/NNN_<stem>.<ext>   the photos; NNN (000, 001, ...) is the photo order
     inputs/masks/NNN_<stem>.png   uploaded masks, each named after ITS PHOTO (not its own name)
     config.json               the resolved PipelineConfig, written once at the door
-    masks/NNN.png             the mask photo NNN used (8-bit, 255 = object, the photo's size
-                              after EXIF orientation)
+    masks/NNN.png             the mask photo NNN used (8-bit, 255 = object, the photo's
+                              working size after EXIF orientation)
     masks/NNN_overlay.jpg     a picture of that mask over the photo, to look at
     masks.json                per photo: name, mask source (uploaded, alpha, learned, grabcut),
                               warnings, and the mask and overlay file names
@@ -124,11 +124,42 @@ def media_type(name: str) -> str:
     return "application/octet-stream"
 
 
+SUBFOLDERS = (MASK_UPLOADS, INPUTS, MASKS, VIEWS, CHECKPOINTS, EVAL)
+"""The folders inside a job folder (nested ones first), created on demand; the job folder
+itself never is."""
+
+
+def ensure_folder(folder: Path) -> None:
+    """Create a job folder's subfolder (``SUBFOLDERS``) if missing; never a job folder.
+
+    A deleted job's folder is gone: writing into it must fail, not bring it back.
+
+    Raises:
+        FileNotFoundError: ``folder`` is missing and is not a subfolder of an existing job
+            folder.
+    """
+    if folder.is_dir():
+        return
+    for name in SUBFOLDERS:
+        parts = PurePosixPath(name).parts
+        if folder.parts[-len(parts):] != parts:
+            continue
+        current = folder.parents[len(parts) - 1]  # the job folder
+        if not current.is_dir():
+            break
+        for part in parts:
+            current = current / part
+            current.mkdir(exist_ok=True)
+        return
+    raise FileNotFoundError(2, "the job folder is gone (deleted?)", str(folder))
+
+
 @contextmanager
 def atomic_path(path: Path) -> Iterator[Path]:
     """Yield a temporary path beside ``path`` (same suffix), renamed onto it on success, so a
-    reader never sees half a file and a killed job leaves no truncated one."""
-    path.parent.mkdir(parents=True, exist_ok=True)
+    reader never sees half a file and a killed job leaves no truncated one. Only a subfolder
+    of an existing job folder is created (``ensure_folder``)."""
+    ensure_folder(path.parent)
     fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.stem}.", suffix=path.suffix)
     os.close(fd)
     try:
@@ -200,7 +231,8 @@ class JobFolder:
 
     def new_photo_path(self, index: int, filename: str, ext: str) -> Path:
         """Where photo ``index`` (uploaded as ``filename``, of type ``ext``) is stored."""
-        (self.root / INPUTS).mkdir(parents=True, exist_ok=True)
+        self.root.mkdir(parents=True, exist_ok=True)  # a new job (the app, the CLI)
+        ensure_folder(self.root / INPUTS)
         return self.root / INPUTS / photo_file_name(index, filename, ext)
 
     def add_photo(self, index: int, source: Path, filename: str | None = None,
@@ -231,7 +263,7 @@ class JobFolder:
             OSError, ValueError: a mask that cannot be decoded (nothing is stored then).
         """
         target = self.mask_path(photo)
-        target.parent.mkdir(parents=True, exist_ok=True)
+        ensure_folder(target.parent)
         with source.open("rb") as handle:
             is_png = handle.read(8) == b"\x89PNG\r\n\x1a\n"
         if is_png and move:

@@ -76,6 +76,7 @@ def run_intake(job_dir: Path, library: Library, config: PipelineConfig,
     names = [entry.name for entry in inputs]
     found = photo_masks(photos, config.masks.method, model_path=mask_model, progress=progress)
     masks = [result.mask for result in found]
+    progress.check()  # before any output: a cancelled or deleted job writes nothing more
     folder.write_masks(inputs, found, (  # overlays are small: milliseconds, not 12 megapixels
         mask_overlay(downscaled(p.rgb, OVERLAY_SIDE), shrunk_mask(m, OVERLAY_SIDE))
         for p, m in zip(photos, masks, strict=True)))
@@ -86,6 +87,7 @@ def run_intake(job_dir: Path, library: Library, config: PipelineConfig,
     retrieval = retrieve(masks, names, library, config.retrieval, progress,
                          [p.rgb for p in photos], [p.focal_pixels for p in photos],
                          crop_size=config.image_size)
+    progress.check()
     folder.write_retrieval(retrieval.to_json())
     if len(retrieval.kept) < 2:
         raise InputError("fewer than two photos could be matched to the retrieved model",
@@ -204,6 +206,7 @@ def train(job_dir: Path, library: Library, retrieval: RetrievalResult, data: Tra
         extra["timings"][f"phase{phase}_s"] = time.perf_counter() - start
         extra["memory"][f"phase{phase}"] = _peak_memory_mb(device)
         extra["focal_scale"] = state.focal_scale()
+        progress.check()
         save_checkpoint(job_dir, phase, state, extra)
         log.info("phase %d done in %.1f s", phase, extra["timings"][f"phase{phase}_s"])
     return state, extra
@@ -291,7 +294,9 @@ def with_focal_scale(retrieval: RetrievalResult, data: TrainData,
 
 
 def _attach_log(job_dir: Path) -> logging.Handler:
-    job_dir.mkdir(parents=True, exist_ok=True)
+    if not job_dir.is_dir():  # never created here: a deleted job must stay deleted
+        raise InputError("the job folder does not exist", item=str(job_dir),
+                         hint="create it with the photos in inputs/ first")
     handler = logging.FileHandler(JobFolder(job_dir).log_path, encoding="utf-8")
     handler.setFormatter(logging.Formatter("%(asctime)s %(levelname)s %(name)s: %(message)s"))
     handler.setLevel(logging.INFO)

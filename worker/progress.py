@@ -29,7 +29,8 @@ class JobProgress:
                  deadline: float | None = None,
                  celery_update: Callable[[dict[str, Any]], None] | None = None,
                  throttle_s: float = 0.5, mirror_every_s: float = 5.0, retry_s: float = 2.0,
-                 clock: Callable[[], float] = time.monotonic) -> None:
+                 tick_s: float = 2.0, clock: Callable[[], float] = time.monotonic) -> None:
+        self.tick_s = tick_s
         self.store = store
         self.job_id = job_id
         self.eta = eta
@@ -56,6 +57,10 @@ class JobProgress:
             return
         if now < self._redis_down_until:
             return
+        self._write(now, stage, fraction, eta_s, changed, {"done": done, "total": total})
+
+    def _write(self, now: float, stage: str, fraction: float, eta_s: float, changed: bool,
+               extra: dict[str, Any]) -> None:
         self._last_write = now
         progress, eta = round(fraction, 4), round(eta_s, 1)
         try:
@@ -68,10 +73,18 @@ class JobProgress:
             return
         if self.celery_update is not None:
             try:
-                self.celery_update({"stage": stage, "progress": progress, "eta_s": eta,
-                                    "done": done, "total": total})
+                self.celery_update({"stage": stage, "progress": progress, "eta_s": eta, **extra})
             except Exception as exc:  # the result backend is Redis too: same treatment
                 self._redis_failed(now, exc)
+
+    def _tick(self, now: float) -> None:
+        """Move the ETA on between reports (``EtaModel.tick``), every ``tick_s``."""
+        if self.eta.stage is None or now - self._last_write < self.tick_s \
+                or now < self._redis_down_until:
+            return
+        moved = self.eta.tick(now)
+        if moved is not None:
+            self._write(now, self.eta.stage, moved[0], moved[1], False, {})
 
     def _redis_failed(self, now: float, exc: Exception) -> None:
         self.redis_failures += 1
@@ -92,4 +105,6 @@ class JobProgress:
                 self._cancelled = self.store.cancel_requested(self.job_id)
             except redis.RedisError as exc:
                 self._redis_failed(now, exc)
+        if not self._cancelled:
+            self._tick(now)  # the core checks on every step, and reports every fiftieth
         return self._cancelled

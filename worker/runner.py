@@ -24,8 +24,10 @@ from app.state import (
     JobStore,
     Settings,
     finish_job,
+    stage_work,
+    unscaled,
 )
-from cadnerf_core.jobfolder import CONFIG, INPUTS, MASKS, photo_index
+from cadnerf_core.jobfolder import CONFIG, INPUTS, MASKS, JobFolder, photo_index
 from worker.progress import JobProgress
 from worker.webhook import send_webhook
 
@@ -139,7 +141,8 @@ def _run(record: JobRecord, settings: Settings, store: JobStore, started: float,
     from cadnerf_core.progress import Progress
 
     device = device_kind(settings.device)
-    eta = EtaModel(store.history.expected(record.preset, device))
+    work = record.work or _job_work(store.job_dir(record.id))
+    eta = EtaModel(store.history.expected(record.preset, device, work))
     adapter = JobProgress(store, record.id, eta, celery_update=celery_update,
                           deadline=started + settings.job_soft_time_limit_s)
     watchdog = _hard_limit_watchdog(store, record, settings.job_hard_time_limit_s)
@@ -174,10 +177,18 @@ def _run(record: JobRecord, settings: Settings, store: JobStore, started: float,
     finally:
         watchdog.cancel()
     try:
-        store.history.record(record.preset, device, eta.finish(time.monotonic()))
+        store.history.record(record.preset, device, unscaled(eta.finish(time.monotonic()), work))
     except redis.RedisError as exc:  # only the ETA of later jobs suffers
         log.warning("could not record stage times: %s", exc)
     return JobState.succeeded, None, None
+
+
+def _job_work(folder: Path) -> dict[str, float]:
+    """The work per stage of a job without one in its record (``app.state.stage_work``)."""
+    try:
+        return stage_work(JobFolder(folder).read_config())
+    except (OSError, ValueError):  # the pipeline reports a broken config itself
+        return {}
 
 
 def uploaded_name(item: str, record: JobRecord) -> str | None:

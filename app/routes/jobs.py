@@ -156,6 +156,7 @@ def get_artifact(job: JobDep, store: StoreDep, name: str, request: Request) -> R
 
 @router.delete("/{job_id}", response_model=DeleteResult, responses=_ERRORS,
                summary="Cancel (if running) and delete a job")
-def delete_job(job: JobDep, store: StoreDep) -> DeleteResult:
-    """A running job stops at its next step; then its files are removed."""
-    return jobs.delete_job(store, job)
+def delete_job(job: JobDep, store: StoreDep, settings: SettingsDep) -> DeleteResult:
+    """A running job stops at its next step; its files are removed before the answer, and no
+    worker can write them again."""
+    return jobs.delete_job(store, job, settings.delete_wait_s)

@@ -7,6 +7,7 @@ and the asyncio one (the polling route).
 
 from __future__ import annotations
 
+import json
 from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Any
@@ -17,7 +18,7 @@ from app.state import keys, scripts
 from app.state.eta import expected_job_seconds, first_history, history_devices
 from app.state.records import JobRecord, JobState, is_job_id
 
-_FIELDS = ("state", "preset", "eta_s")
+_FIELDS = ("state", "preset", "eta_s", "work")
 
 
 @dataclass(frozen=True)
@@ -64,28 +65,32 @@ def estimates(order: Sequence[str], running: Sequence[str], targets: Sequence[st
     records = {i: dict(zip(_FIELDS, reply[n], strict=True)) for n, i in enumerate(ids)}
     histories = list(zip(devices, reply[len(ids):len(ids) + len(devices)], strict=True))
     workers = len(reply[-1])
-    seconds: dict[str, float | None] = {}
+    seconds: dict[tuple[str, str], float | None] = {}
 
-    def expected(preset: str) -> float | None:
-        if preset not in seconds:
+    def expected(preset: str, work: str | None) -> float | None:
+        """Expected seconds of a job of ``preset`` with ``work`` (its record's JSON field)."""
+        if (preset, work or "") not in seconds:
             device, measured = first_history(histories, preset)
-            seconds[preset] = expected_job_seconds(preset, device, measured)
-        return seconds[preset]
+            seconds[preset, work or ""] = expected_job_seconds(
+                preset, device, measured, json.loads(work) if work else None)
+        return seconds[preset, work or ""]
 
     busy: list[float | None] = []
     for job_id in running:
         h = records.get(job_id, {})
         if h.get("state") == JobState.running and h.get("preset"):
-            busy.append(float(h["eta_s"]) if h.get("eta_s") else expected(h["preset"]))
+            busy.append(float(h["eta_s"]) if h.get("eta_s") else expected(h["preset"],
+                                                                          h.get("work")))
     out = {}
     for target in targets:
         own = records.get(target, {})
         if own.get("state") != JobState.queued or not own.get("preset"):
             continue
-        ahead = [records[i]["preset"] for i in order[:order.index(target)]
+        ahead = [(records[i]["preset"], records[i].get("work"))
+                 for i in order[:order.index(target)]
                  if records[i].get("state") == JobState.queued and records[i].get("preset")]
-        backlog = [expected(p) for p in ahead] + busy
-        own_s = expected(own["preset"])
+        backlog = [expected(p, w) for p, w in ahead] + busy
+        own_s = expected(own["preset"], own.get("work"))
         eta = None
         if own_s is not None and all(b is not None for b in backlog):
             eta = round(sum(b for b in backlog if b is not None) / max(workers, 1) + own_s, 1)

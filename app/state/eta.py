@@ -14,6 +14,7 @@ from dataclasses import dataclass, field
 import redis
 
 from app.state import keys
+from app.state.work import scaled
 from cadnerf_core.progress import STAGES
 
 log = logging.getLogger(__name__)
@@ -54,21 +55,24 @@ def default_stage_seconds(preset: str, device: str) -> dict[str, float]:
     return dict(tables.get(preset, tables[FALLBACK_PRESET]))
 
 
-def stage_table(preset: str, device: str, measured: Mapping[str, str | float]) -> dict[str, float]:
-    """Expected seconds per stage: the measured values where known, else the default table."""
+def stage_table(preset: str, device: str, measured: Mapping[str, str | float],
+                work: Mapping[str, float] | None = None) -> dict[str, float]:
+    """Expected seconds per stage: the measured values where known, else the default table;
+    scaled by a job's work per stage (``app.state.work.stage_work``; None: the preset's)."""
     table = default_stage_seconds(preset, device)
     for stage, seconds in measured.items():
         if stage in table:
             table[stage] = max(float(seconds), 1e-3)
-    return table
+    return scaled(table, work)
 
 
-def expected_job_seconds(preset: str, device: str,
-                         measured: Mapping[str, str | float]) -> float | None:
-    """Expected seconds of a whole job of ``preset``; None while no job of it was measured."""
+def expected_job_seconds(preset: str, device: str, measured: Mapping[str, str | float],
+                         work: Mapping[str, float] | None = None) -> float | None:
+    """Expected seconds of a whole job of ``preset`` (with ``work``, as ``stage_table``); None
+    while no job of it was measured."""
     if not measured:
         return None
-    return sum(stage_table(preset, device, measured).values())
+    return sum(stage_table(preset, device, measured, work).values())
 
 
 def history_devices(device: str) -> tuple[str, ...]:
@@ -100,14 +104,16 @@ class StageHistory:
     def __init__(self, client: redis.Redis) -> None:
         self._r = client
 
-    def expected(self, preset: str, device: str) -> dict[str, float]:
-        """Expected seconds per stage on ``device``: measured where known, else the defaults."""
+    def expected(self, preset: str, device: str,
+                 work: Mapping[str, float] | None = None) -> dict[str, float]:
+        """Expected seconds per stage on ``device``: measured where known, else the defaults;
+        scaled by a job's ``work`` per stage."""
         try:
             flat = self._r.hgetall(keys.stage_seconds(device))
         except redis.RedisError as exc:  # the defaults still give an ETA
             log.warning("measured stage times unreadable: %s", exc)
             flat = {}
-        return stage_table(preset, device, preset_history(flat, preset))  # type: ignore[arg-type]
+        return stage_table(preset, device, preset_history(flat, preset), work)  # type: ignore[arg-type]
 
     def measured(self, device: str) -> dict[str, str]:
         """Every preset's measured stage seconds on ``device``, fields ``<preset>/<stage>``
@@ -136,9 +142,28 @@ class EtaModel:
     stage_started: float = 0.0
     durations: dict[str, float] = field(default_factory=dict)
     fraction: float = 0.0
+    last: tuple[float, float, float] | None = None  # (time, seconds left, stage's end fraction)
 
     def update(self, stage: str, done: int, total: int, now: float) -> tuple[float, float]:
         """Account for a report; returns (fraction done in [0, 1], seconds left)."""
+        fraction, left, stage_end = self._account(stage, done, total, now)
+        self.last = (now, left, stage_end)
+        return fraction, left
+
+    def tick(self, now: float) -> tuple[float, float] | None:
+        """Between two reports (a long stage reports every fiftieth of its steps): the fraction
+        and seconds left moved on by the time passed since the last report, at its rate, never
+        past the end of the current stage. None before any report."""
+        if self.last is None:
+            return None
+        at, left, stage_end = self.last
+        passed = max(now - at, 0.0)
+        moved = self.fraction + (1.0 - self.fraction) * min(passed / max(left, 1e-6), 1.0)
+        self.fraction = max(self.fraction, min(moved, stage_end))
+        return self.fraction, max(left - passed, 0.0)
+
+    def _account(self, stage: str, done: int, total: int,
+                 now: float) -> tuple[float, float, float]:
         if stage != self.stage:
             if self.stage is not None:
                 self.durations[self.stage] = now - self.stage_started
@@ -149,7 +174,8 @@ class EtaModel:
         weights = [self.expected.get(s, 1.0) for s in order]
         done_weight = sum(weights[:position]) + weights[position] * part
         self.fraction = max(self.fraction, min(done_weight / sum(weights), 1.0))
-        return self.fraction, self._eta(order, position, part, now)
+        stage_end = min(sum(weights[:position + 1]) / sum(weights), 1.0)
+        return self.fraction, self._eta(order, position, part, now), stage_end
 
     def finish(self, now: float) -> dict[str, float]:
         """Close the current stage; returns every stage's measured seconds."""

@@ -59,6 +59,7 @@ class JobRecord(BaseModel):
     webhook_url: str | None = None
     worker: str | None = None  # heartbeat name of the worker running it (while running)
     attempts: int = 0  # times it was queued again after its worker died
+    work: dict[str, float] = Field(default_factory=dict)  # per stage, over the preset's (ETA)
 
     def to_hash(self) -> dict[str, str]:
         """Flat string mapping for HSET (None -> empty string, lists -> JSON)."""
@@ -69,6 +70,7 @@ class JobRecord(BaseModel):
         """Inverse of ``to_hash``."""
         data: dict[str, Any] = {k: (None if v == "" else v) for k, v in raw.items()}
         data["names"] = json.loads(data.get("names") or "[]")
+        data["work"] = json.loads(data.get("work") or "{}")
         if data.get("error_detail") is not None:
             data["error_detail"] = json.loads(data["error_detail"])
         if data.get("progress") is None:

@@ -34,6 +34,16 @@ redis.call('zrem', KEYS[3], ARGV[1])
 return 1
 """
 
+# KEYS: its tombstone, running set. ARGV: job id.
+# A worker's heartbeat puts its job back in the running set unless the job was deleted (a job
+# Redis lost in a restart is re-seeded from state.json through that set; a deleted one must
+# not come back).
+MARK_RUNNING = """
+if redis.call('exists', KEYS[1]) == 1 then return 0 end
+redis.call('sadd', KEYS[2], ARGV[1])
+return 1
+"""
+
 # KEYS: job, its claim, running set, queue. ARGV: job id, dead worker, max attempts, now, error.
 # Running -> queued (or failed past the attempt bound), only while still held by the dead worker.
 REQUEUE = """

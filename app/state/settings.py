@@ -82,6 +82,10 @@ class Settings(BaseSettings):
     """Checked between steps, so the job stops cleanly with a clear error."""
     job_hard_time_limit_s: int = Field(3900, gt=0, description="Worker is killed after this.")
     """Last resort when a step hangs; must exceed the soft limit."""
+    delete_wait_s: float = Field(5.0, ge=0, le=60, description="Seconds DELETE waits for a "
+                                 "running job's worker to stop before answering.")
+    """Only for ``worker_stopped`` in the answer: the job's folder is renamed away before the
+    answer either way, and nothing re-creates it, so a late worker can no longer write."""
     webhook_secret: str = Field("", description="HMAC-SHA256 key signing webhook bodies.")
     """Empty: webhooks are sent unsigned."""
     webhook_allow_private: bool = Field(

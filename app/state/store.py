@@ -11,6 +11,7 @@ import logging
 import os
 import shutil
 import time
+import uuid
 from collections.abc import Iterable, Iterator, Sequence
 from pathlib import Path
 from typing import Any
@@ -27,6 +28,7 @@ from app.state.records import JobRecord, JobState, encode, is_job_id
 log = logging.getLogger(__name__)
 
 STATE_FILE = "state.json"
+TRASH_PREFIX = ".deleted-"  # a deleted job's folder, renamed away while it is removed
 TOMBSTONE_TTL_S = 7 * 24 * 3600
 CANCEL_TTL_S = 7 * 24 * 3600
 
@@ -58,6 +60,7 @@ class JobStore:
         self._update = client.register_script(scripts.UPDATE)
         self._start = client.register_script(scripts.START)
         self._requeue = client.register_script(scripts.REQUEUE)
+        self._mark_running = client.register_script(scripts.MARK_RUNNING)
 
     @classmethod
     def open(cls, url: str, data_root: Path) -> JobStore:
@@ -97,8 +100,13 @@ class JobStore:
         if raw:
             return JobRecord.from_hash(raw)  # type: ignore[arg-type]
         record = self.read_state_file(job_id)
-        if record is not None:
-            self.reseed(record)
+        if record is None:
+            return None
+        if self._r.exists(keys.deleted(job_id)):  # a folder left behind: never brought back
+            log.warning("job %s was deleted; its leftover folder is removed", job_id)
+            self.remove_folder(job_id)
+            return None
+        self.reseed(record)
         return record
 
     def latest(self, record: JobRecord) -> JobRecord:
@@ -150,15 +158,43 @@ class JobStore:
         return [JobRecord.from_hash(raw) for raw in pipe.execute() if raw], total
 
     def delete(self, record: JobRecord) -> None:
-        """Forget a job in Redis (leaving a tombstone) and remove its folder."""
+        """Forget a job in Redis (leaving a tombstone) and remove its folder.
+
+        The tombstone comes first (a worker's next cancel check sees it), then the folder is
+        renamed away in one step and removed: from then on nothing can write under the job's
+        path, since no writer creates a missing job folder (``cadnerf_core.jobfolder``).
+        """
         pipe = self._r.pipeline()
-        pipe.delete(keys.job(record.id), keys.cancel(record.id))
         pipe.set(keys.deleted(record.id), "1", ex=TOMBSTONE_TTL_S)
+        pipe.delete(keys.job(record.id), keys.cancel(record.id))
         pipe.zrem(keys.owner_jobs(record.owner), record.id)
         pipe.srem(keys.RUNNING, record.id)
         pipe.zrem(keys.QUEUE, record.id)
         pipe.execute()
-        shutil.rmtree(self.job_dir(record.id), ignore_errors=True)
+        self.remove_folder(record.id)
+
+    def remove_folder(self, job_id: str) -> None:
+        """Rename the job's folder to a ``TRASH_PREFIX`` name (atomic), then remove it; a
+        file a late writer puts into the renamed folder is removed by ``remove_trash``."""
+        folder = self.job_dir(job_id)
+        trash = self.data_root / f"{TRASH_PREFIX}{job_id}-{uuid.uuid4().hex[:8]}"
+        try:
+            os.rename(folder, trash)
+        except FileNotFoundError:
+            return
+        except OSError as exc:  # not renamable (storage trouble): remove it in place
+            log.warning("could not rename %s away (%s); removing it in place", folder, exc)
+            trash = folder
+        shutil.rmtree(trash, ignore_errors=True)
+
+    def remove_trash(self) -> int:
+        """Remove what is left of deleted jobs' folders; returns how many were found."""
+        found = 0
+        if self.data_root.is_dir():
+            for entry in self.data_root.glob(f"{TRASH_PREFIX}*"):
+                found += 1
+                shutil.rmtree(entry, ignore_errors=True)
+        return found
 
     # --- transitions ----------------------------------------------------------------------
     def start(self, job_id: str, worker: str, started_at: float) -> bool:
@@ -221,9 +257,9 @@ class JobStore:
         return sorted(str(i) for i in self._r.smembers(keys.RUNNING))  # type: ignore[union-attr]
 
     def mark_running(self, job_id: str, running: bool) -> None:
-        """Add the job to (or remove it from) the running set."""
+        """Add the job to (or remove it from) the running set; a deleted job is never added."""
         if running:
-            self._r.sadd(keys.RUNNING, job_id)
+            self._mark_running(keys=[keys.deleted(job_id), keys.RUNNING], args=[job_id])
         else:
             self._r.srem(keys.RUNNING, job_id)
 

@@ -178,6 +178,7 @@ def render_views(job_dir: Path, model: TrainedModel, data: TrainData, progress: 
     for i, pose in enumerate([*c2w, *novel]):
         rgb, _ = model.render_image(pose, K[i] if i < len(c2w) else K_novel, size, size)
         path = JobFolder(job_dir).view_path(i)
+        progress.check()  # before any output: a cancelled or deleted job writes nothing more
         write_png(path, rgb)
         names.append(path.relative_to(job_dir).as_posix())
         if i < len(c2w):
@@ -199,6 +200,7 @@ def render_orbit(job_dir: Path, model: TrainedModel, data: TrainData, progress: 
         frames.append(to_uint8(rgb))
         progress.step("render", done + i + 1, total)
     folder = JobFolder(job_dir)
+    progress.check()
     write_video(folder.file(ORBIT_VIDEO), frames, ecfg.orbit_fps)
     write_gif(folder.file(ORBIT_GIF), frames, ecfg.orbit_fps)
     return [ORBIT_VIDEO, ORBIT_GIF]
@@ -215,11 +217,18 @@ def export_mesh(job_dir: Path, model: TrainedModel, progress: Progress | None = 
     mesh = extract_mesh(values, bound, cfg.export.mesh_level)
     normals = np.asarray(mesh.vertex_normals, dtype=np.float32)
     colors = model.colors(np.asarray(mesh.vertices, np.float32), -normals, check=check)
+    if progress is not None:
+        progress.check()  # before any output: a cancelled or deleted job writes nothing more
     write_mesh(JobFolder(job_dir).file(MESH), mesh, colors)
 
 
-def poses_json(model: TrainedModel, retrieval: RetrievalResult) -> list[dict[str, Any]]:
-    """Per photo: name, refined and initial c2w, IoU, discarded, K (crop and photo pixels)."""
+def poses_json(model: TrainedModel, retrieval: RetrievalResult,
+               scales: Sequence[float] | None = None) -> list[dict[str, Any]]:
+    """Per photo: name, refined and initial c2w, IoU, discarded, K (crop and photo pixels).
+
+    ``scales``: per photo index, uploaded pixels per working pixel (``Photo.scale``), so that
+    ``K_photo`` holds for the photo as uploaded; None: 1.
+    """
     from cadnerf_core.intake.crop import uncrop_intrinsics
 
     refined = dict(zip([m.index for m in retrieval.kept], model.c2w, strict=True))
@@ -230,7 +239,15 @@ def poses_json(model: TrainedModel, retrieval: RetrievalResult) -> list[dict[str
                     "c2w": None if pose is None else pose.tolist(),
                     "c2w_initial": m.c2w.tolist(), "library_view": m.view,
                     "K_canonical": m.K_canon.tolist(), "canonical_size": m.box.size,
-                    "K_photo": uncrop_intrinsics(m.K_canon, m.box).tolist()})
+                    "K_photo": _scaled(uncrop_intrinsics(m.K_canon, m.box),
+                                       1.0 if scales is None else scales[m.index]).tolist()})
+    return out
+
+
+def _scaled(K: np.ndarray, scale: float) -> np.ndarray:
+    """Intrinsics [3, 3] in pixels ``scale`` times larger (focal lengths and principal point)."""
+    out = np.array(K, dtype=np.float64)
+    out[:2] *= scale
     return out
 
 
@@ -260,7 +277,8 @@ def export_job(job_dir: Path, model: TrainedModel, retrieval: RetrievalResult,
     """Write every artifact of a trained job and return the service's summary.
 
     Args:
-        photos: the job's photos (cadnerf_core.intake.photos.Photo), for their pixel sizes.
+        photos: the job's photos (cadnerf_core.intake.photos.Photo), for their pixel sizes as
+            uploaded (working size times ``scale``).
     """
     import time
 
@@ -274,15 +292,18 @@ def export_job(job_dir: Path, model: TrainedModel, retrieval: RetrievalResult,
     export_mesh(job_dir, model, progress)
     progress.step("export", 2, 3)
     kept = retrieval.kept
-    sizes = [(photos[m.index].rgb.shape[1], photos[m.index].rgb.shape[0]) for m in kept]
-    poses = poses_json(model, retrieval)
+    scales = [float(p.scale) for p in photos]
+    sizes = [photos[m.index].size for m in kept]
+    poses = poses_json(model, retrieval, scales)
     folder = JobFolder(job_dir)
+    progress.check()
     folder.write_poses(retrieval.model_id, poses)
     K_photo = [np.asarray(p["K_photo"]) for p in poses if not p["discarded"]]
     folder.write_transforms(transforms_json(model.c2w, K_photo, sizes,
                                             [folder.photo_ref(m.name) for m in kept]))
     model.extra.setdefault("timings", {})["export_s"] = time.perf_counter() - start
     metrics = metrics_json(model, retrieval, scores)
+    progress.check()
     folder.write_metrics(metrics)
     progress.step("export", 3, 3)
     artifacts += [MESH, POSES, TRANSFORMS, METRICS, RETRIEVAL, MASK_SOURCES, CONFIG, LOG]

@@ -23,6 +23,7 @@ from scipy import ndimage
 
 from cadnerf_core.errors import InputError
 from cadnerf_core.intake import saliency
+from cadnerf_core.intake.limits import MAX_COVER, MIN_COVER, cover_problem
 from cadnerf_core.intake.mask_checks import mask_warnings, median_cover
 from cadnerf_core.intake.photos import Photo
 from cadnerf_core.intake.resize import downscaled, resized_mask
@@ -33,7 +34,6 @@ log = logging.getLogger(__name__)
 
 GRABCUT_SIDE = 320  # border-seeded GrabCut runs on a copy about this many pixels on a side
 WORK_SIDE = 512  # the learned map is refined at about this many pixels on the longer side
-MIN_COVER, MAX_COVER = 0.01, 0.95  # a found mask outside these fractions is not trusted
 BAND_SIDES, BAND_TOP_BOTTOM = 0.10, 0.05  # sure-background band, fractions of width, height
 CENTRE_SIGMA = 0.3  # of each side: the centre prior that picks the object's component
 GRABCUT_ITERATIONS = 5
@@ -170,22 +170,34 @@ def _learned(rgb: np.ndarray, session: Any) -> tuple[np.ndarray, np.ndarray]:
 
 
 def check_cover(mask: np.ndarray, name: str, automatic: bool) -> None:
-    """Raise InputError naming the photo when a mask covers too little (or, if found
-    automatically, too much) of it.
+    """Raise InputError naming the photo when a mask covers too little or too much of it
+    (``limits.MIN_COVER``, ``limits.MAX_COVER``: the same rule the service applies to uploaded
+    masks at the door).
 
     Args:
         mask: [H, W] bool.
         name: the photo's name.
-        automatic: the mask came from background removal (then > 95% is refused too).
+        automatic: the mask came from background removal (else it was uploaded or is the
+            photo's own alpha, where only too little is refused).
     """
     cover = float(mask.mean())
-    if cover < MIN_COVER:
-        what = "background removal found" if automatic else "the mask covers"
-        raise InputError(f"{what} {100 * cover:.1f}% of the photo, too little of an object",
-                         item=name, hint=MASK_HINT if automatic else "check the mask")
+    if not automatic and cover < MIN_COVER:
+        raise InputError(f"the mask covers {100 * cover:.1f}% of the photo, too little of an "
+                         "object", item=name, hint="check the mask")
+    if automatic and cover < MIN_COVER:
+        raise InputError(f"background removal found {100 * cover:.1f}% of the photo, too "
+                         "little of an object", item=name, hint=MASK_HINT)
     if automatic and cover > MAX_COVER:
         raise InputError(f"background removal kept {100 * cover:.1f}% of the photo: it could "
                          "not tell the object from the background", item=name, hint=MASK_HINT)
+
+
+def check_uploaded(mask: np.ndarray, name: str) -> None:
+    """Raise InputError naming the photo when an uploaded mask [H, W] bool marks almost none
+    or almost all of it (``limits.cover_problem``, the service's door check)."""
+    problem = cover_problem(float(mask.mean()))
+    if problem is not None:
+        raise InputError(problem[0], item=name, hint=problem[1])
 
 
 def found_mask(photo: Photo, method: Literal["grabcut", "learned"],
@@ -255,7 +267,10 @@ def photo_masks(photos: Sequence[Photo], method: MaskMethod = "auto",
     sources: list[MaskSource] = []
     for i, photo in enumerate(photos):
         if photo.mask is not None:
-            check_cover(photo.mask, photo.name, automatic=False)
+            if photo.mask_source in (None, "uploaded"):
+                check_uploaded(photo.mask, photo.name)
+            else:
+                check_cover(photo.mask, photo.name, automatic=False)
             masks.append(photo.mask)
             kept.append(photo.mask)
             sources.append(photo.mask_source or "uploaded")

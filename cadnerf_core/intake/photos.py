@@ -5,9 +5,11 @@ Pillow was built to read it). The orientation is applied once, so a photo comes 
 viewer shows it: Pillow leaves it to the EXIF tag, pillow-heif applies the HEIF container's
 rotation on decode and resets the tag. A photo with real transparency (an alpha channel not fully
 opaque) gives its mask (alpha > one half) and is composited on white. The size is checked from
-the header before any pixel is decoded, so a huge photo costs nothing to refuse. The EXIF focal
-length is kept as its 35 mm equivalent (a phone's own tag, or a camera's focal length over its
-sensor size): it tells the camera's field of view, which the silhouettes alone cannot.
+the header before any pixel is decoded, so a huge photo costs nothing to refuse, and a photo is
+worked on at most ``limits.WORKING_PIXELS`` (a JPEG decoded at a reduced scale), so a 40 MP photo
+costs what a 12 MP one does. The EXIF focal length is kept as its 35 mm equivalent (a phone's
+own tag, or a camera's focal length over its sensor size): it tells the camera's field of view,
+which the silhouettes alone cannot.
 """
 
 from __future__ import annotations
@@ -25,9 +27,14 @@ from PIL import Image, ImageOps, UnidentifiedImageError, features
 
 from cadnerf_core.errors import InputError
 from cadnerf_core.intake.crop import DEFAULT_MARGIN, CropBox, apply_crop, canonical_box
+from cadnerf_core.intake.limits import (
+    MAX_PIXELS,
+    has_transparency,
+    mask_array,
+    shape_problem,
+    working_size,
+)
 
-MIN_SIDE = 64  # pixels: smaller photos hold too little of the object
-MAX_PIXELS = 40_000_000  # 40 megapixels: larger photos are refused before decoding
 # MPO: phone JPEGs with a depth map; HEIF: HEIC and HEIF; AVIF only where Pillow reads it.
 PHOTO_FORMATS = frozenset({"JPEG", "MPO", "PNG", "WEBP", "HEIF"}
                           | ({"AVIF"} if features.check("avif") else set()))
@@ -42,7 +49,7 @@ PhotoSource = str | Path | bytes | tuple[str, bytes]
 
 @dataclass
 class Photo:
-    """One input photo.
+    """One input photo, at its working size (``limits.working_size``).
 
     ``rgb``: [H, W, 3] float32 in [0, 1]; ``mask``: [H, W] bool from the photo's alpha or the
     user's mask, ``None`` when the photo brings none (background removal then makes one).
@@ -55,6 +62,19 @@ class Photo:
     """The EXIF focal length in 35 mm film terms (``FocalLengthIn35mmFilm``), None if absent."""
     mask_source: Literal["uploaded", "alpha"] | None = None
     """Where ``mask`` came from: a mask the user gave, or the photo's own alpha."""
+    uploaded_size: tuple[int, int] | None = None
+    """(width, height) of the photo as uploaded, upright; None: the size of ``rgb``. Photos
+    over ``limits.WORKING_PIXELS`` are worked on scaled down; exports scale back to this."""
+
+    @property
+    def size(self) -> tuple[int, int]:
+        """(width, height) of the photo as uploaded (upright)."""
+        return self.uploaded_size or (self.rgb.shape[1], self.rgb.shape[0])
+
+    @property
+    def scale(self) -> float:
+        """Pixels of the photo as uploaded per pixel of ``rgb`` (1 at or under working size)."""
+        return self.size[0] / self.rgb.shape[1]
 
     @property
     def focal_pixels(self) -> float | None:
@@ -110,9 +130,10 @@ def _open_image(name: str, data: bytes, what: str, formats: frozenset[str] | Non
         raise InputError(f"the {what} is {width}x{height} pixels, over "
                          f"{MAX_PIXELS // 1_000_000} megapixels", item=name,
                          hint="downscale it before uploading")
-    if min(width, height) < MIN_SIDE:
-        raise InputError(f"the {what} is only {width}x{height} pixels", item=name,
-                         hint=f"use photos at least {MIN_SIDE} pixels on each side")
+    problem = shape_problem(width, height)
+    if problem is not None:
+        message, hint = problem
+        raise InputError(message.replace("the photo", f"the {what}", 1), item=name, hint=hint)
     return image
 
 
@@ -192,18 +213,13 @@ def _decode(image: Image.Image, name: str, what: str) -> Image.Image:
                          hint="export or upload it again") from exc
 
 
-def _has_transparency(image: Image.Image) -> bool:
-    return image.mode in ("RGBA", "LA", "PA") or (
-        image.mode == "P" and "transparency" in image.info)
-
-
 def _to_array(image: Image.Image) -> tuple[np.ndarray, np.ndarray | None]:
     """RGB [H, W, 3] float32 in [0, 1] and the alpha mask (None without real transparency)."""
     if image.mode in ("I", "I;16", "I;16B", "I;16L", "F"):
         gray = np.asarray(image, dtype=np.float32)
         gray = gray / (65535.0 if gray.max() > 255 else 255.0)
         return np.repeat(np.clip(gray, 0, 1)[..., None], 3, axis=2), None
-    if not _has_transparency(image):
+    if not has_transparency(image):
         return np.asarray(image.convert("RGB"), dtype=np.float32) / 255.0, None
     rgba = np.asarray(image.convert("RGBA"), dtype=np.float32) / 255.0
     alpha = rgba[..., 3:]
@@ -213,13 +229,29 @@ def _to_array(image: Image.Image) -> tuple[np.ndarray, np.ndarray | None]:
     return rgba[..., :3] * alpha + (1.0 - alpha), mask
 
 
-def _mask_array(image: Image.Image) -> np.ndarray:
-    """A mask image as bool [H, W]: its alpha if it has real transparency, else nonzero pixels."""
-    if _has_transparency(image):
-        alpha = np.asarray(image.convert("RGBA"))[..., 3]
-        if (alpha < 128).any():
-            return alpha >= 128
-    return np.asarray(image.convert("L")) > 0
+def _working_image(raw: Image.Image, name: str, orientation: int,
+                   raw_size: tuple[int, int]) -> Image.Image:
+    """Decode a photo upright at its working size (``limits.working_size``).
+
+    A JPEG is decoded at a reduced scale by its decoder (no full-size copy is ever made); any
+    photo still over ``WORKING_PIXELS`` is then scaled down with its aspect kept.
+    """
+    if raw.format in ("JPEG", "MPO"):
+        raw.draft(None, working_size(*raw_size))  # type: ignore[arg-type]
+    image = _decode(raw, name, "photo")
+    upright = _upright(raw_size, orientation)
+    target = working_size(*upright)
+    if image.size == target:
+        return image
+    if image.mode not in ("L", "LA", "RGB", "RGBA", "I", "F"):
+        image = image.convert("I" if image.mode.startswith("I;16") else
+                              "RGBA" if has_transparency(image) else "RGB")
+    return image.resize(target, Image.Resampling.LANCZOS, reducing_gap=3.0)
+
+
+def _upright(size: tuple[int, int], orientation: int) -> tuple[int, int]:
+    """(width, height) of stored pixels ``size`` once the EXIF ``orientation`` is applied."""
+    return (size[1], size[0]) if orientation in (5, 6, 7, 8) else size
 
 
 def load_photo(source: PhotoSource, index: int = 0, mask: PhotoSource | None = None) -> Photo:
@@ -228,20 +260,23 @@ def load_photo(source: PhotoSource, index: int = 0, mask: PhotoSource | None = N
     raw = _open_image(name, data, "photo", PHOTO_FORMATS)
     orientation, raw_size = stored_orientation(raw)
     focal = exif_focal_35mm(raw)
-    rgb, alpha_mask = _to_array(_decode(raw, name, "photo"))
+    upright = _upright(raw_size, orientation)
+    rgb, alpha_mask = _to_array(_working_image(raw, name, orientation, raw_size))
     if mask is None:
-        return Photo(name, rgb, alpha_mask, focal, "alpha" if alpha_mask is not None else None)
+        return Photo(name, rgb, alpha_mask, focal, "alpha" if alpha_mask is not None else None,
+                     upright)
     mask_name, mask_data = _read_source(mask, index)
     mask_image = _decode(_open_image(name, mask_data, f"mask ({mask_name})", None), name, "mask")
-    if mask_image.size == raw_size != (rgb.shape[1], rgb.shape[0]) and orientation in _ORIENTATION:
+    if mask_image.size == raw_size != upright and orientation in _ORIENTATION:
         # A mask drawn on the photo's stored pixels (before its EXIF rotation): rotate it alike.
         mask_image = mask_image.transpose(_ORIENTATION[orientation])
-    user_mask = _mask_array(mask_image)
-    if user_mask.shape != rgb.shape[:2]:
-        (h, w), (mh, mw) = rgb.shape[:2], user_mask.shape
+    if mask_image.size != upright:
+        (w, h), (mw, mh) = upright, mask_image.size
         raise InputError(f"the mask is {mw}x{mh} pixels but the photo is {w}x{h}", item=name,
                          hint="give a mask of the same size as its photo, in the same order")
-    return Photo(name, rgb, user_mask, focal, "uploaded")
+    if mask_image.size != (rgb.shape[1], rgb.shape[0]):  # the photo's working size
+        mask_image = mask_image.resize((rgb.shape[1], rgb.shape[0]), Image.Resampling.NEAREST)
+    return Photo(name, rgb, mask_array(mask_image), focal, "uploaded", upright)
 
 
 def load_photos(paths: Sequence[PhotoSource],
@@ -257,8 +292,9 @@ def load_photos(paths: Sequence[PhotoSource],
     Returns:
         One ``Photo`` per input, in order.
     Raises:
-        InputError: naming the photo, for an unreadable, empty, damaged, tiny (< 64 px a side)
-            or huge (> 40 MP) file, or a mask whose size differs from its photo's.
+        InputError: naming the photo, for an unreadable, empty, damaged, tiny (< 64 px a side),
+            strip-shaped (one side over 4 times the other) or huge (> 40 MP) file, or a mask
+            whose size differs from its photo's.
     """
     if mask_paths is not None and len(mask_paths) != len(paths):
         raise InputError(f"{len(mask_paths)} masks for {len(paths)} photos", item="masks",

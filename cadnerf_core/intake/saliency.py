@@ -55,6 +55,9 @@ def _session(path: str) -> Any:
     # One process, all its cores on one photo; a second pool would only oversubscribe them.
     options.intra_op_num_threads = max(1, min(4, len(os.sched_getaffinity(0))))
     options.inter_op_num_threads = 1
+    # Without the arena a run's buffers go back after it: the arena kept about 450 MB for the
+    # worker's lifetime, over the photos of every job (docs/reliability.md, "Large photos").
+    options.enable_cpu_mem_arena = False
     return ort.InferenceSession(path, options, providers=["CPUExecutionProvider"])
 
 

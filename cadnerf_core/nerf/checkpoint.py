@@ -11,7 +11,7 @@ import numpy as np
 import torch
 
 from cadnerf_core.config import PipelineConfig
-from cadnerf_core.jobfolder import JobFolder
+from cadnerf_core.jobfolder import JobFolder, ensure_folder
 from cadnerf_core.nerf.grid import SkipGrid
 from cadnerf_core.nerf.state import TrainState
 
@@ -27,7 +27,7 @@ def save_checkpoint(job_dir: Path, phase: int, state: TrainState,
                     extra: dict[str, Any] | None = None) -> Path:
     """Save the state after ``phase``; ``extra`` holds JSON-able metadata (names, K, timings)."""
     path = checkpoint_path(job_dir, phase)
-    path.parent.mkdir(parents=True, exist_ok=True)
+    ensure_folder(path.parent)  # never re-creates a deleted job's folder
     payload = {
         "phase": phase,
         "config": state.config.model_dump(mode="json"),

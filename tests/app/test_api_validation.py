@@ -15,7 +15,7 @@ from app.main import create_app
 from app.state.settings import Settings
 from cadnerf_core.config import resolve_config
 from cadnerf_core.jobfolder import JobFolder
-from tests.app.images import image_bytes
+from tests.app.images import image_bytes, mask_bytes
 from tests.configs import tiny_request, tiny_request_json
 
 
@@ -131,15 +131,15 @@ def test_declared_content_length_over_the_limit_is_refused(make_settings, photos
 
 
 def test_masks_must_match_photos(client: TestClient, settings: Settings, photos) -> None:
-    mask = ("masks", ("m.png", image_bytes((80, 64), mode="L"), "image/png"))
+    mask = ("masks", ("m.png", mask_bytes((80, 64)), "image/png"))
     error = _error(client.post("/v1/jobs", files=photos(3) + [mask]), 422, "mask_count")
     assert error["field"] == "masks"
-    wrong = ("masks", ("m.png", image_bytes((64, 80), mode="L"), "image/png"))
+    wrong = ("masks", ("m.png", mask_bytes((64, 80)), "image/png"))
     error = _error(client.post("/v1/jobs", files=photos(3) + [mask, wrong, mask]), 422,
                    "mask_size")
     assert error["photo"] == "photo_1.png" and "64x80" in error["message"]
     _assert_no_job_folder(settings)
-    jpeg_mask = ("masks", ("m.jpg", image_bytes((80, 64), "JPEG", mode="L"), "image/jpeg"))
+    jpeg_mask = ("masks", ("m.jpg", mask_bytes((80, 64), "JPEG"), "image/jpeg"))
     job = client.post("/v1/jobs", files=photos(3) + [mask, jpeg_mask, mask]).json()
     stored = JobFolder(settings.data_root / job["id"]).photos()
     assert all(p.mask is not None and p.mask.read_bytes()[:4] == b"\x89PNG" for p in stored)

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import asyncio
+import json
 import sys
 import time
 import types
@@ -27,8 +28,10 @@ from app.state import (
     Workers,
     connect,
     keys,
+    scaled,
+    stage_work,
 )
-from tests.configs import TINY_PRESET, tiny_request_json
+from tests.configs import TINY_PRESET, tiny_config, tiny_request_json
 
 TEST_JOB_S = 2.0 * len(STAGES)  # the fake history: 2 s per stage
 
@@ -184,9 +187,26 @@ def test_the_api_reports_queue_position_and_eta(client: TestClient, clean_redis:
     assert first.status_code == 202 and second.status_code == 202, second.text
     assert first.json()["queue_position"] == 0
     assert second.json()["queue_position"] == 1
-    assert second.json()["eta_s"] == pytest.approx(2 * TEST_JOB_S)
+    tiny_s = sum(scaled({stage: 2.0 for stage in STAGES}, stage_work(tiny_config())).values())
+    assert tiny_s < TEST_JOB_S  # the tiny overrides shrink every training and export stage
+    assert second.json()["eta_s"] == pytest.approx(2 * tiny_s, abs=0.1)
     listed = {j["id"]: j for j in client.get("/v1/jobs").json()["items"]}
     assert listed[second.json()["id"]]["queue_position"] == 1
     assert client.delete(f"/v1/jobs/{first.json()['id']}").status_code == 200
     moved = client.get(f"/v1/jobs/{second.json()['id']}").json()
-    assert moved["queue_position"] == 0 and moved["eta_s"] == pytest.approx(TEST_JOB_S)
+    assert moved["queue_position"] == 0 and moved["eta_s"] == pytest.approx(tiny_s, abs=0.1)
+
+
+def test_the_eta_scales_with_the_overrides(client: TestClient, clean_redis: redis.Redis,
+                                           photos: Callable[..., list[Any]]) -> None:
+    """Ten times phase three's steps: its 2 s become 20 s in the queued job's estimate."""
+    _history(clean_redis)
+    Workers(clean_redis).beat("worker-a", 30)
+    plain = {"config": json.dumps({"preset": TINY_PRESET})}
+    longer = {"config": json.dumps({"preset": TINY_PRESET, "overrides": {"phase3.steps": 20000}})}
+    first = client.post("/v1/jobs", files=photos(), data=plain)
+    assert first.status_code == 202 and first.json()["eta_s"] == pytest.approx(TEST_JOB_S)
+    client.delete(f"/v1/jobs/{first.json()['id']}")
+    second = client.post("/v1/jobs", files=photos(), data=longer)
+    assert second.status_code == 202, second.text
+    assert second.json()["eta_s"] == pytest.approx(TEST_JOB_S + 9 * 2.0)

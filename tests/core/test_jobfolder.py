@@ -4,6 +4,7 @@ writers round-tripping, and the download allow-list."""
 from __future__ import annotations
 
 import json
+import shutil
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -13,8 +14,11 @@ from PIL import Image
 
 from cadnerf_core.config import DEFAULT_PRESET, resolve_config
 from cadnerf_core.jobfolder import (
+    MASK_UPLOADS,
     JobFolder,
     MaskSource,
+    atomic_path,
+    ensure_folder,
     is_artifact_name,
     media_type,
     photo_file_name,
@@ -146,6 +150,7 @@ def test_used_masks_overlays_sources_and_warnings_round_trip(tmp_path: Path) -> 
 
 def test_only_listed_artifacts_inside_the_folder_are_served(tmp_path: Path) -> None:
     folder = JobFolder(tmp_path / "job")
+    folder.root.mkdir()
     folder.write_metrics({})
     folder.write_config(resolve_config("preview"))
     folder.file("views").mkdir()
@@ -174,3 +179,21 @@ def test_only_listed_artifacts_inside_the_folder_are_served(tmp_path: Path) -> N
     assert media_type("orbit.mp4") == "video/mp4" and media_type("views/003.png") == "image/png"
     assert media_type("mesh.glb") == "model/gltf-binary"
     assert folder.checkpoint_path(2) == tmp_path / "job" / "checkpoints" / "phase2.pt"
+
+
+def test_writers_never_recreate_a_missing_job_folder(tmp_path: Path) -> None:
+    """A deleted job's folder stays gone: its subfolders are created only inside it."""
+    folder = JobFolder(tmp_path / "job")
+    folder.root.mkdir()
+    with atomic_path(folder.view_path(0)) as tmp:  # views/ is created inside the job folder
+        Image.new("RGB", (8, 6)).save(tmp, format="PNG")
+    assert folder.artifacts() == ["views/000.png"]
+    folder.write_metrics({"a": 1})
+    shutil.rmtree(folder.root)
+    with pytest.raises(FileNotFoundError):
+        folder.write_metrics({"a": 2})
+    with pytest.raises(FileNotFoundError), atomic_path(folder.view_path(1)):
+        pass
+    with pytest.raises(FileNotFoundError):
+        ensure_folder(folder.file(MASK_UPLOADS))
+    assert not folder.root.exists()

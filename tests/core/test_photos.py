@@ -207,3 +207,33 @@ def test_shipped_phone_photos_carry_their_focal_length() -> None:
         pytest.skip("../shared/eval is absent")
     photos = load_photos(sorted(folder.glob("*.jpg"))[:2])
     assert all(p.focal_35mm is not None and 10.0 < p.focal_35mm < 100.0 for p in photos)
+
+
+@pytest.mark.parametrize("fmt", ["JPEG", "PNG"])
+def test_a_photo_over_the_working_size_is_worked_on_scaled_down(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch, fmt: str) -> None:
+    """A photo over ``WORKING_PIXELS`` comes out at that many pixels, aspect kept, its uploaded
+    mask scaled alike (nearest: still 0/1), and its uploaded size kept for the exports."""
+    monkeypatch.setattr("cadnerf_core.intake.limits.WORKING_PIXELS", 20_000)
+    path = _save(tmp_path / f"big.{fmt.lower()}", _gradient(400, 200), fmt)
+    mask = np.zeros((200, 400), np.uint8)
+    mask[50:150, 100:300] = 255
+    [photo] = load_photos([path], [_save(tmp_path / "mask.png", mask)])
+    height, width = photo.rgb.shape[:2]
+    assert width * height <= 20_000 and abs(width / height - 2.0) < 0.05
+    assert photo.size == (400, 200) and photo.scale == pytest.approx(400 / width)
+    assert photo.mask is not None and photo.mask.shape == (height, width)
+    assert photo.mask.mean() == pytest.approx(0.25, abs=0.03)
+    # The gradient survives the scaling: red still grows to the right.
+    assert photo.rgb[height // 2, -1, 0] > photo.rgb[height // 2, 0, 0] + 0.8
+    small = _save(tmp_path / "small.png", _gradient(100, 100))
+    [kept] = load_photos([small])
+    assert kept.rgb.shape == (100, 100, 3) and kept.scale == 1.0
+
+
+@pytest.mark.parametrize(("width", "height"), [(64, 2000), (1000, 100)])
+def test_a_strip_is_refused_naming_the_photo(tmp_path: Path, width: int, height: int) -> None:
+    path = _save(tmp_path / "strip.png", _gradient(width, height))
+    with pytest.raises(InputError, match="times longer than wide") as info:
+        load_photos([path])
+    assert info.value.item == "strip.png" and info.value.hint

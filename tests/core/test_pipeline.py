@@ -4,6 +4,7 @@ config it used, resume, CLI errors."""
 from __future__ import annotations
 
 import json
+import shutil
 from pathlib import Path
 from typing import Any
 
@@ -289,3 +290,39 @@ def test_several_start_hypotheses_are_fitted_and_the_best_kept(tmp_path: Path,
     assert len({(h["model_id"], h["direction"], h["perspective"]) for h in fits}) == 3
     assert fits[1]["perspective"] == "near"  # no focal length known: the near set's walk
     assert all(-1.0 <= h["fit"] <= 1.0 for h in fits)
+
+
+def test_photos_over_the_working_size_export_cameras_of_the_uploaded_photos(
+        tmp_path: Path, tiny_library: Any, monkeypatch: pytest.MonkeyPatch) -> None:
+    """Worked on at 40x40, the 64x64 photos' cameras in transforms.json and poses.json are
+    still those of 64x64 photos (the object sits at their centre, 32 px, not 20)."""
+    from cadnerf_core.pipeline import run_job
+
+    monkeypatch.setattr("cadnerf_core.intake.limits.WORKING_PIXELS", 1600)
+    write_job(tmp_path, tiny_library)
+    run_job(tmp_path, tiny_library, None, "cpu")
+    assert Image.open(tmp_path / "masks" / "000.png").size == (40, 40)
+    frames = json.loads((tmp_path / "transforms.json").read_text())["frames"]
+    assert frames and all((f["w"], f["h"]) == (64, 64) for f in frames)
+    assert all(26 < f["cx"] < 38 and 26 < f["cy"] < 38 for f in frames), frames
+    kept = [p for p in json.loads((tmp_path / "poses.json").read_text())["photos"]
+            if not p["discarded"]]
+    assert [p["K_photo"][0][2] for p in kept] == pytest.approx([f["cx"] for f in frames])
+
+
+def test_a_job_folder_removed_mid_render_is_never_recreated(tmp_path: Path,
+                                                            tiny_library: Any) -> None:
+    """A worker that has not seen the deletion yet: its next write fails, nothing comes back."""
+    from cadnerf_core.pipeline import run_job
+
+    job = tmp_path / "job"
+    job.mkdir()
+    write_job(job, tiny_library)
+
+    def remove_at_render(stage: str, done: int, total: int) -> None:
+        if stage == "render" and job.exists():
+            shutil.rmtree(job)
+
+    with pytest.raises(OSError):
+        run_job(job, tiny_library, Progress(remove_at_render), "cpu")
+    assert not job.exists()

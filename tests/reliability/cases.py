@@ -9,6 +9,7 @@ import json
 from collections.abc import Callable
 from dataclasses import dataclass
 
+from tests.app.images import mask_bytes
 from tests.configs import TINY_PRESET, tiny_request
 from tests.reliability.support import FileEntry, image_bytes, noisy_jpeg, photo_files, png_bomb
 
@@ -32,7 +33,7 @@ def with_photo(index: int, entry: FileEntry, n: int = 3) -> list[FileEntry]:
 
 
 def _mask(size: tuple[int, int], name: str = "m.png") -> FileEntry:
-    return ("masks", (name, image_bytes(size, mode="L"), "image/png"))
+    return ("masks", (name, mask_bytes(size), "image/png"))
 
 
 def _config(value: object) -> dict[str, str]:

@@ -11,6 +11,7 @@ from typing import Any
 import httpx
 import pytest
 
+from cadnerf_core.config_bounds import MAX_STEPS
 from cadnerf_core.progress import STAGES
 from tests.configs import tiny_request
 from tests.reliability import jobs
@@ -18,7 +19,7 @@ from tests.reliability.support import NEEDS_PIPELINE, Live, pipeline_ready, wait
 
 pytestmark = [pytest.mark.slow, pytest.mark.skipif(not pipeline_ready(), reason=NEEDS_PIPELINE)]
 
-LONG = 100_000  # progress (and so the cancel check) comes every LONG / 50 steps
+LONG = MAX_STEPS  # the most steps accepted; progress comes every LONG / 50 of them
 # The config that keeps a job in each stage for seconds, and the photos it needs.
 PLANS: dict[str, tuple[dict[str, Any], str]] = {
     "masks": ({}, "plain"),  # ten photos without alpha: background removal per photo

@@ -121,6 +121,20 @@ def test_the_fixed_claim_blocks_other_workers(store: JobStore, new_job) -> None:
     assert store.claims.holder(job.id) is None
 
 
+def test_a_deleted_job_is_never_brought_back(store: JobStore, new_job) -> None:
+    """A late writer's state.json in a deleted job's folder, and its worker's heartbeat: the
+    tombstone wins over both (no re-seed, not in the running set, the folder removed)."""
+    record = _orphan(store, new_job)
+    saved = (store.job_dir(record.id) / "state.json").read_bytes()
+    store.delete(record)
+    folder = store.job_dir(record.id)
+    folder.mkdir()  # what a worker without the fix wrote after the delete
+    (folder / "state.json").write_bytes(saved)
+    store.mark_running(record.id, True)  # its heartbeat
+    assert record.id not in store.running_ids()
+    assert find_orphans(store) == [] and store.get(record.id) is None
+    assert not folder.exists() and store.remove_trash() == 0
+
 
 def test_the_heartbeat_announces_the_device_the_api_offers_presets_for(store: JobStore,
                                                                      redis_url: str) -> None:

@@ -124,6 +124,29 @@ def test_reports_reach_redis_throttled_and_state_json_on_stage_changes(store: Jo
     assert [s["done"] for s in sent] == [1, 3] and sent[-1]["eta_s"] > 0
 
 
+def test_between_reports_the_eta_moves_on_with_the_cancel_checks(store: JobStore, new_job,
+                                                                  clean_redis) -> None:
+    """The core checks for cancellation on every step but reports every fiftieth: those
+    checks count the seconds left down and the fraction up, never past the stage's end."""
+    record = new_job()
+    clock = Clock()
+    progress = JobProgress(store, record.id, EtaModel(dict(EXPECTED)), clock=clock, tick_s=2.0)
+    progress("phase3", 0, 10)  # 8 + 2 + 2 s left, 8 s of 20 done
+    first = clean_redis.hgetall(keys.job(record.id))
+    clock.now += 1.0
+    progress.cancelled()  # within tick_s: nothing written
+    assert clean_redis.hget(keys.job(record.id), "eta_s") == first["eta_s"]
+    clock.now += 2.0
+    progress.cancelled()
+    moved = clean_redis.hgetall(keys.job(record.id))
+    assert float(moved["eta_s"]) == pytest.approx(float(first["eta_s"]) - 3.0)
+    assert float(first["progress"]) < float(moved["progress"]) <= 16 / 20
+    clock.now += 60.0  # far past the plan: the fraction stops at the end of phase three
+    progress.cancelled()
+    stuck = clean_redis.hgetall(keys.job(record.id))
+    assert float(stuck["eta_s"]) == 0.0 and float(stuck["progress"]) == pytest.approx(16 / 20)
+
+
 def test_cancel_flag_and_deadline(store: JobStore, new_job) -> None:
     record = new_job()
     clock = Clock()
