@@ -10,8 +10,13 @@ views on white, the same held-out views for every number of input views). For ea
   after refinement, ours against the baseline.
 - Table 4: retrieval: the paper's Algorithm 1 against our exact DP solver.
 - Table 5: ablations at 6 views: full, without CAD initialisation, without pose optimisation,
-  without deformation (nothing deforms the density in phase two), and without G but with D
-  fitted to the silhouettes in its place (``preview``'s own setting).
+  without deformation (nothing deforms the density in phase two), without G but with D
+  fitted to the silhouettes in its place (``preview``'s own setting), and the full method
+  with the object's look-alikes in the library.
+
+Every job but the last runs the leave-out protocol (``benchmarks.lookalikes``): the library
+models made to resemble the object are excluded from retrieval, as for an object the library
+has never seen.
 
 QUICK: 3 objects and a reduced training schedule, sized to finish in a few minutes on 2 CPU
 cores; full: every mesh with the ``preview`` preset.
@@ -34,6 +39,7 @@ from typing import Any, Literal
 
 from benchmarks import eval_report
 from benchmarks.eval_tables import with_mean
+from benchmarks.lookalikes import Protocol, exclude_overrides, excluded
 
 log = logging.getLogger(__name__)
 
@@ -61,7 +67,10 @@ VARIANTS: dict[str, dict[str, Any]] = {
     # setting.
     "no_g": {"use_deformation": False},
 }
-ABLATIONS = ("ours", "no_cad_init", "no_pose_opt", "no_deformation", "no_g")
+# The full method with the object's look-alikes kept in the library (every other job leaves
+# them out: ``benchmarks.lookalikes``).
+VARIANTS["ours_lookalike"] = VARIANTS["ours"]
+ABLATIONS = ("ours", "no_cad_init", "no_pose_opt", "no_deformation", "no_g", "ours_lookalike")
 
 
 @dataclass(frozen=True)
@@ -145,7 +154,9 @@ def run_job_once(name: str, variant: str, n: int, plan: BenchPlan, library: Any,
     """One evaluation job. Returns its EvalReport, or the exception it raised."""
     from cadnerf_core.evaluation.evaluate import evaluate_dataset
 
-    overrides = {**plan.overrides, **VARIANTS[variant], "seed": plan.seed}
+    protocol: Protocol = "with look-alike" if variant == "ours_lookalike" else "leave-out"
+    overrides = {**plan.overrides, **exclude_overrides(name, protocol), **VARIANTS[variant],
+                 "seed": plan.seed}
     start = time.perf_counter()
     try:
         report = evaluate_dataset(
@@ -215,7 +226,8 @@ def _run_plan(plan: BenchPlan, quick: bool) -> str:
     for name in plan.meshes:
         results[name] = run_object(name, plan, library, lpips_net, WORK_DIR)
         retrieval_rows.append(eval_report.retrieval_row(name, WORK_DIR / name /
-                                                        f"v{plan.ablation_views}", library))
+                                                        f"v{plan.ablation_views}", library,
+                                                        excluded(name)))
         eval_report.save_pictures(name, results[name].get(("ours", plan.ablation_views)),
                                   PICTURES_DIR)
     repeat = repeat_check(plan, results, library, lpips_net)

@@ -140,7 +140,10 @@ def run(quick: bool, library_dir: Path = LIBRARY_DIR) -> str:
         shutil.rmtree(work, ignore_errors=True)
     lines = [*head, f"Synthetic walks: {SIZE} px renders, elevations 0-60 deg, random start "
              "azimuth, both directions; rotation error = median over the kept photos after "
-             "similarity alignment (degrees). Symmetric objects can match front/back flips.",
+             "similarity alignment (degrees). Symmetric objects can match front/back flips. "
+             "Protocol: leave-out (each mesh's look-alikes, `benchmarks.lookalikes`, excluded "
+             "from retrieval) but in the column `DP, look-alike in the library`; the phone "
+             "walks leave them out too.",
              "", *synthetic_table(results), "",
              f"Phone walks: the same walks rendered at {PHONE_FOV:g} deg across (a phone's "
              "main lens; the object fills the same share of the frame, from about half as "

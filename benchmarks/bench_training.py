@@ -63,6 +63,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from benchmarks.bench_eval import Z_UP
+from benchmarks.lookalikes import Protocol, exclude_overrides
 from benchmarks.training_plan import (
     ABLATIONS,
     DEVICE,
@@ -94,12 +95,14 @@ log = logging.getLogger(__name__)
 def run_one(mesh: Path, work: Path, library: Library, name: str, overrides: dict[str, Any],
             tta: bool, oracle: bool = False, exif_focal: bool = False,
             fov_deg: float = FOV_DEG, views: int = TRAIN_VIEWS, preset: str = PRESET,
-            device: str = DEVICE, size: int = IMAGE_SIZE) -> dict[str, Any]:
+            device: str = DEVICE, size: int = IMAGE_SIZE,
+            protocol: Protocol = "leave-out") -> dict[str, Any]:
     """Render the dataset (once per mesh, ``size`` pixels square), run and score a job of
     ``preset`` with ``overrides`` on ``device`` through ``evaluate_dataset`` (with the true
     cameras for ``oracle``; the photos carrying their true focal length in EXIF, as a phone's
     do, with ``exif_focal``; the photos' field of view ``fov_deg``; ``views`` training
-    photos), and add this benchmark's numbers."""
+    photos; ``protocol``: the mesh's look-alikes left out of retrieval or not,
+    ``benchmarks.lookalikes``), and add this benchmark's numbers."""
     from cadnerf_core.evaluation.dataset import render_dataset
     from cadnerf_core.evaluation.evaluate import evaluate_dataset
 
@@ -111,7 +114,8 @@ def run_one(mesh: Path, work: Path, library: Library, name: str, overrides: dict
     job = work / mesh.parent.name / name.replace(" ", "_")
     with true_cameras(dataset_dir) if oracle else contextlib.nullcontext():
         report = evaluate_dataset(dataset_dir, views, library, preset=preset,
-                                  overrides=overrides, job_dir=job, device=device,
+                                  overrides={**exclude_overrides(mesh.parent.name, protocol),
+                                             **overrides}, job_dir=job, device=device,
                                   intrinsics="estimated", align="photometric",
                                   exif_focal=exif_focal)
     return score_report(report, tta, device)
@@ -137,7 +141,8 @@ def run(quick: bool, threads: int | None = None, names: list[str] | None = None,
         seeds: int = 1, only: list[str] | None = None, exif_focal: bool = False,
         overrides: dict[str, Any] | None = None, fov_deg: float = FOV_DEG,
         first_seed: int = 0, views: int = TRAIN_VIEWS, preset: str = PRESET,
-        device: str = DEVICE, size: int = IMAGE_SIZE) -> str:
+        device: str = DEVICE, size: int = IMAGE_SIZE,
+        protocol: Protocol = "leave-out") -> str:
     """The markdown section (see the module docstring); every run repeated with training
     seeds ``first_seed`` to ``first_seed + seeds - 1`` (the datasets stay the same);
     ``only``: the runs to keep (names of ``ABLATIONS`` or ``ORACLE``; all when None);
@@ -145,7 +150,8 @@ def run(quick: bool, threads: int | None = None, names: list[str] | None = None,
     configuration values applied to every run, under each run's own (dotted keys, as a job's
     config takes them); ``fov_deg``: the photos' horizontal field of view; ``views``: training
     photos per walk; ``preset``, ``device``: the jobs' preset and device ("cuda" for the
-    GPU figures); ``size``: the photos' side in pixels."""
+    GPU figures); ``size``: the photos' side in pixels; ``protocol``: each mesh's look-alikes
+    left out of the library (the headline) or not (``benchmarks.lookalikes``)."""
     import torch
 
     from cadnerf_core.library.format import load_library
@@ -175,7 +181,8 @@ def run(quick: bool, threads: int | None = None, names: list[str] | None = None,
                                      {**(overrides or {}), **own, **extra, "seed": seed},
                                      tta=True,
                                      oracle=oracle, exif_focal=exif_focal, fov_deg=fov_deg,
-                                     views=views, preset=preset, device=device, size=size)
+                                     views=views, preset=preset, device=device, size=size,
+                                     protocol=protocol)
                     rows.append((mesh.parent.name, name, {**result, "seed": seed}))
                     log.info("%s %s: %s", mesh.parent.name, label, result)
             if i == 0 and names is None and first_seed == 0 \
@@ -194,6 +201,7 @@ def run(quick: bool, threads: int | None = None, names: list[str] | None = None,
     flags += f" --preset {preset}" if preset != PRESET else ""
     flags += f" --device {device}" if device != DEVICE else ""
     flags += f" --size {size}" if size != IMAGE_SIZE else ""
+    flags += " --with-lookalike" if protocol != "leave-out" else ""
     flags += f" --overrides '{json.dumps(overrides)}'" if overrides else ""
     if only:
         flags += " --runs " + " ".join(f'"{name}"' if " " in name else name for name in only)
@@ -207,6 +215,9 @@ def run(quick: bool, threads: int | None = None, names: list[str] | None = None,
              f"(torch threads: {torch.get_num_threads()}). Datasets: `render_dataset` "
              f"{size} px, field of view {fov_deg:g} deg, {views} training views "
              f"in walking order, {TEST_VIEWS} held-out test views, seed {SEED}. "
+             f"Protocol: {protocol} (`benchmarks.lookalikes`: "
+             + ("each mesh's look-alikes excluded from retrieval). "
+                if protocol == "leave-out" else "the whole library). ") +
              "Each run is executed and scored by "
              "`cadnerf_core.evaluation.evaluate.evaluate_dataset`, the evaluation benchmark's "
              "protocol: "
@@ -260,11 +271,15 @@ def main() -> None:
     parser.add_argument("--device", default=DEVICE, help='training device ("cuda" for a GPU)')
     parser.add_argument("--size", type=int, default=IMAGE_SIZE,
                         help="side of the dataset's photos in pixels")
+    parser.add_argument("--with-lookalike", action="store_true",
+                        help="keep each mesh's look-alikes in the library (default: left out, "
+                             "benchmarks.lookalikes)")
     args = parser.parse_args()
     logging.basicConfig(level=logging.INFO)
     print(run(args.quick, args.threads, args.meshes, max(1, args.seeds), args.runs,
               args.exif_focal, args.overrides, args.fov, max(0, args.first_seed),
-              max(3, args.views), args.preset, args.device, args.size))  # noqa: T201 (the section is the command's output)
+              max(3, args.views), args.preset, args.device, args.size,
+              "with look-alike" if args.with_lookalike else "leave-out"))  # noqa: T201 (the section is the command's output)
 
 
 if __name__ == "__main__":

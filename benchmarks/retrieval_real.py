@@ -10,6 +10,7 @@ from typing import Any
 
 import numpy as np
 
+from benchmarks.lookalikes import excluded
 from benchmarks.retrieval_walks import EVAL_ROOT, rotation_error
 
 
@@ -47,6 +48,7 @@ def _real_lines(name: str, label: str, result: Any, gt: np.ndarray | None) -> li
 def real_set(name: str, library: Any, picture: Path) -> list[str]:
     """Retrieve one real photo set with shipped and GrabCut masks; write its picture."""
     from cadnerf_cli.retrieve_cmd import match_rows
+    from cadnerf_core.config import RetrievalConfig
     from cadnerf_core.errors import InputError
     from cadnerf_core.intake.masks import photo_masks
     from cadnerf_core.intake.photos import Photo, load_photos
@@ -59,6 +61,12 @@ def real_set(name: str, library: Any, picture: Path) -> list[str]:
     focals = [p.focal_pixels for p in shipped]  # EXIF, as a job passes them
     result = retrieve(masks, names, library, images=[p.rgb for p in shipped], focals=focals)
     lines = _real_lines(name, "shipped masks", result, gt)
+    left_out = excluded(name)
+    if left_out:  # the leave-out protocol (``benchmarks.lookalikes``)
+        alone = retrieve(masks, names, library, RetrievalConfig(exclude_models=left_out),
+                         images=[p.rgb for p in shipped], focals=focals)
+        lines += _real_lines(name, f"shipped masks, leave-out ({', '.join(left_out)} "
+                             "excluded)", alone, gt)
     rows = match_rows(shipped, masks, library, result)
     bare = [Photo(p.name, p.rgb) for p in shipped]
     start = time.perf_counter()

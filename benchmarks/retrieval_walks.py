@@ -11,6 +11,7 @@ from typing import Any
 import numpy as np
 
 from benchmarks.bench_eval import Z_UP, mesh_file
+from benchmarks.lookalikes import excluded
 
 ROOT = Path(__file__).resolve().parents[1]
 EVAL_ROOT = ROOT / ".." / "shared" / "eval"
@@ -40,6 +41,9 @@ VARIANTS: dict[str, tuple[str, dict[str, Any]]] = {
     # The photos' focal length known (a phone's EXIF): the silhouette set is chosen by it
     # (``RetrievalConfig.perspective``); these walks are the far set's 40 degrees.
     "focal": ("DP, focal length known", {"focal": True}),
+    # Every variant above leaves the mesh's look-alikes out of the library
+    # (``benchmarks.lookalikes``); this one keeps them.
+    "lookalike": ("DP, look-alike in the library", {"lookalike": True}),
 }
 PHONE_FOV = 65.0  # a phone's main lens across the longer side, as ``--fov 65`` of bench_training
 # The walks at each field of view: retrieval from each silhouette set, ours choosing by the
@@ -86,17 +90,21 @@ def rotation_error(result: Any, c2w_gt: np.ndarray, only: set[int] | None = None
 
 def retrieve_all(masks: list[np.ndarray], names: list[str], library: Any,
                  images: list[np.ndarray], direction: int,
-                 focals: list[float] | None = None) -> dict[str, Any]:
+                 focals: list[float] | None = None,
+                 exclude: tuple[str, ...] = ()) -> dict[str, Any]:
     """Retrieval with every variant of ``VARIANTS`` (``direction``: the walk's true one, for
     the variants that are given it; ``focals``: the photos' focal lengths in pixels, for the
-    variant that knows them). Returns variant -> RetrievalResult."""
+    variant that knows them; ``exclude``: library models left out, but by "lookalike").
+    Returns variant -> RetrievalResult."""
     from cadnerf_core.config import RetrievalConfig
     from cadnerf_core.retrieval.retrieve import retrieve
 
     walk = "ccw" if direction > 0 else "cw"
     out = {}
     for key, (_, options) in VARIANTS.items():
-        own = {k: v for k, v in options.items() if k != "focal"}
+        own = {k: v for k, v in options.items() if k not in ("focal", "lookalike")}
+        if not options.get("lookalike"):
+            own["exclude_models"] = exclude
         if own.get("walk") == "given":
             own["walk"] = walk
         out[key] = retrieve(masks, names, library, RetrievalConfig(**own), images=images,
@@ -105,7 +113,8 @@ def retrieve_all(masks: list[np.ndarray], names: list[str], library: Any,
 
 
 def synthetic_set(name: str, views: int, direction: int, library: Any, work: Path) -> SetResult:
-    """Render one walk of a mesh and retrieve it with every variant."""
+    """Render one walk of a mesh and retrieve it with every variant (its look-alikes left
+    out but by the "lookalike" variant)."""
     from cadnerf_core.evaluation.dataset import load_dataset, render_dataset
 
     folder = render_dataset(mesh_file(EVAL_ROOT / "meshes" / name), work / f"{name}_{views}_"
@@ -113,7 +122,7 @@ def synthetic_set(name: str, views: int, direction: int, library: Any, work: Pat
                             else "y", direction=direction)
     data = load_dataset(folder)
     results = retrieve_all(list(data.masks), data.names, library, list(data.images), direction,
-                           [float(K[0, 0]) for K in data.K])
+                           [float(K[0, 0]) for K in data.K], excluded(name))
     dp, paper = results["dp"], results["paper"]
     model = dp.model_id if paper.model_id == dp.model_id else \
         f"{dp.model_id}; votes: {paper.model_id}"
@@ -143,7 +152,8 @@ class PhoneResult:
 def phone_set(name: str, views: int, direction: int, library: Any, work: Path,
               fov: float = PHONE_FOV) -> PhoneResult:
     """Render one walk at ``fov`` degrees across (the object filling the same share of the
-    frame: from nearer at a wider angle) and retrieve it with the photos' focal length known."""
+    frame: from nearer at a wider angle) and retrieve it with the photos' focal length known,
+    the mesh's look-alikes left out."""
     from cadnerf_core.config import RetrievalConfig
     from cadnerf_core.evaluation.dataset import load_dataset, render_dataset
     from cadnerf_core.retrieval.retrieve import retrieve
@@ -154,7 +164,8 @@ def phone_set(name: str, views: int, direction: int, library: Any, work: Path,
     data = load_dataset(folder)
     focals = [float(K[0, 0]) for K in data.K]
     results = {key: retrieve(list(data.masks), data.names, library,
-                             RetrievalConfig(perspective=key),  # type: ignore[arg-type]
+                             RetrievalConfig(perspective=key,  # type: ignore[arg-type]
+                                             exclude_models=excluded(name)),
                              images=list(data.images), focals=focals)
                for key in ("far", "near", "auto")}
     results["iou"] = max((results["far"], results["near"]),

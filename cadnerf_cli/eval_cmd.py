@@ -53,6 +53,15 @@ def parse_overrides(items: list[str]) -> dict[str, Any]:
     return out
 
 
+EXCLUDE_HELP = ("Library model ids never to retrieve, comma-separated (repeatable): a "
+                "leave-out test on objects the library has no look-alike of.")
+
+
+def parse_model_ids(items: list[str]) -> tuple[str, ...]:
+    """``["truck,duck_toy", "boot"]`` -> ``("truck", "duck_toy", "boot")``; blanks dropped."""
+    return tuple(part.strip() for item in items for part in item.split(",") if part.strip())
+
+
 def _summary(report: dict[str, Any]) -> str:
     img, ref, ret = report["image"], report["pose_refined"], report["pose_retrieved"]
 
@@ -63,7 +72,9 @@ def _summary(report: dict[str, Any]) -> str:
             f"PSNR {num(img['psnr'])} SSIM {num(img['ssim'], 3)} LPIPS {num(img['lpips'], 3)} "
             f"Avg {num(img['average'], 3)} | rotation {num(ret['rotation_deg'])} -> "
             f"{num(ref['rotation_deg'])} deg, translation x100 {num(ret['translation_x100'])} -> "
-            f"{num(ref['translation_x100'])} | {report['seconds']:.0f} s")
+            f"{num(ref['translation_x100'])} | focal error "
+            f"{num(100 * report['focal_error_retrieved'], 0)} -> "
+            f"{num(100 * report['focal_error'], 0)} % | {report['seconds']:.0f} s")
 
 
 def eval_command(
@@ -74,6 +85,7 @@ def eval_command(
     overrides: list[str] = typer.Option([], "--set", help="Config override key=value "
                                         "(dotted keys, JSON values); repeatable."),
     seed: int = typer.Option(0, "--seed", help="Random seed of the job."),
+    exclude_models: list[str] = typer.Option([], "--exclude-models", help=EXCLUDE_HELP),
     as_json: bool = typer.Option(False, "--json", help="Print the reports as JSON."),
     library: Path = typer.Option(DEFAULT_LIBRARY, "--library", help="Built CAD library folder."),
     work: Path | None = typer.Option(None, "--work", help="Where job folders go (default: a "
@@ -94,6 +106,9 @@ def eval_command(
 
     counts = parse_views(views)
     config = {**parse_overrides(overrides), "seed": seed}
+    excluded = parse_model_ids(exclude_models)
+    if excluded:
+        config["retrieval.exclude_models"] = list(excluded)
     weights = os.environ.get(LPIPS_ENV)
     lpips_net = load_lpips(Path(weights) if weights else None)
     reports = []

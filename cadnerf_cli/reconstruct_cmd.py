@@ -8,7 +8,7 @@ from typing import Any
 
 import typer
 
-from cadnerf_cli.eval_cmd import parse_overrides
+from cadnerf_cli.eval_cmd import EXCLUDE_HELP, parse_model_ids, parse_overrides
 from cadnerf_cli.retrieve_cmd import FOCAL_HELP, PERSPECTIVE_HELP, Perspective, Walk
 from cadnerf_core.progress import STAGES
 
@@ -53,6 +53,7 @@ def reconstruct(
     mask_model: Path | None = typer.Option(None, "--mask-model", exists=True, dir_okay=False,
                                            help="Your own ONNX background-removal model for "
                                            "the learned masks (default: the built-in one)."),
+    exclude_models: list[str] = typer.Option([], "--exclude-models", help=EXCLUDE_HELP),
     settings: list[str] = typer.Option([], "--set", help="Config override key=value (dotted "
                                        "keys, JSON values, e.g. phase2.steps=300); repeatable."),
 ) -> None:
@@ -76,6 +77,8 @@ def reconstruct(
             overrides["retrieval.perspective"] = perspective.value
         if focal_35mm is not None:
             overrides["retrieval.focal_35mm"] = focal_35mm
+        if exclude_models:
+            overrides["retrieval.exclude_models"] = list(parse_model_ids(exclude_models))
         config = resolve_config(preset, overrides)
         library = load_library(library_dir)
         stage_inputs(photos, masks, out)

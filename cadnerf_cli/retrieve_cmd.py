@@ -9,6 +9,8 @@ from typing import TYPE_CHECKING, Any
 
 import typer
 
+from cadnerf_cli.eval_cmd import EXCLUDE_HELP, parse_model_ids
+
 if TYPE_CHECKING:
     import numpy as np
 
@@ -170,6 +172,7 @@ def retrieve_command(
                                             help=PERSPECTIVE_HELP),
     focal_35mm: float | None = typer.Option(None, "--focal-35mm", min=8.0, max=1200.0,
                                             help=FOCAL_HELP),
+    exclude_models: list[str] = typer.Option([], "--exclude-models", help=EXCLUDE_HELP),
     as_json: bool = typer.Option(False, "--json", help="Print the result as JSON."),
     out: Path | None = typer.Option(None, "--out", help="Folder for match pictures."),
 ) -> None:
@@ -187,11 +190,12 @@ def retrieve_command(
         lib = load_library(library)
         config = RetrievalConfig(solver="paper" if solver == Solver.paper else "dp",
                                  walk=walk.value, shared_focal=not own_focal,
-                                 perspective=perspective.value)
+                                 perspective=perspective.value,
+                                 exclude_models=parse_model_ids(exclude_models))
         result = retrieve(found, [p.name for p in loaded], lib, config,
                           images=[p.rgb for p in loaded],
                           focals=[p.focal_pixels for p in loaded])
-    except (CadNerfError, FileNotFoundError) as exc:
+    except (CadNerfError, FileNotFoundError, ValueError) as exc:
         typer.echo(f"error: {exc}", err=True)
         raise typer.Exit(code=2) from None
     if out is not None:

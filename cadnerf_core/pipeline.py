@@ -9,6 +9,7 @@ deterministic and take seconds).
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 import resource
 import time
@@ -122,7 +123,8 @@ def _peak_memory_mb(device: torch.device) -> dict[str, float]:
 
 
 def _initial_state(library: Library, model_id: str, c2w_init: np.ndarray,
-                   config: PipelineConfig, device: torch.device) -> TrainState:
+                   config: PipelineConfig, device: torch.device,
+                   learn_focal: bool = False) -> TrainState:
     """Fresh networks; the skip grid from the CAD occupancy (full without CAD init)."""
     from cadnerf_core.nerf.grid import grid_from_occupancy
     from cadnerf_core.nerf.state import TrainState
@@ -132,7 +134,7 @@ def _initial_state(library: Library, model_id: str, c2w_init: np.ndarray,
     if config.use_cad_init:
         grid = grid_from_occupancy(library.occupancy(model_id).query, rcfg.grid_resolution,
                                    rcfg.bound, rcfg.grid_dilation, device=device)
-    return TrainState.create(config, c2w_init, device, grid)
+    return TrainState.create(config, c2w_init, device, grid, learn_focal)
 
 
 def _resume(job_dir: Path, c2w_init: np.ndarray, config: PipelineConfig,
@@ -175,9 +177,10 @@ def _run_phase(phase: int, state: TrainState, library: Library, model_id: str,
 
 
 def train(job_dir: Path, library: Library, retrieval: RetrievalResult, data: TrainData,
-          config: PipelineConfig, device: torch.device,
-          progress: Progress) -> tuple[TrainState, dict[str, Any]]:
+          config: PipelineConfig, device: torch.device, progress: Progress,
+          learn_focal: bool = False) -> tuple[TrainState, dict[str, Any]]:
     """The three phases, resuming after the last checkpointed one; a checkpoint after each.
+    ``learn_focal``: the photos' focal length is unknown, refined with the poses.
 
     Returns:
         The trained state, and metadata (names, timings and peak memory per phase).
@@ -189,10 +192,12 @@ def train(job_dir: Path, library: Library, retrieval: RetrievalResult, data: Tra
     kept = retrieval.kept
     c2w_init = np.stack([m.c2w for m in kept])
     done, resumed, old = _resume(job_dir, c2w_init, config, device)
-    state = resumed or _initial_state(library, retrieval.model_id, c2w_init, config, device)
+    state = resumed or _initial_state(library, retrieval.model_id, c2w_init, config, device,
+                                      learn_focal)
     extra: dict[str, Any] = {"model_id": retrieval.model_id, "names": [m.name for m in kept],
                              "timings": old.get("timings", {}), "memory": old.get("memory", {}),
-                             "resumed_after_phase": done}
+                             "resumed_after_phase": done,
+                             "learn_focal": bool(old.get("learn_focal", learn_focal))}
     for phase in range(done + 1, 4):
         if device.type == "cuda":
             torch.cuda.reset_peak_memory_stats(device)
@@ -200,6 +205,7 @@ def train(job_dir: Path, library: Library, retrieval: RetrievalResult, data: Tra
         _run_phase(phase, state, library, retrieval.model_id, data, progress)
         extra["timings"][f"phase{phase}_s"] = time.perf_counter() - start
         extra["memory"][f"phase{phase}"] = _peak_memory_mb(device)
+        extra["focal_scale"] = state.focal_scale()
         progress.check()
         save_checkpoint(job_dir, phase, state, extra)
         log.info("phase %d done in %.1f s", phase, extra["timings"][f"phase{phase}_s"])
@@ -236,15 +242,55 @@ def run_job(job_dir: Path, library: Library, progress: Progress | None = None,
             JobFolder(job_dir).write_config(config)
         dev = resolve_device(device)
         start = time.perf_counter()
+        recorded = (JobFolder(job_dir).read_retrieval() or {}).get("hypotheses", [])
         intake = run_intake(job_dir, library, config, progress, mask_model)
         intake_s = time.perf_counter() - start
+        learn_focal = all(p.focal_pixels is None for p in intake.photos)
+        intake = robust_start(job_dir, intake, library, config, dev, learn_focal, progress,
+                              recorded)
         data = training_data(intake, config, library.spec.margin, dev)
-        state, extra = train(job_dir, library, intake.retrieval, data, config, dev, progress)
+        state, extra = train(job_dir, library, intake.retrieval, data, config, dev, progress,
+                             learn_focal)
         extra["timings"]["intake_s"] = intake_s
         model = TrainedModel(state, extra)
-        return export_job(job_dir, model, intake.retrieval, intake.photos, data, progress)
+        retrieval, data = with_focal_scale(intake.retrieval, data, state.focal_scale())
+        return export_job(job_dir, model, retrieval, intake.photos, data, progress)
     finally:
         _detach_log(handler)
+
+
+def robust_start(job_dir: Path, intake: Intake, library: Library, config: PipelineConfig,
+                 device: torch.device, learn_focal: bool, progress: Progress,
+                 recorded: list[dict[str, Any]]) -> Intake:
+    """The intake with the retrieval hypothesis whose short silhouette fit is best
+    (``RetrievalConfig.hypotheses``; ``nerf.start``), its ``retrieval.json`` rewritten with
+    every fit's score; unchanged when retrieval gave no alternatives. ``recorded``: the fits
+    an earlier run of this job wrote (kept when they cover the same hypotheses)."""
+    if not intake.retrieval.alternatives:
+        return intake
+    from cadnerf_core.nerf.start import choose_start
+
+    chosen = choose_start(intake.retrieval, intake.photos, intake.masks, library, config,
+                          device, learn_focal, progress, recorded)
+    JobFolder(job_dir).write_retrieval(chosen.to_json())
+    return dataclasses.replace(intake, retrieval=chosen)
+
+
+def with_focal_scale(retrieval: RetrievalResult, data: TrainData,
+                     scale: float) -> tuple[RetrievalResult, TrainData]:
+    """The retrieval's cameras and the training crops' intrinsics with their focal lengths
+    times the learned ``scale`` (``Phase2Config.focal_bound``), so every view, the orbit and
+    ``poses.json`` / ``transforms.json`` use the refined focal length."""
+    if scale == 1.0:
+        return retrieval, data
+    factor = np.diag([scale, scale, 1.0])
+    matches = [dataclasses.replace(m, K_canon=factor @ m.K_canon, K_photo=factor @ m.K_photo)
+               for m in retrieval.matches]
+    K = data.K.clone()
+    K[:, 0, 0] *= scale
+    K[:, 1, 1] *= scale
+    return (dataclasses.replace(retrieval, matches=matches),
+            dataclasses.replace(data, K=K))
 
 
 def _attach_log(job_dir: Path) -> logging.Handler:

@@ -25,6 +25,9 @@ TINY_OVERRIDES: dict[str, Any] = {
     "phase3": {"steps": 6, "rays": 64, "scene_steps": 3},
     "export": {"orbit_frames": 4, "orbit_size": 32, "novel_views": 1, "mesh_resolution": 16,
                "texture_size": 64},
+    # One start hypothesis: fits of a few steps are noise, and tests assert what retrieval
+    # found; the tests of the robust start ask for more.
+    "retrieval": {"hypotheses": 1, "hypothesis_steps": 4, "hypothesis_size": 16},
 }
 
 

@@ -85,6 +85,8 @@ class EvalReport:
     align: str  # "photometric", "centred" or "umeyama" mapping of GT cameras for rendering
     focal_used: float
     focal_gt: float
+    focal_error: float  # focal_used / focal_gt - 1: the job's (refined) focal length's error
+    focal_error_retrieved: float  # the same for retrieval's estimate, before any refinement
     test_names: list[str]
     renders: list[str]  # saved held-out renders, in test order
     cameras: dict[str, list[Any]] = field(default_factory=dict)  # poses in the GT frame
@@ -206,6 +208,8 @@ def evaluate_dataset(dataset_dir: Path, n_views: int, library: Library, preset: 
     gt_kept = data.c2w[cams.kept]
     to_nerf = frame_mapping(model, data, cams, align, intrinsics)
     K = eval_intrinsics(data.test.K[0], cams, intrinsics)
+    focal_gt = float(data.test.K[0][0, 0])
+    retrieved = float(np.median(cams.K_retrieved[:, 0, 0]))
     render_start = time.perf_counter()
     scores, renders = _render_held_out(model, data.test, to_nerf.apply_to_poses(data.test.c2w),
                                        K, folder.eval_dir, lpips_net, eval_size)
@@ -223,7 +227,8 @@ def evaluate_dataset(dataset_dir: Path, n_views: int, library: Library, preset: 
         kept=[names[i] for i in cams.kept], discarded=[names[i] for i in cams.discarded],
         phases=phase_costs(model.extra, metrics), seconds=time.perf_counter() - start,
         job_dir=str(job), eval_size=int(eval_size or data.test.images.shape[1]),
-        intrinsics=intrinsics, align=align, focal_used=float(K[0, 0]),
-        focal_gt=float(data.test.K[0][0, 0]), render_seconds=render_s,
+        intrinsics=intrinsics, align=align, focal_used=float(K[0, 0]), focal_gt=focal_gt,
+        focal_error=float(K[0, 0]) / focal_gt - 1.0,
+        focal_error_retrieved=retrieved / focal_gt - 1.0, render_seconds=render_s,
         test_names=data.test.names, renders=renders,
         cameras=_cameras_in_gt_frame(data, cams))

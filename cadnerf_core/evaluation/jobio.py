@@ -82,11 +82,14 @@ class JobCameras:
     discarded: list[int]
     retrieved: np.ndarray  # [K, 4, 4] retrieved c2w of the kept photos (NeRF frame)
     refined: np.ndarray  # [K, 4, 4] refined c2w of the kept photos (NeRF frame)
-    K_photo: np.ndarray  # [K, 3, 3] estimated intrinsics in photo pixels
+    K_photo: np.ndarray  # [K, 3, 3] estimated intrinsics in photo pixels (refined, if learned)
+    K_retrieved: np.ndarray  # [K, 3, 3] the retrieval's estimate, before any refinement
 
 
 def read_job_cameras(job_dir: Path, model: TrainedModel) -> JobCameras:
-    """Retrieved poses from the job's retrieval, refined poses from the trained model.
+    """Retrieved poses from the job's retrieval, refined poses from the trained model, and
+    the intrinsics the job exported (``poses.json``: the refined focal length where it was
+    learned; the retrieval's before export).
 
     Args:
         job_dir: a finished job folder.
@@ -97,7 +100,8 @@ def read_job_cameras(job_dir: Path, model: TrainedModel) -> JobCameras:
         ValueError: no retrieval, or the model's poses do not match the kept photos, or are
             not finite.
     """
-    data = JobFolder(job_dir).read_retrieval()
+    folder = JobFolder(job_dir)
+    data = folder.read_retrieval()
     if data is None:
         raise ValueError(f"{job_dir} has no retrieval: the job did not run")
     matches = sorted(data["matches"], key=lambda m: int(m["index"]))
@@ -109,12 +113,15 @@ def read_job_cameras(job_dir: Path, model: TrainedModel) -> JobCameras:
            if not np.isfinite(pose).all()]
     if bad:
         raise ValueError(f"refined poses are not finite (training diverged) for {bad}")
+    exported = {int(p["index"]): p for p in (folder.read_poses() or {}).get("photos", [])}
+    K_photo = [exported.get(int(m["index"]), m)["K_photo"] for m in kept]
     return JobCameras(
         model_id=str(data["model_id"]), category=str(data["category"]),
         kept=[int(m["index"]) for m in kept],
         discarded=[int(m["index"]) for m in matches if m["discarded"]],
         retrieved=np.array([m["c2w"] for m in kept], dtype=np.float64),
-        refined=refined, K_photo=np.array([m["K_photo"] for m in kept], dtype=np.float64))
+        refined=refined, K_photo=np.array(K_photo, dtype=np.float64),
+        K_retrieved=np.array([m["K_photo"] for m in kept], dtype=np.float64))
 
 
 def _numbers(values: Any) -> dict[str, float]:

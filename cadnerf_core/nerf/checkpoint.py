@@ -70,8 +70,12 @@ def restore_state(payload: dict[str, Any], device: torch.device,
     cfg = config or PipelineConfig.model_validate(payload["config"])
     c2w_init = payload["poses"]["c2w_init"].numpy().astype(np.float64)
     grid = SkipGrid(payload["grid"].to(device), float(payload["bound"]))
-    state = TrainState.create(cfg, c2w_init, device, grid)
+    poses = dict(payload["poses"])
+    # Saved before the focal factor existed: a factor of 1.
+    poses.setdefault("focal_logit", torch.zeros(1))
+    learned = bool(payload.get("extra", {}).get("learn_focal", False))
+    state = TrainState.create(cfg, c2w_init, device, grid, learned)
     state.fields.load_state_dict(payload["fields"])
-    state.poses.load_state_dict(payload["poses"])
+    state.poses.load_state_dict(poses)
     state.history = dict(payload.get("history", {}))
     return state

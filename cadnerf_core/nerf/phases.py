@@ -15,6 +15,7 @@ import contextlib
 import logging
 import math
 from collections.abc import Callable, Iterable, Iterator
+from typing import Any
 
 import numpy as np
 import torch
@@ -53,7 +54,7 @@ def upload(t: torch.Tensor, device: torch.device) -> torch.Tensor:
     return t.to(device)
 
 
-def adam(params: Iterable[torch.nn.Parameter], lr: float,
+def adam(params: Iterable[torch.nn.Parameter] | Iterable[dict[str, Any]], lr: float,
          device: torch.device) -> torch.optim.Adam:
     """Adam; on CUDA its fused kernel (one launch per step instead of several per tensor)."""
     if device.type == "cuda":
@@ -146,7 +147,8 @@ def render_batch(state: TrainState, data: TrainData, img: torch.Tensor, x: torch
     """Render training rays of pixels (img, x, y) at the current poses."""
     with contextlib.nullcontext() if pose_grad else torch.no_grad():
         c2w = state.poses(img)
-    rays_o, rays_d = pixel_rays(c2w, data.K[img], x, y)
+        K = state.poses.intrinsics(data.K[img])
+    rays_o, rays_d = pixel_rays(c2w, K, x, y)
     if background is None and with_color and state.fields.background is not None \
             and data.scene_images is not None:
         background = state.fields.background(rays_d)
@@ -273,7 +275,8 @@ def run_phase2(state: TrainState, data: TrainData, progress: Progress | None = N
     prior = make_prior(state, sampler, cfg.prior_weight)
     shape = _phase2_params(state)
     optimizer = adam(shape, cfg.lr, state.device) if shape else None
-    pose_optimizer = adam(state.poses.parameters(), cfg.pose_lr, state.device)
+    pose_optimizer = adam(state.poses.optimizer_groups(cfg.pose_lr, state.config.phase2.focal_lr),
+                          cfg.pose_lr, state.device)
     # Without phase2.train_density, D stays the CAD prior while G deforms it: no parameter
     # gradients for D (saves a third of the backward pass); gradients still flow through D to
     # the offsets (and to the poses).
@@ -362,7 +365,8 @@ def run_phase3(state: TrainState, data: TrainData, progress: Progress | None = N
     scene_steps = cfg.scene_steps if background is not None and data.scene_images is not None \
         else 0
     total = cfg.steps + scene_steps
-    pose_optimizer = adam(state.poses.parameters(), cfg.pose_lr, state.device)
+    pose_optimizer = adam(state.poses.optimizer_groups(cfg.pose_lr, state.config.phase2.focal_lr),
+                          cfg.pose_lr, state.device)
     blurred: dict[float, torch.Tensor] = {}
     for step in range(cfg.steps):
         active = state.config.optimise_poses and in_window(step, cfg.steps, cfg.pose_window)

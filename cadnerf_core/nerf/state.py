@@ -61,12 +61,15 @@ class TrainState:
 
     @classmethod
     def create(cls, config: PipelineConfig, c2w_init: np.ndarray, device: torch.device,
-               grid: SkipGrid | None = None) -> TrainState:
-        """Fresh networks (seeded from ``config.seed``) around initial poses [N, 4, 4]."""
+               grid: SkipGrid | None = None, learn_focal: bool = False) -> TrainState:
+        """Fresh networks (seeded from ``config.seed``) around initial poses [N, 4, 4];
+        ``learn_focal``: the photos' focal length is unknown and refined with the poses
+        (within ``config.phase2.focal_bound``)."""
         torch.manual_seed(config.seed)
         fields = CadNerfFields(config.field, config.use_deformation, config.scene_mode).to(device)
         poses = PoseCorrection(torch.from_numpy(np.asarray(c2w_init, dtype=np.float32))
-                               .to(device))
+                               .to(device), config.phase2.focal_bound,
+                               learn_focal and config.optimise_poses)
         if grid is None:
             grid = SkipGrid.full(config.render.grid_resolution, config.render.bound, device)
         return cls(config, fields, poses, grid, device)
@@ -74,6 +77,11 @@ class TrainState:
     def log(self, key: str, value: float) -> None:
         """Append a scalar to the training history."""
         self.history.setdefault(key, []).append(float(value))
+
+    def focal_scale(self) -> float:
+        """The learned factor on the photos' focal length (1: unchanged)."""
+        with torch.no_grad():
+            return float(self.poses.focal_scale())
 
     def refined_c2w(self) -> np.ndarray:
         """Current (refined) poses. Returns [N, 4, 4] float64."""

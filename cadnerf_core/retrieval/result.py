@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
@@ -63,6 +63,12 @@ class RetrievalResult:
     went the other way."""
     perspective: str = "far"
     """The library silhouette set matched ("far" or "near", ``RetrievalConfig.perspective``)."""
+    alternatives: list[RetrievalResult] = field(default_factory=list)
+    """The next best hypotheses (model, walking direction, poses), best first, when
+    ``RetrievalConfig.hypotheses`` asks for more than one; not written to ``retrieval.json``."""
+    hypotheses: list[dict[str, Any]] = field(default_factory=list)
+    """The hypotheses a short silhouette fit compared (model, direction, retrieval score, fit
+    score), in retrieval's order, when there were several; this result is the best fit's."""
 
     @property
     def kept(self) -> list[PhotoMatch]:
@@ -79,4 +85,5 @@ class RetrievalResult:
                 "direction_ambiguous": self.direction_ambiguous,
                 "perspective": self.perspective,
                 "discarded": [m.index for m in self.matches if m.discarded],
-                "matches": [m.to_json() for m in self.matches]}
+                "matches": [m.to_json() for m in self.matches],
+                **({"hypotheses": self.hypotheses} if self.hypotheses else {})}

@@ -17,12 +17,13 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from cadnerf_core.config import AMBIGUOUS_HINT, RetrievalConfig
+from cadnerf_core.errors import InputError
 from cadnerf_core.intake.crop import CropBox, apply_crop
 from cadnerf_core.intake.photos import canonical_masks
 from cadnerf_core.progress import Progress
 from cadnerf_core.retrieval.cameras import angle_mismatch, photo_match, share_focal
 from cadnerf_core.retrieval.posesearch import PoseSearchResult, cyclic_dp, paper_algorithm1
-from cadnerf_core.retrieval.result import RetrievalResult
+from cadnerf_core.retrieval.result import PhotoMatch, RetrievalResult
 from cadnerf_core.retrieval.scoring import azimuth_bins, iou_table, vote_models
 
 if TYPE_CHECKING:
@@ -127,13 +128,14 @@ def retrieve(masks: Sequence[np.ndarray], names: Sequence[str], library: Library
         The RetrievalResult.
     """
     config = config or RetrievalConfig()
+    allowed = allowed_models(library, config.exclude_models)
     spec = library.spec  # both silhouette sets share the crop size and margin
     crops, boxes = canonical_masks(masks, spec.silhouette_size, spec.margin)
     evidence = 0.0
     if images is not None and config.solver == "dp" and config.appearance_weight > 0:
         evidence = direction_evidence(images, masks, boxes)
     photos = _Photos(names, [mask.shape[:2] for mask in masks], crops, boxes, evidence, focals,
-                     crop_size or spec.silhouette_size)
+                     crop_size or spec.silhouette_size, allowed)
     near = library.near
     known = [f for f in focals or [] if f is not None]
     wanted = config.perspective
@@ -141,6 +143,13 @@ def retrieve(masks: Sequence[np.ndarray], names: Sequence[str], library: Library
         single = "far" if wanted == "auto" else wanted
         chosen = _retrieve_from(photos, library.view_set(single), config, progress, single,
                                 (0, 2))
+        if wanted == "auto" and near is not None and config.hypotheses > 1:
+            # No focal length to choose the set by: the near set's best walk (a wide lens
+            # near the object) is the first alternative, for the start's fits to judge.
+            wide = _retrieve_from(photos, near, config.model_copy(update={"hypotheses": 1}),
+                                  None, "near", (0, 2))
+            others = [wide, *chosen.alternatives][:config.hypotheses - 1]
+            chosen = dataclasses.replace(chosen, alternatives=others)
     else:
         results = [_retrieve_from(photos, lib, config, progress, label, steps)
                    for lib, label, steps in ((library, "far", (0, 4)), (near, "near", (2, 4)))]
@@ -155,6 +164,27 @@ def retrieve(masks: Sequence[np.ndarray], names: Sequence[str], library: Library
     return chosen
 
 
+def allowed_models(library: Library, exclude: Sequence[str]) -> np.ndarray:
+    """Indices of the library models retrieval may choose: all but the ``exclude``d ids.
+
+    Returns:
+        [M'] int64, increasing.
+    Raises:
+        InputError: an id the library does not hold, or every model excluded.
+    """
+    known = {m.id for m in library.models}
+    unknown = sorted(set(exclude) - known)
+    if unknown:
+        raise InputError(f"no model {', '.join(map(repr, unknown))} in the library",
+                         item="retrieval.exclude_models",
+                         hint=f"choose among {', '.join(sorted(known))}")
+    allowed = np.array([i for i, m in enumerate(library.models) if m.id not in set(exclude)],
+                       dtype=np.int64)
+    if not len(allowed):
+        raise InputError("every library model is excluded", item="retrieval.exclude_models")
+    return allowed
+
+
 @dataclass
 class _Photos:
     """What retrieval needs of the photos, computed once for every silhouette set."""
@@ -166,6 +196,7 @@ class _Photos:
     evidence: float  # texture evidence for the walking direction
     focals: Sequence[float | None] | None
     crop_size: int  # side of the crop that K_canon and box refer to
+    allowed: np.ndarray  # [M'] library indices of the models that may be chosen
 
 
 def _retrieve_from(photos: _Photos, library: Library, config: RetrievalConfig,
@@ -174,8 +205,12 @@ def _retrieve_from(photos: _Photos, library: Library, config: RetrievalConfig,
     """``retrieve`` against one silhouette set (``library`` is the set's own Library).
     ``steps``: (steps done before, total) of the "retrieval" stage; this search adds two."""
     spec = library.spec
-    names, boxes, evidence = photos.names, photos.boxes, photos.evidence
-    iou = iou_table(photos.crops, library.silhouettes)
+    evidence = photos.evidence
+    allowed = photos.allowed
+    silhouettes = library.silhouettes
+    if len(allowed) < len(silhouettes):
+        silhouettes = silhouettes[allowed]
+    iou = iou_table(photos.crops, silhouettes)  # [P, M', V]: model axis over ``allowed``
     voted, ranking = vote_models(iou)
     if progress is not None:
         progress.step("retrieval", steps[0] + 1, steps[1])
@@ -189,22 +224,58 @@ def _retrieve_from(photos: _Photos, library: Library, config: RetrievalConfig,
         lead = found.direction_lead
         m, found = _choose_walk(iou, voted, ranking, az_index, spec.n_azimuths, ccw, evidence)
         found = dataclasses.replace(found, direction_lead=lead)
+    models = [library.models[i] for i in allowed]
+    top = [{"model_id": models[i].id, "category": models[i].category,
+            "votes": votes, "score": score} for i, votes, score in ranking[:TOP_MODELS]]
+    matches = _matches(photos, library, iou, m, found, config)
+    log.info("retrieved %s (%s) with %s: %d of %d photos kept", models[m].id,
+             models[m].category, config.solver, sum(not x.discarded for x in matches),
+             len(matches))
+    if progress is not None:
+        progress.step("retrieval", steps[0] + 2, steps[1])
+    others = [RetrievalResult(models[o].id, models[o].category, top,
+                              _matches(photos, library, iou, o, walk, config), config.solver,
+                              walk.direction, walk.score, evidence, perspective=perspective)
+              for o, walk in _alternatives(iou, ranking, az_index, spec.n_azimuths, config,
+                                           evidence, (m, found.direction))]
+    return RetrievalResult(models[m].id, models[m].category, top, matches, config.solver,
+                           found.direction, found.score, evidence, found.direction_lead,
+                           perspective=perspective, direction_ambiguous=ambiguous,
+                           alternatives=others)
+
+
+def _matches(photos: _Photos, library: Library, iou: np.ndarray, m: int,
+             found: PoseSearchResult, config: RetrievalConfig) -> list[PhotoMatch]:
+    """Every photo's match to model ``m`` (an index into ``photos.allowed``) along the walk
+    ``found``; a discarded photo keeps its own best view, flagged."""
     matches = []
     for p, view in enumerate(found.views):
         discarded = bool(view < 0)
         v = int(np.argmax(iou[p, m])) if discarded else int(view)
-        box = CropBox(boxes[p].x0, boxes[p].y0, boxes[p].side, photos.crop_size)
-        matches.append(photo_match(library, m, p, names[p], v, discarded, float(iou[p, m, v]),
-                                   box))
+        b = photos.boxes[p]
+        box = CropBox(b.x0, b.y0, b.side, photos.crop_size)
+        matches.append(photo_match(library, int(photos.allowed[m]), p, photos.names[p], v,
+                                   discarded, float(iou[p, m, v]), box))
     if config.shared_focal:
         matches = share_focal(matches, photos.sizes, photos.focals)
-    top = [{"model_id": library.models[i].id, "category": library.models[i].category,
-            "votes": votes, "score": score} for i, votes, score in ranking[:TOP_MODELS]]
-    entry = library.models[m]
-    log.info("retrieved %s (%s) with %s: %d of %d photos kept", entry.id, entry.category,
-             config.solver, sum(not x.discarded for x in matches), len(matches))
-    if progress is not None:
-        progress.step("retrieval", steps[0] + 2, steps[1])
-    return RetrievalResult(entry.id, entry.category, top, matches, config.solver,
-                           found.direction, found.score, evidence, found.direction_lead,
-                           perspective=perspective, direction_ambiguous=ambiguous)
+    return matches
+
+
+def _alternatives(iou: np.ndarray, ranking: Sequence[tuple[int, int, float]],
+                  az_index: np.ndarray, n_azimuths: int, config: RetrievalConfig,
+                  evidence: float, chosen: tuple[int, int]) -> list[tuple[int, PoseSearchResult]]:
+    """The best walks after the ``chosen`` (model, direction), best score first: each of the
+    ``TOP_MODELS`` most voted models walked each allowed way round; ``config.hypotheses`` - 1
+    of them. Returns (model index, walk) pairs."""
+    if config.hypotheses <= 1:
+        return []
+    walks = {"ccw": ("ccw",), "cw": ("cw",)}.get(config.walk, ("ccw", "cw"))
+    found = []
+    for other, _, _ in ranking[:TOP_MODELS]:
+        for walk in walks:
+            given = config.model_copy(update={"walk": walk})
+            result = solve_poses(iou[:, other, :], az_index, n_azimuths, given, evidence)
+            if (other, result.direction) != chosen:
+                found.append((other, result))
+    found.sort(key=lambda pair: -pair[1].score)
+    return found[:config.hypotheses - 1]

@@ -403,3 +403,26 @@ def test_a_job_written_with_exif_focal_gives_its_photos_the_true_focal(tmp_path:
         # The tag holds whole millimetres: within half a mm of 35 mm-equivalent.
         assert photo.focal_pixels == pytest.approx(K[0, 0], rel=0.5 / photo.focal_35mm)
     assert all(p.focal_35mm is None for p in plain)
+
+
+def test_cli_eval_leaves_the_excluded_models_out(tmp_path: Path, tiny_library_dir: Path) -> None:
+    import trimesh
+    from typer.testing import CliRunner
+
+    from cadnerf_cli.main import app
+    from cadnerf_core.evaluation.dataset import render_dataset
+    from tests.configs import tiny_cli_options
+
+    mesh_path = tmp_path / "box.ply"
+    trimesh.creation.box(extents=(1.2, 0.8, 0.6)).export(mesh_path)
+    dataset = render_dataset(mesh_path, tmp_path / "ds", n_views=4, size=64, seed=0,
+                             test_views=2)
+    common = ["eval", str(dataset), "--views", "3", "--library", str(tiny_library_dir),
+              "--device", "cpu", *tiny_cli_options()]
+    result = CliRunner().invoke(app, [*common, "--json", "--exclude-models", "cuboid_slab"])
+    assert result.exit_code == 0, result.output
+    report = json.loads(result.stdout)[0]
+    assert report["model_id"] != "cuboid_slab"
+    assert report["overrides"]["retrieval.exclude_models"] == ["cuboid_slab"]
+    unknown = CliRunner().invoke(app, [*common, "--exclude-models", "nope"])
+    assert unknown.exit_code == 2 and "no model 'nope' in the library" in unknown.output

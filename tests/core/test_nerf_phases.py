@@ -326,3 +326,33 @@ def test_a_step_in_passes_learns_what_one_pass_learns(phase: int) -> None:
         torch.testing.assert_close(a, b, rtol=1e-4, atol=1e-6)
     assert pose_one.abs().max() > 0
     torch.testing.assert_close(pose_one, pose_four, rtol=1e-4, atol=1e-7)
+
+
+def test_phase_two_learns_a_shared_focal_length_within_its_bound() -> None:
+    mesh = _box()
+    data, c2w = _scene(mesh)
+    too_long = 1.25  # the photos' focal length, as retrieval estimated it, 25 % too long
+    data = TrainData(data.images, data.masks, data.K * torch.tensor(
+        [[too_long, 1.0, too_long], [1.0, too_long, too_long], [1.0, 1.0, 1.0]]) /
+        torch.tensor([[1.0, 1.0, too_long], [1.0, 1.0, too_long], [1.0, 1.0, 1.0]]))
+    assert torch.allclose(data.K[0, :2, 2], torch.tensor([SIZE / 2, SIZE / 2]))
+    cfg = _config(**{"phase1.steps": 200, "phase1.lr": 3e-3, "phase1.batch_points": 2048,
+                     "use_deformation": False, "phase2.train_density": False,
+                     "phase2.steps": 160, "phase2.rays": 512, "phase2.pose_lr": 1e-9,
+                     "phase2.pose_window": (0.0, 1.0), "phase2.anneal": (0.0, 0.0),
+                     "phase2.focal_bound": 1.6, "phase2.focal_lr": 5e-2,
+                     "render.samples_per_ray": 32})
+    grid = grid_from_occupancy(mesh.contains, 16, cfg.render.bound, 2)
+    fixed = TrainState.create(cfg, c2w, DEVICE, grid)  # focal known: never moves
+    state = TrainState.create(cfg, c2w, DEVICE, grid, learn_focal=True)
+    for s in (fixed, state):
+        phases.run_phase1(s, _sampler(mesh))
+        phases.run_phase2(s, data)
+    assert fixed.focal_scale() == 1.0
+    assert abs(state.focal_scale() * too_long - 1.0) < 0.5 * (too_long - 1.0)
+    with torch.no_grad():
+        state.poses.focal_logit.fill_(50.0)
+        K = state.poses.intrinsics(data.K[:1])[0]
+    assert state.focal_scale() == pytest.approx(1.6)
+    assert K[0, 0] == pytest.approx(1.6 * float(data.K[0, 0, 0]))
+    assert torch.equal(K[:, 2], data.K[0, :, 2]) and K[0, 1] == 0.0

@@ -177,16 +177,18 @@ def test_cli_reconstructs_into_the_output_folder(tmp_path: Path, tiny_library: A
                                       *[arg for m in masks for arg in ("--masks", str(m))],
                                       *tiny_cli_options(), "--device", "cpu", "--library",
                                       str(tiny_library_dir), "--walk", "ccw", "--own-focal",
-                                      "--perspective", "near", "--focal-35mm", "30"])
+                                      "--perspective", "near", "--focal-35mm", "30",
+                                      "--exclude-models", "chair_wood"])
     assert result.exit_code == 0, result.output
     assert "results in" in result.output
     # The walk write_job rendered is counter-clockwise (increasing azimuth), as told.
     resolved = JobFolder(out).read_config()
     assert resolved == tiny_config(retrieval={"walk": "ccw", "shared_focal": False,
-                                              "perspective": "near", "focal_35mm": 30.0})
+                                              "perspective": "near", "focal_35mm": 30.0,
+                                              "exclude_models": ("chair_wood",)})
     retrieval = JobFolder(out).read_retrieval()
     assert retrieval is not None
-    assert retrieval["perspective"] == "near"
+    assert retrieval["perspective"] == "near" and retrieval["model_id"] != "chair_wood"
     assert retrieval["direction"] == 1 and retrieval["direction_lead"] is None
     assert sorted(p.name for p in (out / "inputs").iterdir() if p.is_file()) == \
         ["000_000_p.png", "001_001_p.png", "002_002_p.png"]
@@ -216,6 +218,14 @@ def test_cli_retrieve_warns_of_a_guessed_direction_unless_given(tmp_path: Path,
     assert told.exit_code == 0, told.output
     data = json.loads(told.output)
     assert data["direction"] == -1 and data["direction_ambiguous"] is False
+    left_out = CliRunner().invoke(app, [*common, "--json", "--exclude-models", "cuboid_slab"])
+    assert left_out.exit_code == 0, left_out.output
+    data = json.loads(left_out.stdout)
+    assert data["model_id"] != "cuboid_slab"
+    assert "cuboid_slab" not in {t["model_id"] for t in data["top_models"]}
+    unknown = CliRunner().invoke(app, [*common, "--exclude-models", "mug,no_such_model"])
+    assert unknown.exit_code == 2
+    assert "no model 'no_such_model' in the library" in unknown.output
 
 
 def test_a_focal_length_given_for_photos_without_exif_sets_their_cameras(
@@ -239,6 +249,47 @@ def test_a_focal_length_given_for_photos_without_exif_sets_their_cameras(
     assert blind.retrieval.matches[0].K_photo[0, 0] != pytest.approx(true_focal_px, rel=1e-3)
     # Known, it lets retrieval choose the perspective: these photos are the far set's.
     assert told.retrieval.perspective == "far"
+
+
+def test_the_focal_length_is_learned_only_where_the_photos_do_not_give_it(
+        tmp_path: Path, tiny_library: Any) -> None:
+    from cadnerf_core.pipeline import run_job
+
+    learn = {"phase2": {"focal_bound": 1.5, "focal_lr": 0.05}}
+    write_job(tmp_path / "blind", tiny_library, overrides=learn)
+    write_job(tmp_path / "told", tiny_library,
+              overrides={**learn, "retrieval": {"focal_35mm": 50.0}})
+    scales = {}
+    for name in ("blind", "told"):
+        run_job(tmp_path / name, tiny_library, Progress(), "cpu")
+        folder = JobFolder(tmp_path / name)
+        scales[name] = folder.read_metrics()["focal_scale"]  # type: ignore[index]
+        retrieved = {m["index"]: np.asarray(m["K_photo"])
+                     for m in folder.read_retrieval()["matches"]}  # type: ignore[index]
+        for photo in folder.read_poses()["photos"]:  # type: ignore[index]
+            K, before = np.asarray(photo["K_photo"]), retrieved[photo["index"]]
+            assert K[0, 0] == pytest.approx(scales[name] * before[0, 0], rel=1e-5)
+            assert K[1, 1] == pytest.approx(scales[name] * before[1, 1], rel=1e-5)
+    assert scales["told"] == 1.0
+    assert scales["blind"] != 1.0 and 1 / 1.5 <= scales["blind"] <= 1.5
+
+
+def test_several_start_hypotheses_are_fitted_and_the_best_kept(tmp_path: Path,
+                                                               tiny_library: Any) -> None:
+    from cadnerf_core.pipeline import run_job
+
+    write_job(tmp_path, tiny_library, overrides={"retrieval": {
+        "hypotheses": 3, "hypothesis_steps": 4, "hypothesis_size": 16}})
+    summary = run_job(tmp_path, tiny_library, Progress(), "cpu")
+    retrieval = JobFolder(tmp_path).read_retrieval()
+    assert retrieval is not None
+    fits = retrieval["hypotheses"]
+    assert len(fits) == 3 and sum(h["chosen"] for h in fits) == 1
+    best = max(fits, key=lambda h: h["fit"])
+    assert best["chosen"] and best["model_id"] == retrieval["model_id"] == summary["model_id"]
+    assert len({(h["model_id"], h["direction"], h["perspective"]) for h in fits}) == 3
+    assert fits[1]["perspective"] == "near"  # no focal length known: the near set's walk
+    assert all(-1.0 <= h["fit"] <= 1.0 for h in fits)
 
 
 def test_photos_over_the_working_size_export_cameras_of_the_uploaded_photos(

@@ -326,3 +326,73 @@ def test_asking_for_a_near_set_the_library_lacks_says_how_to_get_one(tiny_librar
         retrieve(masks, ["a", "b", "c", "d"], old, RetrievalConfig(perspective="near"))
     result = retrieve(masks, ["a", "b", "c", "d"], old, RetrievalConfig(), focals=[100.0] * 4)
     assert result.perspective == "far"
+
+
+@pytest.mark.parametrize("solver", ["dp", "paper"])
+def test_an_excluded_model_is_never_retrieved(tiny_library: Any,
+                                              solver: Literal["dp", "paper"]) -> None:
+    library = tiny_library
+    model = next(i for i, m in enumerate(library.models) if m.category == "cuboid")
+    n_el = len(library.spec.elevations)
+    masks = _render_views(library, model, [a * n_el for a in (1, 3, 5, 7)], (0, 0))
+    names = [f"p{i}.png" for i in range(len(masks))]
+    own = library.models[model].id
+    assert retrieve(masks, names, library, RetrievalConfig(solver=solver)).model_id == own
+    others = [m.id for m in library.models if m.id != own]
+    for kept in others:  # each other model in turn the only one left, then both
+        excluded = tuple(m.id for m in library.models if m.id != kept)
+        result = retrieve(masks, names, library,
+                          RetrievalConfig(solver=solver, exclude_models=excluded))
+        assert result.model_id == kept
+        assert {t["model_id"] for t in result.top_models} == {kept}
+        assert np.isfinite([m.iou for m in result.matches]).all()
+    result = retrieve(masks, names, library, RetrievalConfig(solver=solver,
+                                                             exclude_models=(own,)))
+    assert result.model_id in others
+    assert own not in {t["model_id"] for t in result.top_models}
+
+
+def test_excluding_an_unknown_or_every_model_is_a_clear_error(tiny_library: Any) -> None:
+    from cadnerf_core.errors import InputError
+
+    masks = [np.pad(np.ones((20, 20), bool), 10)] * 3
+    names = ["a.png", "b.png", "c.png"]
+    with pytest.raises(InputError, match="no model 'no_such_model' in the library") as err:
+        retrieve(masks, names, tiny_library, RetrievalConfig(exclude_models=("no_such_model",)))
+    assert tiny_library.models[0].id in str(err.value)  # the message lists the choices
+    every = tuple(m.id for m in tiny_library.models)
+    with pytest.raises(InputError, match="every library model is excluded"):
+        retrieve(masks, names, tiny_library, RetrievalConfig(exclude_models=every))
+
+
+def test_exclude_models_rejects_blanks_and_repeats() -> None:
+    from pydantic import ValidationError
+
+    assert RetrievalConfig(exclude_models=("a", "b")).exclude_models == ("a", "b")
+    with pytest.raises(ValidationError, match="twice"):
+        RetrievalConfig(exclude_models=("a", "a"))
+    with pytest.raises(ValidationError, match="empty"):
+        RetrievalConfig(exclude_models=(" ",))
+
+
+def test_hypotheses_are_the_next_best_distinct_walks(tiny_library: Any) -> None:
+    library = tiny_library
+    model = next(i for i, m in enumerate(library.models) if m.id == "chair_wood")
+    n_el = len(library.spec.elevations)
+    masks = _render_views(library, model, [a * n_el for a in (1, 3, 5, 7)], (0, 0))
+    names = [f"p{i}.png" for i in range(len(masks))]
+    assert retrieve(masks, names, library, RetrievalConfig(hypotheses=1)).alternatives == []
+    # No focal length known: the near set's best walk comes first, then the far set's next.
+    result = retrieve(masks, names, library, RetrievalConfig(hypotheses=4))
+    assert result.perspective == "far" and len(result.alternatives) == 3
+    assert [h.perspective for h in result.alternatives] == ["near", "far", "far"]
+    seen = [(h.model_id, h.direction) for h in (result, *result.alternatives[1:])]
+    assert len(set(seen)) == 3
+    scores = [h.score for h in result.alternatives[1:]]
+    assert scores == sorted(scores, reverse=True)
+    assert all(len(h.matches) == len(masks) for h in result.alternatives)
+    assert "hypotheses" not in result.to_json()
+    told = retrieve(masks, names, library, RetrievalConfig(hypotheses=3, walk="cw",
+                                                           perspective="far"))
+    assert {h.direction for h in (told, *told.alternatives)} == {-1}
+    assert {h.perspective for h in told.alternatives} == {"far"}

@@ -1,0 +1,286 @@
+"""Objects the library has not seen: leave-out figures at three fields of view, and the levers.
+
+For each mesh of ``../shared/eval/meshes`` a walk of 6 views (128 px, 12 held-out views on
+white, seed 0) is rendered at horizontal fields of view of 40 (the library's), 55 and 70 degrees
+(a phone's main lens), the object filling the same share of the frame. The photos carry no EXIF,
+as a messaging app leaves them, so the focal length is the method's own estimate. Each walk
+is a job of preset ``preview`` run and scored by ``evaluation.evaluate.evaluate_dataset`` (the
+evaluation benchmark's protocol: held-out cameras mapped into the NeRF frame, refined on the
+training photos, rendered at the job's focal length).
+
+Rows:
+
+- **leave-out** (the headline): the object's look-alikes (``benchmarks.lookalikes``) excluded
+  from retrieval, every setting at its default;
+- **with look-alike**: the whole library;
+- the levers, each flipped from its default, leave-out: the focal length fixed at retrieval's
+  estimate or learned with the poses (``phase2.focal_bound``).
+
+QUICK: the evaluation benchmark's three quick meshes and its reduced schedule (48 px crops,
+short phases, held-out views scored at 64 px); with look-alike at 40 degrees only, the levers at
+40 and 70. Full: every mesh with ``preview`` itself; with look-alike at every field of view, the
+levers on the quick meshes.
+
+Usage: ``python -m benchmarks.bench_unseen [--quick] [--meshes NAME ...]`` prints the section.
+"""
+
+from __future__ import annotations
+
+import argparse
+import logging
+import shutil
+import statistics
+import sys
+import time
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from benchmarks.bench_eval import (
+    EVAL_ROOT,
+    LIBRARY_DIR,
+    QUICK_MESHES,
+    QUICK_OVERRIDES,
+    Z_UP,
+    mesh_file,
+)
+from benchmarks.eval_tables import markdown_table
+from benchmarks.lookalikes import Protocol, exclude_overrides
+
+log = logging.getLogger(__name__)
+
+ROOT = Path(__file__).resolve().parents[1]
+WORK_DIR = ROOT / "out" / "bench_unseen"
+FOVS = (40.0, 55.0, 70.0)
+VIEWS = 6
+SIZE = 128
+TEST_VIEWS = 12
+SEED = 0
+PRESET = "preview"
+
+# Each lever: (label, the override that turns it off, the one that turns it on). The
+# variant run is the one that differs from the default; the default is the leave-out row.
+LEVERS: dict[str, tuple[str, dict[str, Any], dict[str, Any]]] = {
+    "focal": ("focal length learned with the poses", {"phase2.focal_bound": 1.0},
+              {"phase2.focal_bound": 1.6}),
+    "hypotheses": ("three start hypotheses, each a short silhouette fit",
+                   {"retrieval.hypotheses": 1}, {"retrieval.hypotheses": 3}),
+}
+
+
+@dataclass(frozen=True)
+class Plan:
+    """What one run of this benchmark does."""
+
+    meshes: tuple[str, ...]
+    overrides: dict[str, Any]
+    lookalike_fovs: tuple[float, ...]
+    lever_fovs: tuple[float, ...]
+    lever_meshes: tuple[str, ...]
+    eval_size: int | None
+    variants: tuple[str, ...] | None = None  # only these rows (None: all)
+
+
+def make_plan(quick: bool, names: list[str] | None = None,
+              variants: list[str] | None = None) -> Plan:
+    """The quick or the full plan (``names``: only these meshes; ``variants``: only these
+    rows, of "leave-out", "with look-alike" and ``lever_variants``)."""
+    every = tuple(sorted(p.name for p in (EVAL_ROOT / "meshes").iterdir() if p.is_dir()))
+    only = tuple(variants) if variants else None
+    if quick:
+        meshes = tuple(names or QUICK_MESHES)
+        return Plan(meshes, dict(QUICK_OVERRIDES), (40.0,), (40.0, 70.0), meshes, 64, only)
+    meshes = tuple(names or every)
+    return Plan(meshes, {}, FOVS, FOVS, tuple(m for m in meshes if m in QUICK_MESHES), None,
+                only)
+
+
+def lever_variants() -> dict[str, tuple[str, dict[str, Any]]]:
+    """Per lever, the variant that flips it from the configured default: name -> (label,
+    overrides). A lever whose default is neither of its settings is run both ways."""
+    from cadnerf_core.config import resolve_config
+
+    defaults = resolve_config(PRESET).model_dump()
+    out: dict[str, tuple[str, dict[str, Any]]] = {}
+    for name, (label, off, on) in LEVERS.items():
+        key, value = next(iter(off.items()))
+        section, field = key.split(".")
+        current = defaults[section][field]
+        if current != value:
+            out[f"{name}_off"] = (f"{label}: off", off)
+        if current != next(iter(on.values())):
+            out[f"{name}_on"] = (f"{label}: on", on)
+    return out
+
+
+def render_walk(name: str, fov: float, work: Path) -> Path:
+    """The walk of mesh ``name`` at ``fov`` degrees (rendered once)."""
+    from cadnerf_core.evaluation.dataset import render_dataset
+
+    folder = work / name / f"fov{fov:g}"
+    if not (folder / "transforms_test.json").is_file():
+        render_dataset(mesh_file(EVAL_ROOT / "meshes" / name), folder, VIEWS, SIZE, SEED,
+                       up="z" if name in Z_UP else "y", test_views=TEST_VIEWS, fov_deg=fov)
+    return folder
+
+
+def run_job(name: str, fov: float, variant: str, overrides: dict[str, Any],
+            protocol: Protocol, plan: Plan, library: Any, work: Path) -> dict[str, Any]:
+    """One job, scored. Returns its row (``error`` set when it failed)."""
+    from cadnerf_core.evaluation.evaluate import evaluate_dataset
+    from cadnerf_core.jobfolder import JobFolder
+
+    row: dict[str, Any] = {"mesh": name, "fov": fov, "variant": variant}
+    config = {**plan.overrides, **exclude_overrides(name, protocol), **overrides, "seed": SEED}
+    try:
+        report = evaluate_dataset(render_walk(name, fov, work), VIEWS, library, preset=PRESET,
+                                  overrides=config, job_dir=work / name / f"job_{variant}_"
+                                  f"{fov:g}", device="cpu", eval_size=plan.eval_size)
+    except Exception as exc:  # noqa: BLE001 - one failed job is a row, not a crash
+        log.exception("%s %s at %g deg failed", name, variant, fov)
+        return {**row, "error": f"{type(exc).__name__}: {exc}"}
+    log.info("%s %s at %g deg: %.2f dB, %.1f deg, %.0f s", name, variant, fov,
+             report.image.psnr, report.pose_refined.rotation_deg, report.seconds)
+    fits = (JobFolder(report.job_dir).read_retrieval() or {}).get("hypotheses", [])
+    return {**row, "model": report.model_id, "psnr": report.image.psnr,
+            "rot": report.pose_refined.rotation_deg, "r_rot": report.pose_retrieved.rotation_deg,
+            "focal_err": 100.0 * report.focal_error,
+            "r_focal_err": 100.0 * report.focal_error_retrieved,
+            "job_s": report.seconds - report.render_seconds, "hypotheses": len(fits),
+            "fit_s": statistics.fmean(h["seconds"] for h in fits) if fits else None,
+            "switched": any(h["chosen"] for h in fits[1:])}
+
+
+def run_rows(plan: Plan, library: Any, work: Path) -> list[dict[str, Any]]:
+    """Every job of the plan, in order."""
+    rows = []
+    levers = {k: v for k, v in lever_variants().items()
+              if plan.variants is None or k in plan.variants}
+    wanted = plan.variants or ("leave-out", "with look-alike")
+    for name in plan.meshes:
+        for fov in FOVS:
+            if "leave-out" in wanted:
+                rows.append(run_job(name, fov, "leave-out", {}, "leave-out", plan, library,
+                                    work))
+            if fov in plan.lookalike_fovs and "with look-alike" in wanted:
+                rows.append(run_job(name, fov, "with look-alike", {}, "with look-alike", plan,
+                                    library, work))
+            if fov in plan.lever_fovs and name in plan.lever_meshes:
+                rows += [run_job(name, fov, variant, overrides, "leave-out", plan, library,
+                                 work) for variant, (_, overrides) in levers.items()]
+    return rows
+
+
+def summary_rows(rows: list[dict[str, Any]]) -> list[dict[str, Any]]:
+    """Per variant (and field of view, and all together): mean PSNR, median rotation error,
+    mean |focal error|, mean job time over the jobs that ran; levers compared with the
+    leave-out jobs of the same meshes and fields of view."""
+    done = [r for r in rows if "error" not in r]
+    out = []
+    for variant in dict.fromkeys(r["variant"] for r in done):
+        mine = [r for r in done if r["variant"] == variant]
+        for fov in [*sorted({r["fov"] for r in mine}), None]:
+            group = [r for r in mine if fov is None or r["fov"] == fov]
+            pairs = {(r["mesh"], r["fov"]) for r in group}
+            base = [r for r in done if r["variant"] == "leave-out"
+                    and (r["mesh"], r["fov"]) in pairs]
+            fits = [r["fit_s"] for r in group if r.get("fit_s") is not None]
+            out.append({
+                "fit_s": statistics.fmean(fits) if fits else None,
+                "switched": sum(bool(r.get("switched")) for r in group),
+                "variant": variant, "fov": "all" if fov is None else f"{fov:g}",
+                "jobs": len(group), "psnr": statistics.fmean(r["psnr"] for r in group),
+                "base_psnr": statistics.fmean(r["psnr"] for r in base) if base else None,
+                "rot": statistics.median(r["rot"] for r in group),
+                "base_rot": statistics.median(r["rot"] for r in base) if base else None,
+                "focal": statistics.fmean(abs(r["focal_err"]) for r in group),
+                "job_s": statistics.fmean(r["job_s"] for r in group),
+                "max_s": max(r["job_s"] for r in group)})
+    return out
+
+
+def section(plan: Plan, rows: list[dict[str, Any]], seconds: float, quick: bool,
+            names: list[str] | None) -> str:
+    """The markdown section."""
+    flags = (" --quick" if quick else "") + (f" --meshes {' '.join(names)}" if names else "")
+    if plan.variants:
+        flags += " --variants " + " ".join(f'"{v}"' if " " in v else v for v in plan.variants)
+    labels = {name: label for name, (label, _) in lever_variants().items()}
+    lines = [
+        "## Objects the library has not seen (leave-out, three fields of view)", "",
+        f"Command: `.venv/bin/python -m benchmarks.bench_unseen{flags}` ({seconds:.0f} s, "
+        f"CPU, one torch thread, 2 shared cores). Meshes: {', '.join(plan.meshes)}. Walks of "
+        f"{VIEWS} views at {SIZE} px, {TEST_VIEWS} held-out views, fields of view "
+        f"{', '.join(f'{f:g}' for f in FOVS)} deg, no EXIF; preset `{PRESET}`"
+        + (f" with `{plan.overrides}`" if plan.overrides else "")
+        + (f"; held-out views scored at {plan.eval_size} px" if plan.eval_size else "")
+        + ". leave-out: each mesh's look-alikes (`benchmarks.lookalikes`) excluded from "
+        "retrieval; with look-alike: the whole library "
+        f"(at {', '.join(f'{f:g}' for f in plan.lookalike_fovs)} deg). Levers, leave-out, "
+        f"at {', '.join(f'{f:g}' for f in plan.lever_fovs)} deg on "
+        f"{', '.join(plan.lever_meshes)}: "
+        + "; ".join(f"`{k}` = {v}" for k, v in labels.items())
+        + ". PSNR: mean over jobs; rotation error: median over jobs of each job's mean over "
+        "its kept photos (after similarity alignment); focal error: the job's focal length "
+        "against the truth, |%|, mean; job s: whole job (retrieval, training, export) "
+        "without the held-out renders. `base` columns: the leave-out jobs of the same "
+        "meshes and fields of view. s per hypothesis: mean wall time of one hypothesis's "
+        "coarse fit; start switched: jobs whose best fit was not the retrieved walk.", "",
+        markdown_table([("variant", "variant", 0), ("fov", "fov", 0), ("jobs", "jobs", 0),
+                        ("PSNR", "psnr", 2), ("base PSNR", "base_psnr", 2),
+                        ("rot. err. (deg)", "rot", 1), ("base rot.", "base_rot", 1),
+                        ("|focal err.| %", "focal", 0), ("mean job s", "job_s", 0),
+                        ("max job s", "max_s", 0), ("s per hypothesis", "fit_s", 1),
+                        ("start switched", "switched", 0)], summary_rows(rows)), "",
+        markdown_table([("mesh", "mesh", 0), ("fov", "fov", 0), ("variant", "variant", 0),
+                        ("model", "model", 0), ("PSNR", "psnr", 2),
+                        ("rot. retrieved", "r_rot", 1), ("rot. refined", "rot", 1),
+                        ("focal err. retrieved %", "r_focal_err", 0),
+                        ("focal err. %", "focal_err", 0), ("job s", "job_s", 0)],
+                       [r for r in rows if "error" not in r]),
+    ]
+    failed = [f"- {r['mesh']} {r['variant']} {r['fov']:g} deg: {r['error']}"
+              for r in rows if "error" in r]
+    if failed:
+        lines += ["", "Failed jobs:", "", *failed]
+    return "\n".join(lines) + "\n"
+
+
+def run(quick: bool, names: list[str] | None = None, variants: list[str] | None = None) -> str:
+    """Run the benchmark (``variants``: only these rows). Returns its markdown section."""
+    import torch
+
+    from cadnerf_core.library.format import load_library
+
+    if not (EVAL_ROOT / "meshes").is_dir():
+        return "## Objects the library has not seen\n\nNot run: `../shared/eval` is absent.\n"
+    plan = make_plan(quick, names, variants)
+    library = load_library(LIBRARY_DIR)
+    shutil.rmtree(WORK_DIR, ignore_errors=True)
+    threads = torch.get_num_threads()
+    torch.set_num_threads(1)  # as bench_eval: small jobs, no OpenMP oversubscription
+    start = time.perf_counter()
+    try:
+        rows = run_rows(plan, library, WORK_DIR)
+    finally:
+        torch.set_num_threads(threads)
+    return section(plan, rows, time.perf_counter() - start, quick, names)
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Print the section."""
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--quick", action="store_true")
+    parser.add_argument("--meshes", nargs="*", default=None, help="mesh folder names")
+    parser.add_argument("--variants", nargs="*", default=None,
+                        help='only these rows: "leave-out", "with look-alike", '
+                             'focal_on/focal_off, hypotheses_on/hypotheses_off')
+    args = parser.parse_args(argv)
+    logging.basicConfig(level=logging.INFO,
+                        format="%(asctime)s %(levelname)s %(name)s: %(message)s")
+    sys.stdout.write(run(args.quick, args.meshes, args.variants))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
