@@ -50,7 +50,7 @@ $(STAMP)/node: package.json package-lock.json
 	@mkdir -p $(STAMP)
 	@if ! command -v npm >/dev/null; then \
 	  echo "npm not found: no 3D viewer on the result page; the glTF validator and accessibility tests will be skipped"; \
-	elif npm ci --no-audit --no-fund --loglevel=error; then touch $@; \
+	elif npm ci --no-audit --no-fund --silent; then touch $@; \
 	else echo "npm ci failed: no 3D viewer on the result page; the glTF validator and accessibility tests will be skipped"; fi
 
 pytest: setup
