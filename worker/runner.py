@@ -17,6 +17,7 @@ import redis
 
 from app.state import (
     FINISH_RETRY_S,
+    HEARTBEAT_TTL_S,
     ErrorDetail,
     EtaModel,
     JobRecord,
@@ -89,25 +90,50 @@ class _FixedClaim:
 def execute(job_id: str, settings: Settings, store: JobStore,
             celery_update: Callable[[dict[str, Any]], None] | None = None,
             claims: Claims | None = None) -> dict[str, Any]:
-    """Run one job to a final state, unless it is final already or another worker runs it.
+    """Run the next job in fair order to a final state (a message is a wake-up token).
+
+    Each queued job sent one message, so there are never fewer messages than queued jobs; the
+    job run is the one ``JobStore.take_next`` hands out (round-robin across owners), which
+    need not be the message's. A message for a job that is running again (delivered again
+    after its worker died) resumes that job instead, unless a live worker holds it.
 
     Args:
-        job_id: the job (its folder is ``settings.data_root / job_id``).
+        job_id: the message's job (its folder is ``settings.data_root / job_id``).
         settings: deployment settings (library, device, time limits, webhook secret).
         store: job state.
         celery_update: receives progress fields for Celery's custom state.
         claims: this worker's claims (default: one held for the hard time limit).
 
     Returns:
-        ``{"id", "state", "error"}`` (a JSON-serialisable summary); state "duplicate" when
-        another live worker holds the job (this delivery is dropped).
+        ``{"id", "state", "error"}`` of the job run (a JSON-serialisable summary); state
+        "duplicate" when another live worker holds the job (this delivery is dropped), the
+        message's job and its state when the queue was empty.
     """
-    record = store.get(job_id)
-    if record is None or record.state.terminal:
-        state = "missing" if record is None else record.state.value
-        log.info("job %s: nothing to do (%s)", job_id, state)
-        return {"id": job_id, "state": state, "error": None}
+    record = store.get(job_id)  # re-seeds the token's job when Redis lost it
     claims = claims or _FixedClaim(store, settings.job_hard_time_limit_s)
+    if record is not None and record.state == JobState.running:
+        return _resume(job_id, settings, store, celery_update, claims)
+    taken = store.take_next(claims.name, HEARTBEAT_TTL_S)
+    if taken is None:
+        holder = store.claims.holder(job_id)
+        if record is not None and holder not in (None, claims.name):
+            log.warning("job %s is being run by %s; duplicate delivery dropped", job_id, holder)
+            return {"id": job_id, "state": "duplicate", "error": None}
+        log.info("job %s: nothing left in the queue", job_id)
+        state = "missing" if record is None else record.state.value
+        return {"id": job_id, "state": state, "error": None}
+    if not claims.hold(taken):  # the claim just taken lapsed: another worker runs it now
+        return {"id": taken, "state": "duplicate", "error": None}
+    try:
+        return _execute_claimed(taken, settings, store, celery_update, claims.name)
+    finally:
+        claims.drop(taken)
+
+
+def _resume(job_id: str, settings: Settings, store: JobStore,
+            celery_update: Callable[[dict[str, Any]], None] | None,
+            claims: Claims) -> dict[str, Any]:
+    """A message delivered again for a running job: resume it unless a live worker has it."""
     if not claims.hold(job_id):
         log.warning("job %s is being run by %s; duplicate delivery dropped", job_id,
                     store.claims.holder(job_id))
@@ -128,8 +154,9 @@ def _execute_claimed(job_id: str, settings: Settings, store: JobStore,
     if store.cancel_requested(job_id):
         return _finish(store, settings, record, JobState.cancelled, None)
     started = record.started_at or time.time()
-    if not store.start(job_id, worker, started):  # cancelled or deleted meanwhile
-        return {"id": job_id, "state": "skipped", "error": None}
+    if record.state != JobState.running or record.worker != worker:
+        if not store.start(job_id, worker, started):  # cancelled or deleted meanwhile
+            return {"id": job_id, "state": "skipped", "error": None}
     state, error, detail = _run(record, settings, store, started, celery_update)
     return _finish(store, settings, record, state, error, detail=detail)
 

@@ -6,7 +6,10 @@ Callers (and the Lua scripts, through KEYS) get key names from these functions o
 from __future__ import annotations
 
 PREFIX = "cadnerf"
-QUEUE = f"{PREFIX}:queue"  # sorted set: ids of queued jobs, scored by enqueue time
+QUEUE = f"{PREFIX}:queue"  # sorted set: ids of queued jobs, scored by fair order (scripts.py)
+FAIR_CLOCK = f"{PREFIX}:fair:clock"  # round of the last job started (fair order's virtual time)
+FAIR_LAST = f"{PREFIX}:fair:last"  # hash: owner -> round of its last queued job
+FAIR_SEQ = f"{PREFIX}:fair:seq"  # counter: arrival order inside a round
 RUNNING = f"{PREFIX}:running"  # set: ids of jobs in state running (scanned for orphans)
 WORKERS = f"{PREFIX}:workers"  # sorted set: live worker name -> expiry (Redis server time)
 

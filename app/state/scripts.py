@@ -34,6 +34,57 @@ redis.call('zrem', KEYS[3], ARGV[1])
 return 1
 """
 
+# Fair order between owners: a queued job's score is round * ROUND + arrival, where an owner's
+# next job goes into the round now running (the round of the last job started) or, when the
+# owner already has a job in that round or later, one round after its last one. Taking the lowest score is round-robin across owners (first come first served inside a
+# round), and the queue's order is the order jobs start, so a queue position reads it directly.
+ROUND = 2 ** 21  # arrivals per round before the tie-break wraps (scores stay exact to 2^53)
+
+# KEYS: queue, fair clock, owners' last rounds, arrival counter. ARGV: job id, owner, front.
+# Queue a job in fair order ('1' = front: a job already started once, whose worker died).
+ENQUEUE = """
+if redis.call('zscore', KEYS[1], ARGV[1]) then return -1 end
+if ARGV[3] == '1' then
+  redis.call('zadd', KEYS[1], 0, ARGV[1])
+  return 0
+end
+local clock = tonumber(redis.call('get', KEYS[2]) or '0')
+local last = tonumber(redis.call('hget', KEYS[3], ARGV[2]) or '0')
+local round = math.max(clock, last + 1)
+redis.call('hset', KEYS[3], ARGV[2], round)
+local seq = redis.call('incr', KEYS[4]) %% %d
+redis.call('zadd', KEYS[1], 'NX', string.format('%%d', round * %d + seq), ARGV[1])
+return round
+""" % (ROUND, ROUND)
+
+# KEYS: queue, job, claim, running set, fair clock. ARGV: job id, worker, claim ttl ms, now,
+# then field, value pairs. Queued -> running on ``worker`` in one step: the claim is taken, the
+# job joins the running set and leaves the queue, and the fair clock moves to its round.
+# Returns 1 when taken, 0 when it left the queue meanwhile, -1 when it was no longer queued
+# (removed from the queue), -2 when another worker claims it.
+TAKE = """
+local score = redis.call('zscore', KEYS[1], ARGV[1])
+if not score then return 0 end
+if redis.call('hget', KEYS[2], 'state') ~= 'queued' then
+  redis.call('zrem', KEYS[1], ARGV[1])
+  return -1
+end
+local holder = redis.call('get', KEYS[3])
+if holder and holder ~= ARGV[2] then return -2 end
+redis.call('set', KEYS[3], ARGV[2], 'PX', ARGV[3])
+if (redis.call('hget', KEYS[2], 'started_at') or '') == '' then
+  redis.call('hset', KEYS[2], 'started_at', ARGV[4])
+end
+redis.call('hset', KEYS[2], unpack(ARGV, 5))
+redis.call('sadd', KEYS[4], ARGV[1])
+redis.call('zrem', KEYS[1], ARGV[1])
+local round = math.floor(tonumber(score) / %d)
+if round > tonumber(redis.call('get', KEYS[5]) or '0') then
+  redis.call('set', KEYS[5], round)
+end
+return 1
+""" % ROUND
+
 # KEYS: its tombstone, running set. ARGV: job id.
 # A worker's heartbeat puts its job back in the running set unless the job was deleted (a job
 # Redis lost in a restart is re-seeded from state.json through that set; a deleted one must
@@ -46,6 +97,7 @@ return 1
 
 # KEYS: job, its claim, running set, queue. ARGV: job id, dead worker, max attempts, now, error.
 # Running -> queued (or failed past the attempt bound), only while still held by the dead worker.
+# A job queued again goes to the front of the queue: it had its turn already.
 REQUEUE = """
 if redis.call('hget', KEYS[1], 'state') ~= 'running' then return -1 end
 if (redis.call('hget', KEYS[1], 'worker') or '') ~= ARGV[2] then return -1 end
@@ -59,7 +111,7 @@ if attempts >= tonumber(ARGV[3]) then
 end
 redis.call('hset', KEYS[1], 'state', 'queued', 'attempts', attempts, 'worker', '',
            'updated_at', ARGV[4], 'eta_s', '')
-redis.call('zadd', KEYS[4], ARGV[4], ARGV[1])
+redis.call('zadd', KEYS[4], 0, ARGV[1])
 return attempts
 """
 

@@ -61,6 +61,8 @@ class JobStore:
         self._start = client.register_script(scripts.START)
         self._requeue = client.register_script(scripts.REQUEUE)
         self._mark_running = client.register_script(scripts.MARK_RUNNING)
+        self._enqueue = client.register_script(scripts.ENQUEUE)
+        self._take = client.register_script(scripts.TAKE)
 
     @classmethod
     def open(cls, url: str, data_root: Path) -> JobStore:
@@ -88,9 +90,14 @@ class JobStore:
         pipe.hset(keys.job(record.id), mapping=record.to_hash())  # type: ignore[arg-type]
         pipe.zadd(keys.owner_jobs(record.owner), {record.id: record.created_at})
         if record.state == JobState.queued:
-            pipe.zadd(keys.QUEUE, {record.id: record.created_at})
+            self._queue_fairly(record, pipe)
         pipe.execute()
         self.write_state_file(record)
+
+    def _queue_fairly(self, record: JobRecord, pipe: Any, front: bool = False) -> None:
+        """Add the queued job to the queue in fair order between owners (``scripts.ENQUEUE``)."""
+        self._enqueue(keys=[keys.QUEUE, keys.FAIR_CLOCK, keys.FAIR_LAST, keys.FAIR_SEQ],
+                      args=[record.id, record.owner, "1" if front else "0"], client=pipe)
 
     def get(self, job_id: str) -> JobRecord | None:
         """The job's record: one HGETALL, or state.json (re-seeding Redis) when Redis lost it."""
@@ -126,8 +133,8 @@ class JobStore:
         pipe.zadd(keys.owner_jobs(record.owner), {record.id: record.created_at})
         if record.state == JobState.running:  # scanned for a dead worker
             pipe.sadd(keys.RUNNING, record.id)
-        if record.state == JobState.queued:  # its place in the queue, as near as we know
-            pipe.zadd(keys.QUEUE, {record.id: record.created_at}, nx=True)
+        if record.state == JobState.queued:  # its place in the queue: a started one first
+            self._queue_fairly(record, pipe, front=record.started_at is not None)
         pipe.execute()
         log.info("re-seeded job %s from state.json", record.id)
 
@@ -210,6 +217,37 @@ class JobStore:
         if started:
             self.mirror(job_id)
         return started
+
+    def take_next(self, worker: str, claim_ttl_s: float, scan: int = 16) -> str | None:
+        """Start the next job in fair order on ``worker``: claimed, running, out of the queue.
+
+        Args:
+            worker: the worker's heartbeat name (it holds the claim).
+            claim_ttl_s: the claim's lifetime until the worker's heartbeat refreshes it.
+            scan: queue heads tried per read (others may take the first ones meanwhile).
+
+        Returns:
+            The job id, or None when no queued job is left.
+        """
+        fields = {"state": JobState.running, "error": None, "error_detail": None,
+                  "worker": worker, "updated_at": time.time()}
+        while True:
+            heads: list[str] = self._r.zrange(keys.QUEUE, 0, scan - 1)  # type: ignore[assignment]
+            if not heads:
+                return None
+            changed = False
+            for job_id in heads:
+                taken = int(self._take(  # type: ignore[arg-type]
+                    keys=[keys.QUEUE, keys.job(job_id), keys.claim(job_id), keys.RUNNING,
+                          keys.FAIR_CLOCK],
+                    args=[job_id, worker, str(max(1, int(claim_ttl_s * 1000))),
+                          f"{time.time():.6f}", *_pairs(fields)]))
+                if taken == 1:
+                    self.mirror(job_id)
+                    return job_id
+                changed = changed or taken != -2
+            if not changed:  # every head is held by another worker: leave them to it
+                return None
 
     def settle(self, final: JobRecord, fields: dict[str, Any]) -> bool:
         """Write a final state to Redis: the job leaves the running set and the queue order.
