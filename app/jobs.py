@@ -18,7 +18,8 @@ from starlette.concurrency import run_in_threadpool
 from starlette.requests import Request
 
 from app.errors import ApiError, store_unavailable
-from app.multipart import Limits, receive_form
+from app.multipart import Limits as UploadLimits
+from app.multipart import receive_form
 from app.queue import enqueue
 from app.schemas import DeleteResult, JobLinks, JobStatus
 from app.state import (
@@ -26,7 +27,9 @@ from app.state import (
     JobRecord,
     JobState,
     JobStore,
+    Limits,
     QueueEstimate,
+    Refusal,
     Settings,
     default_preset,
     serving_device,
@@ -119,8 +122,12 @@ async def submit(request: Request, settings: Settings, store: JobStore, producer
     Returns:
         The queued job's record.
     """
+    refusal = await run_in_threadpool(store.usage.admit, owner, Limits.of(settings),
+                                      settings.retention_days * 86400)
+    if refusal is not None:  # before the body is read: nothing is stored
+        raise limit_error(refusal)
     staging = settings.data_root / f"{TMP_PREFIX}{uuid.uuid4().hex}"
-    limits = Limits(settings.max_file_bytes, settings.max_total_bytes, settings.max_photos)
+    limits = UploadLimits(settings.max_file_bytes, settings.max_total_bytes, settings.max_photos)
     try:
         settings.data_root.mkdir(parents=True, exist_ok=True)
         staging.mkdir()
@@ -142,6 +149,20 @@ async def submit(request: Request, settings: Settings, store: JobStore, producer
                        work=stage_work(spec.config))
     await run_in_threadpool(_store_and_enqueue, store, producer, record)
     return record
+
+
+def limit_error(refusal: Refusal) -> ApiError:
+    """429 (a per-key limit) or 503 (the queue is full), naming the limit, the use and when
+    it frees up, in the body and in `Retry-After`."""
+    code = "queue_full" if refusal.status == 503 else "limit_reached"
+    hint = (f"try again in {refusal.retry_after_s} s; GET /v1/usage shows this key's use"
+            if refusal.status == 429 else f"try again in {refusal.retry_after_s} s")
+    error = ApiError(refusal.status, code, refusal.message, hint=hint,
+                     headers={"Retry-After": str(refusal.retry_after_s)})
+    error.detail = error.detail.model_copy(update={
+        "limit": refusal.limit, "maximum": refusal.maximum, "current": refusal.current,
+        "retry_after_s": refusal.retry_after_s})
+    return error
 
 
 def storage_error(exc: OSError) -> ApiError:

@@ -16,7 +16,7 @@ from starlette.responses import Response
 from app import jobs
 from app.errors import install_handlers
 from app.queue import enqueue, make_producer
-from app.routes import health, library, pages
+from app.routes import health, library, pages, usage
 from app.routes import jobs as job_routes
 from app.routes.pages import STATIC_DIR
 from app.state import (
@@ -124,7 +124,8 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     app.state.reader = AsyncJobReader(settings.redis_url, settings.device)
     app.state.producer = make_producer(settings)
     install_handlers(app)
-    for router in (job_routes.router, library.router, health.router, pages.router):
+    for router in (job_routes.router, library.router, usage.router, health.router,
+                   pages.router):
         app.include_router(router)
     app.mount("/static", RevalidatedStatic(directory=STATIC_DIR), name="static")
     return app

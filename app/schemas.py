@@ -170,6 +170,27 @@ class PresetTimePublic(BaseModel):
                            "table's default for the device.")
 
 
+class LimitsPublic(BaseModel):
+    """Fair-use limits per key, and the queue's cap (0 = no limit)."""
+
+    queued_jobs: int = Field(description="Queued jobs a key may have (429 past it).")
+    running_jobs: int = Field(description="Jobs of one key running at once (the next waits).")
+    uploads_per_minute: int = Field(description="Submissions a key may start in a minute (429).")
+    stored_bytes: int = Field(description="Bytes of job folders a key may keep (429 past it).")
+    queue_length: int = Field(description="Queued jobs of all keys together (503 past it).")
+
+
+class UsagePublic(BaseModel):
+    """What the calling key uses now (`GET /v1/usage`)."""
+
+    queued: int
+    running: int
+    done_today: int = Field(description="Jobs that reached a final state since 00:00 UTC.")
+    bytes_stored: int = Field(description="Bytes of this key's job folders on disk.")
+    uploads_last_minute: int
+    limits: LimitsPublic
+
+
 class ServiceInfo(BaseModel):
     """Presets and upload limits (`GET /v1/info`)."""
 
@@ -186,3 +207,4 @@ class ServiceInfo(BaseModel):
     max_total_mb: float
     max_megapixels: float
     min_side_px: int
+    limits: LimitsPublic | None = Field(None, description="Fair-use limits per key.")

@@ -154,9 +154,9 @@ def _execute_claimed(job_id: str, settings: Settings, store: JobStore,
     if store.cancel_requested(job_id):
         return _finish(store, settings, record, JobState.cancelled, None)
     started = record.started_at or time.time()
-    if record.state != JobState.running or record.worker != worker:
-        if not store.start(job_id, worker, started):  # cancelled or deleted meanwhile
-            return {"id": job_id, "state": "skipped", "error": None}
+    taken = record.state == JobState.running and record.worker == worker  # by take_next
+    if not taken and not store.start(job_id, worker, started):  # cancelled or deleted meanwhile
+        return {"id": job_id, "state": "skipped", "error": None}
     state, error, detail = _run(record, settings, store, started, celery_update)
     return _finish(store, settings, record, state, error, detail=detail)
 

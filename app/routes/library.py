@@ -14,6 +14,7 @@ from fastapi.responses import Response
 
 from app.deps import OwnerDep, SettingsDep, StoreDep
 from app.errors import ApiError
+from app.routes.usage import limits_public
 from app.schemas import ErrorBody, LibraryModel, LibraryPublic, PresetTimePublic, ServiceInfo
 from app.state import Settings, default_preset, preset_times, serving_device
 
@@ -69,7 +70,8 @@ def get_info(settings: SettingsDep, store: StoreDep, owner: OwnerDep) -> Service
                        device=device, preset_times=times,  # type: ignore[arg-type]
                        min_photos=settings.min_photos, max_photos=settings.max_photos,
                        max_file_mb=settings.max_file_mb, max_total_mb=settings.max_total_mb,
-                       max_megapixels=settings.max_megapixels, min_side_px=settings.min_side_px)
+                       max_megapixels=settings.max_megapixels, min_side_px=settings.min_side_px,
+                       limits=limits_public(settings))
 
 
 @lru_cache(maxsize=256)

@@ -47,3 +47,8 @@ def worker(name: str) -> str:
 def stage_seconds(device: str) -> str:
     """Hash of measured seconds on one kind of device, field ``<preset>/<stage>``."""
     return f"{PREFIX}:stage_seconds:{device}"
+
+
+def uploads(owner: str) -> str:
+    """Sorted set of an owner's submissions in the last minute, scored by time."""
+    return f"{PREFIX}:uploads:{owner}"

@@ -36,6 +36,10 @@ class ErrorDetail(BaseModel):
     field: str | None = None
     photo: str | None = None
     hint: str | None = None
+    limit: str | None = None  # a fair-use refusal: the limit reached (app.state.usage)
+    maximum: float | None = None  # ... its value
+    current: float | None = None  # ... the caller's use of it now
+    retry_after_s: int | None = None  # ... seconds until it frees up (also `Retry-After`)
 
 
 class JobRecord(BaseModel):

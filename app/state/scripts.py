@@ -36,11 +36,13 @@ return 1
 
 # Fair order between owners: a queued job's score is round * ROUND + arrival, where an owner's
 # next job goes into the round now running (the round of the last job started) or, when the
-# owner already has a job in that round or later, one round after its last one. Taking the lowest score is round-robin across owners (first come first served inside a
-# round), and the queue's order is the order jobs start, so a queue position reads it directly.
+# owner already has a job in that round or later, one round after its last one. Taking the
+# lowest score is round-robin across owners (first come first served inside a round), and the
+# queue's order is the order jobs start, so a queue position reads it directly.
 ROUND = 2 ** 21  # arrivals per round before the tie-break wraps (scores stay exact to 2^53)
 
-# KEYS: queue, fair clock, owners' last rounds, arrival counter. ARGV: job id, owner, front.
+# KEYS: queue, fair clock, owners' last rounds, arrival counter. ARGV: job id, owner, front,
+# ROUND.
 # Queue a job in fair order ('1' = front: a job already started once, whose worker died).
 ENQUEUE = """
 if redis.call('zscore', KEYS[1], ARGV[1]) then return -1 end
@@ -52,14 +54,16 @@ local clock = tonumber(redis.call('get', KEYS[2]) or '0')
 local last = tonumber(redis.call('hget', KEYS[3], ARGV[2]) or '0')
 local round = math.max(clock, last + 1)
 redis.call('hset', KEYS[3], ARGV[2], round)
-local seq = redis.call('incr', KEYS[4]) %% %d
-redis.call('zadd', KEYS[1], 'NX', string.format('%%d', round * %d + seq), ARGV[1])
+local unit = tonumber(ARGV[4])
+local seq = redis.call('incr', KEYS[4]) % unit
+redis.call('zadd', KEYS[1], 'NX', string.format('%d', round * unit + seq), ARGV[1])
 return round
-""" % (ROUND, ROUND)
+"""
 
 # KEYS: queue, job, claim, running set, fair clock. ARGV: job id, worker, claim ttl ms, now,
-# then field, value pairs. Queued -> running on ``worker`` in one step: the claim is taken, the
-# job joins the running set and leaves the queue, and the fair clock moves to its round.
+# ROUND, then field, value pairs. Queued -> running on ``worker`` in one step: the claim is
+# taken, the job joins the running set and leaves the queue, and the fair clock moves to its
+# round.
 # Returns 1 when taken, 0 when it left the queue meanwhile, -1 when it was no longer queued
 # (removed from the queue), -2 when another worker claims it.
 TAKE = """
@@ -75,15 +79,15 @@ redis.call('set', KEYS[3], ARGV[2], 'PX', ARGV[3])
 if (redis.call('hget', KEYS[2], 'started_at') or '') == '' then
   redis.call('hset', KEYS[2], 'started_at', ARGV[4])
 end
-redis.call('hset', KEYS[2], unpack(ARGV, 5))
+redis.call('hset', KEYS[2], unpack(ARGV, 6))
 redis.call('sadd', KEYS[4], ARGV[1])
 redis.call('zrem', KEYS[1], ARGV[1])
-local round = math.floor(tonumber(score) / %d)
+local round = math.floor(tonumber(score) / tonumber(ARGV[5]))
 if round > tonumber(redis.call('get', KEYS[5]) or '0') then
   redis.call('set', KEYS[5], round)
 end
 return 1
-""" % ROUND
+"""
 
 # KEYS: its tombstone, running set. ARGV: job id.
 # A worker's heartbeat puts its job back in the running set unless the job was deleted (a job
@@ -143,4 +147,21 @@ return 1
 LIVE = """
 local t = redis.call('time')
 return redis.call('zrangebyscore', KEYS[1], tonumber(t[1]) + tonumber(t[2]) / 1e6, '+inf')
+"""
+
+# KEYS: an owner's recent submissions. ARGV: member, window s, limit.
+# Sliding-window rate limit on Redis's clock: records the submission and returns -1 when under
+# the limit, else the seconds until the oldest one in the window leaves it.
+RATE = """
+local t = redis.call('time')
+local now = tonumber(t[1]) + tonumber(t[2]) / 1e6
+local window = tonumber(ARGV[2])
+redis.call('zremrangebyscore', KEYS[1], '-inf', now - window)
+if redis.call('zcard', KEYS[1]) >= tonumber(ARGV[3]) then
+  local oldest = redis.call('zrange', KEYS[1], 0, 0, 'WITHSCORES')
+  return tostring(math.max(0, tonumber(oldest[2]) + window - now))
+end
+redis.call('zadd', KEYS[1], now, ARGV[1])
+redis.call('expire', KEYS[1], math.ceil(window) + 1)
+return '-1'
 """

@@ -89,6 +89,28 @@ class Settings(BaseSettings):
                                  "running job's worker to stop before answering.")
     """Only for ``worker_stopped`` in the answer: the job's folder is renamed away before the
     answer either way, and nothing re-creates it, so a late worker can no longer write."""
+    max_queued_per_key: int = Field(
+        20, ge=0, le=100_000, description="Queued jobs one key (or the anonymous owner) may "
+        "have; more get 429. 0: no limit.")
+    """A key's jobs take turns with other keys' (fair order), so this bounds the disk a key's
+    waiting uploads hold rather than anyone's wait."""
+    max_running_per_key: int = Field(
+        0, ge=0, le=10_000, description="Jobs of one key running at once; its next job waits "
+        "while it has this many. 0: no limit.")
+    """Off by default: with fair order a busy key only gets workers no other key is waiting
+    for; set it to keep some workers free for keys that arrive later."""
+    max_uploads_per_minute: int = Field(
+        30, ge=0, le=100_000, description="Submissions one key may start in a minute; more get "
+        "429. 0: no limit.")
+    """Counted when a submission passes the door (before its body is read)."""
+    max_stored_mb_per_key: float = Field(
+        5000.0, ge=0, description="MiB of job folders (uploads and results) one key may keep; "
+        "a submission past it gets 429. 0: no limit.")
+    """Frees up as the key deletes jobs or the retention removes them."""
+    max_queue_length: int = Field(
+        1000, ge=0, le=1_000_000, description="Queued jobs of all keys together; more get 503. "
+        "0: no limit.")
+    """The service degrades with a clear answer before the disk fills."""
     webhook_secret: str = Field("", description="HMAC-SHA256 key signing webhook bodies.")
     """Empty: webhooks are sent unsigned."""
     webhook_allow_private: bool = Field(

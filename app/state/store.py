@@ -24,6 +24,7 @@ from app.state.claims import Claims, Workers
 from app.state.estimate import QueueEstimate, read_estimates
 from app.state.eta import StageHistory, history_devices
 from app.state.records import JobRecord, JobState, encode, is_job_id
+from app.state.usage import UsageMeter
 
 log = logging.getLogger(__name__)
 
@@ -57,6 +58,7 @@ class JobStore:
         self.claims = Claims(client)
         self.workers = Workers(client)
         self.history = StageHistory(client)
+        self.usage = UsageMeter(client, data_root)
         self._update = client.register_script(scripts.UPDATE)
         self._start = client.register_script(scripts.START)
         self._requeue = client.register_script(scripts.REQUEUE)
@@ -97,7 +99,8 @@ class JobStore:
     def _queue_fairly(self, record: JobRecord, pipe: Any, front: bool = False) -> None:
         """Add the queued job to the queue in fair order between owners (``scripts.ENQUEUE``)."""
         self._enqueue(keys=[keys.QUEUE, keys.FAIR_CLOCK, keys.FAIR_LAST, keys.FAIR_SEQ],
-                      args=[record.id, record.owner, "1" if front else "0"], client=pipe)
+                      args=[record.id, record.owner, "1" if front else "0", scripts.ROUND],
+                      client=pipe)
 
     def get(self, job_id: str) -> JobRecord | None:
         """The job's record: one HGETALL, or state.json (re-seeding Redis) when Redis lost it."""
@@ -241,7 +244,7 @@ class JobStore:
                     keys=[keys.QUEUE, keys.job(job_id), keys.claim(job_id), keys.RUNNING,
                           keys.FAIR_CLOCK],
                     args=[job_id, worker, str(max(1, int(claim_ttl_s * 1000))),
-                          f"{time.time():.6f}", *_pairs(fields)]))
+                          f"{time.time():.6f}", scripts.ROUND, *_pairs(fields)]))
                 if taken == 1:
                     self.mirror(job_id)
                     return job_id
