@@ -37,6 +37,7 @@ if TYPE_CHECKING:
 
 log = logging.getLogger(__name__)
 
+DEFERRED = "deferred"  # queued jobs wait for their owner's running ones: the message comes back
 UPLOAD_FIELDS = {INPUTS: "images", MASKS: "masks", CONFIG: "config"}  # job folder entry -> form
 TIME_LIMIT_HINT = "choose a faster preset, or ask the operator for a longer time limit"
 
@@ -106,14 +107,19 @@ def execute(job_id: str, settings: Settings, store: JobStore,
 
     Returns:
         ``{"id", "state", "error"}`` of the job run (a JSON-serialisable summary); state
-        "duplicate" when another live worker holds the job (this delivery is dropped), the
-        message's job and its state when the queue was empty.
+        "duplicate" when another live worker holds the job (this delivery is dropped),
+        ``DEFERRED`` when every queued job's owner is at ``max_running_per_key`` (the task
+        sends the message again later), the message's job and its state when the queue was
+        empty.
     """
     record = store.get(job_id)  # re-seeds the token's job when Redis lost it
     claims = claims or _FixedClaim(store, settings.job_hard_time_limit_s)
     if record is not None and record.state == JobState.running:
         return _resume(job_id, settings, store, celery_update, claims)
-    taken = store.take_next(claims.name, HEARTBEAT_TTL_S)
+    taken = store.take_next(claims.name, HEARTBEAT_TTL_S, settings.max_running_per_key)
+    if taken is None and settings.max_running_per_key and store.usage.queue_length():
+        log.info("every queued job's owner runs its most jobs at once; asking again later")
+        return {"id": job_id, "state": DEFERRED, "error": None}
     if taken is None:
         holder = store.claims.holder(job_id)
         if record is not None and holder not in (None, claims.name):

@@ -10,6 +10,7 @@ from app.state import JobStore, Settings
 from worker import runner
 
 PROGRESS_STATE = "PROGRESS"
+DEFER_S = 5  # a deferred wake-up comes back after this (a running job of its owner may end)
 
 
 @shared_task(name="cadnerf.run_job", bind=True, acks_late=True, reject_on_worker_lost=True,
@@ -24,6 +25,9 @@ def run_job(self: Task, job_id: str) -> dict[str, Any]:
 
     liveness = getattr(self.app.conf, "cadnerf_liveness", None)
     try:
-        return runner.execute(job_id, settings, store, celery_update, liveness)
+        outcome = runner.execute(job_id, settings, store, celery_update, liveness)
     finally:
         store.close()
+    if outcome["state"] == runner.DEFERRED:  # keep the wake-up: a queued job still needs it
+        raise self.retry(countdown=DEFER_S, max_retries=None)
+    return outcome

@@ -221,12 +221,16 @@ class JobStore:
             self.mirror(job_id)
         return started
 
-    def take_next(self, worker: str, claim_ttl_s: float, scan: int = 16) -> str | None:
+    def take_next(self, worker: str, claim_ttl_s: float, running_limit: int = 0,
+                  scan: int = 16) -> str | None:
         """Start the next job in fair order on ``worker``: claimed, running, out of the queue.
 
         Args:
             worker: the worker's heartbeat name (it holds the claim).
             claim_ttl_s: the claim's lifetime until the worker's heartbeat refreshes it.
+            running_limit: jobs one owner may run at once (0: no limit); an owner at it is
+                passed over (checked before the atomic take: two workers taking at the same
+                instant may both pass it).
             scan: queue heads tried per read (others may take the first ones meanwhile).
 
         Returns:
@@ -239,7 +243,7 @@ class JobStore:
             if not heads:
                 return None
             changed = False
-            for job_id in heads:
+            for job_id in self._within_running_limit(heads, running_limit):
                 taken = int(self._take(  # type: ignore[arg-type]
                     keys=[keys.QUEUE, keys.job(job_id), keys.claim(job_id), keys.RUNNING,
                           keys.FAIR_CLOCK],
@@ -251,6 +255,21 @@ class JobStore:
                 changed = changed or taken != -2
             if not changed:  # every head is held by another worker: leave them to it
                 return None
+
+    def _within_running_limit(self, heads: list[str], limit: int) -> list[str]:
+        """The queue heads whose owner runs fewer than ``limit`` jobs (all when 0)."""
+        if not limit:
+            return heads
+        running = self.running_ids()
+        pipe = self._r.pipeline(transaction=False)
+        for job_id in [*running, *heads]:
+            pipe.hget(keys.job(job_id), "owner")
+        owners = pipe.execute()
+        busy: dict[str, int] = {}
+        for owner in owners[:len(running)]:
+            busy[owner] = busy.get(owner, 0) + 1
+        return [job_id for job_id, owner in zip(heads, owners[len(running):], strict=True)
+                if busy.get(owner, 0) < limit]
 
     def settle(self, final: JobRecord, fields: dict[str, Any]) -> bool:
         """Write a final state to Redis: the job leaves the running set and the queue order.

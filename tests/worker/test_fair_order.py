@@ -104,3 +104,18 @@ def test_a_job_queued_again_after_its_worker_died_goes_first(store: JobStore) ->
     assert record is not None
     assert store.requeue_orphan(record, 3, "gone") == 1
     assert store.take_next("w", 5.0) == orphan
+
+
+def test_an_owner_at_its_running_limit_is_passed_over_and_the_wake_up_kept(
+        store: JobStore, redis_url: str) -> None:
+    a_jobs = [_submit(store, "key-a") for _ in range(3)]
+    b_job = _submit(store, "key-b")
+    assert store.take_next("w1", 5.0, running_limit=1) == a_jobs[0].id
+    assert store.take_next("w2", 5.0, running_limit=1) == b_job.id
+    assert store.take_next("w3", 5.0, running_limit=1) is None
+    settings = load_settings(redis_url=redis_url, data_root=store.data_root,
+                             library_dir=Path("/nonexistent"), max_running_per_key=1)
+    assert runner.execute(a_jobs[1].id, settings, store)["state"] == runner.DEFERRED
+    queued = store.get(a_jobs[1].id)
+    assert queued is not None and queued.state == JobState.queued
+    assert store.take_next("w3", 5.0) == a_jobs[1].id  # no limit: taken
