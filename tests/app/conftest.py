@@ -21,6 +21,9 @@ from tests.app.images import image_bytes  # noqa: E402
 from tests.configs import TINY_PRESET  # noqa: E402
 
 MakeSettings = Callable[..., Settings]
+# Per-key limits are off unless a test sets them (tests/app/test_fair_use.py): these tests
+# submit many jobs as one owner to check other things.
+FAIR_USE_OFF = {"max_queued_per_key": 0, "max_uploads_per_minute": 0}
 
 
 @pytest.fixture()
@@ -38,6 +41,7 @@ def make_settings(tmp_path: Path, redis_url: str, clean_redis: object) -> MakeSe
     def make(**overrides: object) -> Settings:
         values: dict[str, object] = {"redis_url": redis_url, "data_root": tmp_path / "jobs",
                                      "library_dir": library, "default_preset": TINY_PRESET}
+        values.update(FAIR_USE_OFF)
         values.update(overrides)
         return load_settings(**values)
 

@@ -31,6 +31,9 @@ from tests.reliability import support  # noqa: E402
 from tests.reliability.support import Live, start_live, stop_live  # noqa: E402
 
 MakeSettings = Callable[..., Settings]
+# Per-key limits are off unless a test sets them (tests/app/test_fair_use.py): these tests
+# submit many jobs as one owner to check other things.
+FAIR_USE_OFF = {"max_queued_per_key": 0, "max_uploads_per_minute": 0}
 
 
 @pytest.fixture(scope="session")
@@ -65,6 +68,7 @@ def make_settings(sandbox: Path, rel_redis_url: str, rel_redis: redis.Redis) -> 
         values: dict[str, object] = {"redis_url": rel_redis_url, "data_root": sandbox / "jobs",
                                      "library_dir": sandbox / "library",
                                      "default_preset": TINY_PRESET}
+        values.update(FAIR_USE_OFF)
         values.update(overrides)
         return load_settings(**values)
 

@@ -204,7 +204,10 @@ def service_env(redis_url: str, data_root: Path, library_dir: Path,
     env.update({"CADNERF_REDIS_URL": redis_url, "CADNERF_DATA_ROOT": str(data_root),
                 "CADNERF_LIBRARY_DIR": str(library_dir), "CADNERF_DEVICE": "cpu",
                 "CADNERF_DEFAULT_PRESET": TINY_PRESET, "OMP_NUM_THREADS": "1",
-                "PYTHONPATH": str(ROOT)})
+                "PYTHONPATH": str(ROOT),
+                # Per-key limits off unless ``extra`` sets them: these runs submit many jobs
+                # as one owner to measure other things (the fair-use run sets its own).
+                "CADNERF_MAX_QUEUED_PER_KEY": "0", "CADNERF_MAX_UPLOADS_PER_MINUTE": "0"})
     env.update({f"CADNERF_{k.upper()}": v for k, v in extra.items()})
     return env
 
