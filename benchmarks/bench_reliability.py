@@ -1,10 +1,12 @@
-"""Reliability benchmark: load (100 concurrent clients), the bad-input battery over HTTP, and
-time to recover from a killed worker, a restarted Redis and a killed worker mid-job.
+"""Reliability benchmark: load (100 concurrent clients), the bad-input battery over HTTP,
+time to recover from a killed worker, a restarted Redis and a killed worker mid-job, and fair
+use (3 API keys x 50 submissions against one worker, the per-key limits on).
 
 Runs a real uvicorn process and `cadnerf worker` processes on 127.0.0.1 against Redis
 (``CADNERF_REDIS_URL`` or 127.0.0.1:6379, database 13, else an embedded server) and a redis-server
 of its own for the restart. The library is ``library_data/build`` when built, else a tiny one.
-Standalone: ``.venv/bin/python -m benchmarks.bench_reliability [--quick]``.
+Standalone: ``.venv/bin/python -m benchmarks.bench_reliability [--quick] [--fair-only]
+[--fair-keys K --fair-jobs N]``.
 """
 
 from __future__ import annotations
@@ -27,6 +29,7 @@ import redis
 from tests.configs import tiny_request
 from tests.reliability import jobs
 from tests.reliability.cases import CASES
+from tests.reliability.fair_load import FairReport, run_fair_load
 from tests.reliability.load import run_load
 from tests.reliability.support import (
     RELIABILITY_DB,
@@ -157,6 +160,36 @@ def redis_restart_recovery(folder: Path) -> dict[str, Any]:
             proc.stop()
 
 
+FAIR_LIMITS = {"max_queued_per_key": "20", "max_uploads_per_minute": "30"}  # the defaults
+
+
+def fair_use(folder: Path, url: str, library: Path, keys: int, per_key: int) -> FairReport:
+    """Keys submit ``per_key`` jobs each, one key after the other, to an API and one worker
+    with the default per-key limits; the figures of ``run_fair_load``."""
+    names = [f"fair-key-{chr(ord('a') + i)}" for i in range(keys)]
+    redis.Redis.from_url(url).flushdb()
+    live = start_live(folder / "fair", url, library, api_keys=",".join(names), **FAIR_LIMITS)
+    try:
+        return run_fair_load(live.url, names, per_key, timeout_s=900.0)
+    finally:
+        stop_live(live)
+
+
+def _fair_lines(fair: FairReport | None) -> list[str]:
+    if fair is None:
+        return []
+    refused = ", ".join(f"{n} {limit}" for limit, n in sorted(fair.refused.items())) or "none"
+    return [
+        f"| fair use: keys x submissions / accepted / refused (429, intended) | {fair.keys} x "
+        f"{fair.per_key} / {fair.accepted} / {refused} |",
+        f"| fair use: other errors / lost / duplicated | {len(fair.errors)} / {len(fair.lost)}"
+        f" / {len(fair.duplicated)} |",
+        f"| fair use: largest wait of a key's first job (per key) | {fair.max_first_wait} jobs"
+        f" ({', '.join(map(str, fair.first_job_waits))}) |",
+        f"| fair use: job states at the end ({fair.duration_s} s) | {fair.states} |",
+    ]
+
+
 def _mid_job_text(mid: Any) -> str:
     if not isinstance(mid, dict):
         return str(mid)
@@ -167,13 +200,19 @@ def _mid_job_text(mid: Any) -> str:
 
 
 def _section(figures: dict[str, Any], quick: bool) -> str:
+    lines = ["## Reliability", "",
+             f"Command: `{COMMAND}{' --quick' if quick else ''}` (uvicorn + `cadnerf worker` "
+             "subprocesses, real Redis, 127.0.0.1 only).", "",
+             "| check | figure |", "| --- | --- |"]
+    if "load" in figures:
+        lines += _main_lines(figures)
+    return "\n".join(lines + _fair_lines(figures.get("fair"))) + "\n"
+
+
+def _main_lines(figures: dict[str, Any]) -> list[str]:
     load = figures["load"]
     bat = figures["battery"]
-    lines = [
-        "## Reliability", "",
-        f"Command: `{COMMAND}{' --quick' if quick else ''}` (uvicorn + `cadnerf worker` "
-        "subprocesses, real Redis, 127.0.0.1 only).", "",
-        "| check | figure |", "| --- | --- |",
+    return [
         f"| load: clients / requests / error answers | {load['clients']} / {load['requests']} / "
         f"{load['n_errors']} |",
         f"| load: busy answers (503 `too_many_uploads`, retried after `Retry-After`) | "
@@ -195,43 +234,68 @@ def _section(figures: dict[str, Any], quick: bool) -> str:
         f"{figures['redis']['recovered_s']} s (state {figures['redis']['state_after']}) |",
         f"| worker killed in phase two -> job finished | {_mid_job_text(figures['mid_job'])} |",
     ]
-    return "\n".join(lines) + "\n"
 
 
-def run(quick: bool) -> str:
-    """Run the reliability benchmark; returns its markdown section."""
+def run(quick: bool, fair_only: bool = False, fair: tuple[int, int] | None = None) -> str:
+    """Run the reliability benchmark; returns its markdown section.
+
+    Args:
+        quick: shorter runs (30 clients for 40 s; 3 keys x 10 submissions).
+        fair_only: run only the fair-use part.
+        fair: (keys, submissions per key) of the fair-use run instead of the default.
+    """
     clients, duration = (30, 40.0) if quick else (100, 150.0)
+    keys, per_key = fair or ((3, 10) if quick else (3, 50))
+    figures: dict[str, Any] = {}
     with tempfile.TemporaryDirectory(prefix="cadnerf-rel-") as tmp:
         folder = Path(tmp)
         url, embedded = _redis_url(folder)
-        redis.Redis.from_url(url).flushdb()
-        live = start_live(folder / "service", url, _library(folder))
         try:
-            figures: dict[str, Any] = {}
-            figures["load"] = run_load(live.url, live.api.pid, clients, duration,
-                                       stagger_s=0.02).as_dict()
-            figures["battery"] = battery(live.url)
-            figures["worker_kill_s"] = worker_kill_recovery(live)
-            figures["redis"] = redis_restart_recovery(folder)
-            figures["mid_job"] = (mid_job_kill(live, render_photo_set(folder / "photos"))
-                                  if pipeline_ready() else "not run: no pipeline")
+            library = _library(folder)
+            if not fair_only:
+                figures.update(_main_figures(folder, url, library, clients, duration))
+            figures["fair"] = fair_use(folder, url, library, keys, per_key)
         finally:
-            stop_live(live)
             redis.Redis.from_url(url).flushdb()
             if embedded is not None:
                 embedded.stop()
-    log.info("reliability figures: %s", json.dumps(figures, default=str)[:2000])
+    log.info("reliability figures: %s", json.dumps(
+        {k: v.as_dict() if isinstance(v, FairReport) else v for k, v in figures.items()},
+        default=str)[:2000])
     return _section(figures, quick)
+
+
+def _main_figures(folder: Path, url: str, library: Path, clients: int,
+                  duration: float) -> dict[str, Any]:
+    """Load, the bad-input battery and the recoveries, on one live service."""
+    redis.Redis.from_url(url).flushdb()
+    live = start_live(folder / "service", url, library)
+    try:
+        figures: dict[str, Any] = {}
+        figures["load"] = run_load(live.url, live.api.pid, clients, duration,
+                                   stagger_s=0.02).as_dict()
+        figures["battery"] = battery(live.url)
+        figures["worker_kill_s"] = worker_kill_recovery(live)
+        figures["redis"] = redis_restart_recovery(folder)
+        figures["mid_job"] = (mid_job_kill(live, render_photo_set(folder / "photos"))
+                              if pipeline_ready() else "not run: no pipeline")
+        return figures
+    finally:
+        stop_live(live)
 
 
 def main() -> None:
     """Print the section (standalone use)."""
     parser = argparse.ArgumentParser(description=__doc__)
     parser.add_argument("--quick", action="store_true", help="30 clients for 40 s")
+    parser.add_argument("--fair-only", action="store_true", help="only the fair-use run")
+    parser.add_argument("--fair-keys", type=int, default=0, help="keys of the fair-use run")
+    parser.add_argument("--fair-jobs", type=int, default=0, help="submissions per key")
     args = parser.parse_args()
     logging.basicConfig(level=logging.INFO)
     logging.getLogger("httpx").setLevel(logging.WARNING)
-    sys.stdout.write(run(args.quick))
+    fair = (args.fair_keys, args.fair_jobs) if args.fair_keys and args.fair_jobs else None
+    sys.stdout.write(run(args.quick, args.fair_only, fair))
 
 
 if __name__ == "__main__":
