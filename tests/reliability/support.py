@@ -27,6 +27,7 @@ from tests.configs import TINY_PRESET
 ROOT = Path(__file__).resolve().parents[2]
 RELIABILITY_DB = 13  # its own Redis database: other suites flush theirs (15) while we run
 LIVE_DB = 12  # the session's live API + worker (a worker would take in-process tests' jobs)
+FAIR_DB = 11  # the fair-order test's API (with API keys) + worker
 
 FileEntry = tuple[str, tuple[str, bytes, str]]
 
