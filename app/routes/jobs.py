@@ -30,7 +30,7 @@ _ARTIFACT_ERRORS: dict[int | str, dict[str, Any]] = {
     **_ERRORS, 304: {"description": "Not modified (`If-None-Match` matched the ETag)."},
     **{code: {"model": ErrorBody} for code in (400, 416)}}
 _UPLOAD_ERRORS: dict[int | str, dict[str, Any]] = {
-    **_ERRORS, **{code: {"model": ErrorBody} for code in (400, 408, 507)}}
+    **_ERRORS, **{code: {"model": ErrorBody} for code in (400, 408, 429, 507)}}
 
 _UPLOAD_BODY: dict[str, Any] = {
     "requestBody": {"required": True, "content": {"multipart/form-data": {"schema": {

@@ -23,7 +23,7 @@ CHECKS = [checks.not_a_server_error, checks.status_code_conformance,
 OPERATIONS = ["POST /v1/jobs", "GET /v1/jobs", "GET /v1/jobs/{job_id}",
               "DELETE /v1/jobs/{job_id}", "GET /v1/jobs/{job_id}/result",
               "GET /v1/jobs/{job_id}/artifacts/{name}", "GET /v1/library", "GET /v1/info",
-              "GET /healthz", "GET /readyz"]
+              "GET /v1/usage", "GET /healthz", "GET /readyz"]
 
 
 CASES = [(label, mode) for label in OPERATIONS for mode in GenerationMode
@@ -64,6 +64,6 @@ def test_the_description_covers_the_contract(make_settings: Any) -> None:
     expected = {("/v1/jobs", "post"), ("/v1/jobs", "get"), ("/v1/jobs/{job_id}", "get"),
                 ("/v1/jobs/{job_id}", "delete"), ("/v1/jobs/{job_id}/result", "get"),
                 ("/v1/jobs/{job_id}/artifacts/{name}", "get"), ("/v1/library", "get"),
-                ("/healthz", "get"), ("/readyz", "get")}
+                ("/v1/usage", "get"), ("/healthz", "get"), ("/readyz", "get")}
     present = {(path, method) for path, item in spec["paths"].items() for method in item}
     assert expected <= present, expected - present
