@@ -96,7 +96,8 @@ def test_the_queue_cap_answers_503(make_settings, photos) -> None:
 
 
 def test_usage_and_info_show_the_limits(make_settings, photos) -> None:
-    settings = make_settings(api_keys="key-one, key-two", max_queued_per_key=7)
+    settings = make_settings(api_keys="key-one, key-two", max_queued_per_key=7,
+                             max_uploads_per_minute=30)
     with TestClient(create_app(settings)) as client:
         for _ in range(3):
             assert _post(client, photos, ONE).status_code == 202
