@@ -95,8 +95,14 @@ class UsageMeter:
         self.data_root = Path(data_root)
         self._rate = client.register_script(scripts.RATE)
 
-    def usage(self, owner: str, now: float | None = None) -> Usage:
-        """The owner's queued, running and finished-today jobs and its stored bytes."""
+    def usage(self, owner: str, now: float | None = None, with_bytes: bool = True) -> Usage:
+        """The owner's queued, running and finished-today jobs and its stored bytes.
+
+        Args:
+            owner: the owner.
+            now: the current time (default: ``time.time()``).
+            with_bytes: walk the owner's job folders for ``bytes_stored`` (else 0).
+        """
         now = time.time() if now is None else now
         midnight = now - now % 86400
         ids: list[str] = self._r.zrange(keys.owner_jobs(owner), 0, -1)  # type: ignore[assignment]
@@ -109,7 +115,7 @@ class UsageMeter:
             if not state:
                 continue
             counts[JobState(state)] += 1
-            stored += folder_bytes(self.data_root / job_id)
+            stored += folder_bytes(self.data_root / job_id) if with_bytes else 0
             if finished and JobState(state).terminal:
                 done_today += float(finished) >= midnight
                 oldest = float(finished) if oldest is None else min(oldest, float(finished))
@@ -130,7 +136,7 @@ class UsageMeter:
         if limits.queue_length and length >= limits.queue_length:
             return Refusal(503, "queue_length", limits.queue_length, length, QUEUE_FULL_RETRY_S,
                            "the service's queue is full")
-        use = self.usage(owner)
+        use = self.usage(owner, with_bytes=bool(limits.stored_bytes))
         if limits.queued and use.queued >= limits.queued:
             return Refusal(429, "queued_jobs", limits.queued, use.queued, QUEUED_RETRY_S,
                            f"this key has {use.queued} jobs queued (at most {limits.queued})")
