@@ -239,7 +239,7 @@ def cleanup(store: JobStore, retention_s: float, now: float | None = None) -> in
     """
     now = time.time() if now is None else now
     removed = 0
-    for job_id in list(store.iter_job_ids()):
+    for job_id in _oldest_first(store):
         record = store.get(job_id)  # re-seeds Redis when it lost the job
         if record is None:
             removed += _remove_orphan(store.job_dir(job_id), now, retention_s)
@@ -251,6 +251,16 @@ def cleanup(store: JobStore, retention_s: float, now: float | None = None) -> in
     _remove_stale_staging(store.data_root, now)
     store.remove_trash()
     return removed
+
+
+def _oldest_first(store: JobStore) -> list[str]:
+    """Job ids by creation time (from state.json), so jobs Redis lost are re-seeded into the
+    queue in the order they came, each owner's keeping its own order."""
+    def created(job_id: str) -> float:
+        record = store.read_state_file(job_id)
+        return record.created_at if record is not None else 0.0
+
+    return sorted(store.iter_job_ids(), key=created)
 
 
 def _remove_orphan(folder: Path, now: float, retention_s: float) -> int:

@@ -119,3 +119,14 @@ def test_an_owner_at_its_running_limit_is_passed_over_and_the_wake_up_kept(
     queued = store.get(a_jobs[1].id)
     assert queued is not None and queued.state == JobState.queued
     assert store.take_next("w3", 5.0) == a_jobs[1].id  # no limit: taken
+
+
+def test_a_cleanup_after_redis_forgot_everything_keeps_each_owners_order(
+        store: JobStore, clean_redis) -> None:
+    from app.jobs import cleanup
+
+    jobs = [_submit(store, owner) for owner in ("key-a", "key-b", "key-a", "key-b", "key-a")]
+    clean_redis.flushdb()
+    assert cleanup(store, retention_s=3600.0) == 0
+    taken = [store.take_next("w", 5.0) for _ in range(5)]
+    assert taken == [jobs[0].id, jobs[1].id, jobs[2].id, jobs[3].id, jobs[4].id]
