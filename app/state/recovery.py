@@ -20,6 +20,7 @@ log = logging.getLogger(__name__)
 
 ORPHAN_GRACE_S = HEARTBEAT_TTL_S  # seen orphaned this long before re-queueing (Redis restarts)
 MAX_ATTEMPTS = 3  # runs of one job in all (the first one included)
+STALL_S = 30.0  # the same job first in the queue this long while a worker is idle: wake one
 
 
 def find_orphans(store: JobStore) -> list[JobRecord]:
@@ -85,10 +86,14 @@ def requeue(store: JobStore, record: JobRecord, send: Callable[[str], Any],
 
 
 class OrphanWatch:
-    """Re-queues jobs seen orphaned on two checks at least ``grace_s`` apart.
+    """Re-queues jobs seen orphaned on two checks at least ``grace_s`` apart, and wakes idle
+    workers when the queue stalls.
 
     The grace covers a Redis restart: heartbeats and claims come back within one heartbeat
-    period, and a job must not be handed to a second worker in that window.
+    period, and a job must not be handed to a second worker in that window. A queue stalls
+    when the broker lost its messages (a Redis restarted empty: the jobs come back from their
+    state.json, their wake-ups do not); a message only wakes a worker, which takes the next
+    job in fair order, so an extra one is harmless.
     """
 
     def __init__(self, store: JobStore, send: Callable[[str], Any],
@@ -99,6 +104,7 @@ class OrphanWatch:
         self.grace_s = grace_s
         self.clock = clock
         self._first_seen: dict[tuple[str, str], float] = {}
+        self._head: tuple[str | None, float] = (None, 0.0)
 
     def check(self) -> list[str]:
         """One pass; returns the ids re-queued (or failed) in it."""
@@ -111,4 +117,20 @@ class OrphanWatch:
                 if requeue(self.store, record, self.send) != "skipped":
                     handled.append(record.id)
                 self._first_seen.pop(key, None)
-        return handled
+        return handled + self._wake_if_stalled(now)
+
+    def _wake_if_stalled(self, now: float) -> list[str]:
+        """One message per idle worker when the same job has been first in the queue for
+        ``STALL_S`` with a worker idle. Returns the head's id when it sent any."""
+        head = self.store.queue_head()
+        if head != self._head[0]:
+            self._head = (head, now)
+            return []
+        idle = len(self.store.workers.live()) - len(self.store.running_ids())
+        if head is None or idle <= 0 or now - self._head[1] < STALL_S:
+            return []
+        log.warning("queue stalled on job %s with %d idle worker(s): waking them", head, idle)
+        for _ in range(idle):
+            self.send(head)
+        self._head = (head, now)
+        return [head]

@@ -323,6 +323,11 @@ class JobStore:
         else:
             self._r.srem(keys.RUNNING, job_id)
 
+    def queue_head(self) -> str | None:
+        """The id first in the queue order, or None when nothing waits."""
+        head = self._r.zrange(keys.QUEUE, 0, 0)
+        return str(head[0]) if head else None  # type: ignore[index]
+
     def leave_queue(self, job_id: str) -> None:
         """Take a job out of the queue order (it ended before starting)."""
         self._r.zrem(keys.QUEUE, job_id)

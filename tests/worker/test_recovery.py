@@ -152,3 +152,27 @@ def test_the_heartbeat_announces_the_device_the_api_offers_presets_for(store: Jo
     finally:
         liveness.stop()
     assert store.workers.devices() == []
+
+
+def test_a_stalled_queue_wakes_its_idle_workers(store: JobStore, new_job) -> None:
+    """A queued job whose message was lost (Redis restarted empty) is not left waiting: once
+    it has been first in the queue for STALL_S while a worker is idle, a message is sent."""
+    from app.state.recovery import STALL_S
+
+    record = new_job()
+    sent: list[str] = []
+    clock = Clock()
+    watch = OrphanWatch(store, sent.append, grace_s=5.0, clock=clock)
+    store.workers.beat("idle-1")
+    assert watch.check() == [] and sent == []  # first sighting of this head
+    clock.now += STALL_S - 1
+    assert watch.check() == [] and sent == []  # not stalled yet
+    clock.now += 1
+    assert watch.check() == [record.id] and sent == [record.id]
+    clock.now += 1
+    assert watch.check() == [] and sent == [record.id]  # the next one waits STALL_S again
+    busy = new_job()  # every live worker busy: nothing to wake
+    store.update(busy.id, state=JobState.running, worker="idle-1")
+    store.mark_running(busy.id, True)
+    clock.now += 2 * STALL_S
+    assert watch.check() == [] and sent == [record.id]
