@@ -73,6 +73,7 @@ def time_orbit_and_views(job_dir: Path, model: Any, data: Any, export: dict[str,
     config = model.state.config
     model.state.config = config.model_copy(
         update={"export": config.export.model_copy(update=export)})
+    out.mkdir(parents=True, exist_ok=True)  # the writers only fill an existing job folder
     try:
         _, views_s = timed(render_views, out, model, data, Progress(), 1)
         _, orbit_s = timed(render_orbit, out, model, data, Progress(), 0, 1)
