@@ -378,7 +378,7 @@ PRESETS: dict[str, PipelineConfig] = {
         phase1={"steps": 200, "batch_points": 4096},
         phase2={"steps": 400, "rays": 1024},
         phase3={"steps": 2000, "rays": 1024, "scene_steps": 300},
-        export={"orbit_size": 256, "orbit_frames": 72, "orbit_fps": 12, "mesh_resolution": 64}),
+        export={"orbit_size": 256, "orbit_frames": 36, "orbit_fps": 6, "mesh_resolution": 64}),
 }
 """The named presets a job may start from; ``standard`` is the default."""
 

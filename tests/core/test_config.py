@@ -31,7 +31,7 @@ PINNED: dict[str, dict[str, object]] = {
         "phase3.steps": 2000, "phase3.rays": 1024, "phase3.lr": 5e-4,
         "phase3.pose_window": (0.0, 0.75), "phase3.pose_lr": 2e-3, "phase3.pose_blur": 0.0625,
         "phase3.mask_weight": 0.1, "phase3.lambda_offset": 0.1,
-        "export.orbit_size": 256, "export.orbit_frames": 72, "export.orbit_fps": 12,
+        "export.orbit_size": 256, "export.orbit_frames": 36, "export.orbit_fps": 6,
         "export.mesh_resolution": 64,
         "retrieval.solver": "dp", "retrieval.shared_focal": True, "retrieval.perspective": "auto",
         "retrieval.discard_penalty": 0.3, "retrieval.spread_weight": 10.0,
