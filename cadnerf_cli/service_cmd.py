@@ -124,6 +124,7 @@ def _start_backends(settings: Settings,
     embedded = EmbeddedRedis(folder / "cadnerf.rdb")
     try:
         os.environ["CADNERF_REDIS_URL"] = embedded.start()  # inherited by the worker
+        _forget_saved_workers(os.environ["CADNERF_REDIS_URL"])
         command = [sys.executable, "-m", "cadnerf_cli.main", "worker"]
         supervisor = Supervisor(command if verbose else [*command, "--quiet"],
                                 env={**os.environ, PARENT_PID_ENV: str(os.getpid())},
@@ -133,6 +134,20 @@ def _start_backends(settings: Settings,
         embedded.stop()
         raise
     return load_settings(), embedded, supervisor
+
+
+def _forget_saved_workers(url: str) -> None:
+    """Drop the heartbeats a killed ``serve`` saved with its Redis: no worker of this embedded
+    Redis runs yet, and a stale one would count as ready until its heartbeat expires."""
+    import redis
+
+    from app.state.claims import Workers
+
+    client = redis.Redis.from_url(url, decode_responses=True)
+    try:
+        Workers(client).forget_all()
+    finally:
+        client.close()
 
 
 def _run_folder(settings: Settings) -> Path:

@@ -65,6 +65,17 @@ class Workers:
         pipe.zrem(keys.WORKERS, name)
         pipe.execute()
 
+    def forget_all(self) -> int:
+        """Remove every heartbeat (a private Redis whose workers are all gone, e.g. the embedded
+        one a killed ``serve`` saved); returns how many were listed."""
+        names = [str(n) for n in self._r.zrange(keys.WORKERS, 0, -1)]  # type: ignore[union-attr]
+        pipe = self._r.pipeline()
+        for name in names:
+            pipe.delete(keys.worker(name))
+        pipe.delete(keys.WORKERS)
+        pipe.execute()
+        return len(names)
+
     def devices(self) -> list[str]:
         """The ``device`` each live worker announces in its heartbeat ("" when it names none)."""
         names = self.live()

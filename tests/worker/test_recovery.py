@@ -176,3 +176,15 @@ def test_a_stalled_queue_wakes_its_idle_workers(store: JobStore, new_job) -> Non
     store.mark_running(busy.id, True)
     clock.now += 2 * STALL_S
     assert watch.check() == [] and sent == [record.id]
+
+
+def test_the_heartbeats_a_killed_serve_saved_can_all_be_forgotten(store: JobStore) -> None:
+    """`serve` restarting on a Redis saved by a killed one drops its dead workers' heartbeats,
+    so readiness waits for the new worker instead of naming the old."""
+    store.workers.beat("old-1", info={"device": "cpu"})
+    store.workers.beat("old-2")
+    assert store.workers.live() == ["old-1", "old-2"]
+    assert store.workers.forget_all() == 2
+    assert store.workers.live() == [] and store.workers.devices() == []
+    store.workers.beat("new-3")
+    assert store.workers.live() == ["new-3"]
