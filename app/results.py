@@ -130,17 +130,33 @@ def read_result(record: JobRecord, job_dir: Path) -> JobResult:
                      _mask_links(masks.get(i), artifacts), silhouette)
               for i, name in enumerate(record.names)]
     model = ModelRef(id=str(model_id or "unknown"), category=retrieval.get("category"))
+    order = [record.names[i] for i in _order(retrieval, len(record.names))]
     return JobResult(id=record.id, model=model, photos=photos,
-                     discarded=[p.name for p in photos if p.discarded],
+                     discarded=[p.name for p in photos if p.discarded], order=order,
+                     reordered=bool(retrieval.get("reordered")),
                      metrics=metrics if isinstance(metrics, dict) else {},
-                     artifacts=artifacts, warnings=_warnings(retrieval, photos))
+                     artifacts=artifacts, warnings=_warnings(retrieval, photos, order))
 
 
-def _warnings(retrieval: dict[str, Any], photos: list[PhotoResult]) -> list[str]:
-    """The result's warnings: each photo's mask warnings, then an undecided walking direction."""
+def _order(retrieval: dict[str, Any], count: int) -> list[int]:
+    """The walking order in ``retrieval.json`` (photo indices), or the given one where it
+    names none or an unusable one."""
+    order = retrieval.get("order")
+    if isinstance(order, list) and sorted(order) == list(range(count)):
+        return [int(i) for i in order]
+    return list(range(count))
+
+
+def _warnings(retrieval: dict[str, Any], photos: list[PhotoResult],
+              order: list[str]) -> list[str]:
+    """The result's warnings: each photo's mask warnings, photos reordered although given as a
+    walk, then an undecided walking direction."""
     from cadnerf_core.config import AMBIGUOUS_HINT  # torch-free by contract
+    from cadnerf_core.config_retrieval import reorder_warning
 
     warnings = [w for photo in photos for w in photo.mask_warnings]
+    if retrieval.get("reordered") and retrieval.get("order_mode") == "auto":
+        warnings.append(reorder_warning(order))
     if retrieval.get("direction_ambiguous"):
         warnings.append(f"{AMBIGUOUS_HINT}: resubmit with the config field "
                         '{"overrides": {"retrieval": {"walk": "cw"}}}')

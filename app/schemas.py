@@ -111,6 +111,11 @@ class JobResult(BaseModel):
     model: ModelRef
     photos: list[PhotoResult]
     discarded: list[str]
+    order: list[str] = Field(default_factory=list, description="The photos' names in the "
+                             "walking order the poses were found in (retrieval.order: the "
+                             "given order, or the one found for photos in any order).")
+    reordered: bool = Field(default=False, description="The walking order differs from the "
+                            "order the photos were given in.")
     metrics: dict[str, Any]
     artifacts: dict[str, str] = Field(description="Artifact name -> download URL.")
     warnings: list[str] = Field(default_factory=list, description="What may be wrong with "

@@ -9,7 +9,14 @@ from typing import Any
 import typer
 
 from cadnerf_cli.eval_cmd import EXCLUDE_HELP, parse_model_ids, parse_overrides
-from cadnerf_cli.retrieve_cmd import FOCAL_HELP, PERSPECTIVE_HELP, Perspective, Walk
+from cadnerf_cli.retrieve_cmd import (
+    FOCAL_HELP,
+    ORDER_HELP,
+    PERSPECTIVE_HELP,
+    Order,
+    Perspective,
+    Walk,
+)
 from cadnerf_core.progress import STAGES
 
 DEFAULT_LIBRARY = Path("library_data/build")
@@ -34,7 +41,8 @@ def stage_inputs(photos: list[Path], masks: list[Path] | None, out: Path) -> Non
 
 
 def reconstruct(
-    photos: list[Path] = typer.Argument(..., help="3 to 10 photos, in walking order."),
+    photos: list[Path] = typer.Argument(..., help="3 to 10 photos, in walking order unless "
+                                        "--order says otherwise."),
     out: Path = typer.Option(..., "--out", help="Job folder for the results."),
     masks: list[Path] | None = typer.Option(None, "--masks", help="One mask per photo."),
     preset: str = typer.Option("standard", "--preset", help="paper, standard or preview."),
@@ -43,6 +51,7 @@ def reconstruct(
     walk: Walk = typer.Option(Walk.auto, "--walk", help="Which way round the photos were "
                               "taken: ccw (counter-clockwise seen from above, the object on "
                               "your left), cw, or auto (found from the photos)."),
+    order: Order = typer.Option(Order.auto, "--order", help=ORDER_HELP),
     own_focal: bool = typer.Option(False, "--own-focal", help="Each photo keeps a focal "
                                    "length of its own (photos taken at different zooms); by "
                                    "default they share one."),
@@ -71,6 +80,8 @@ def reconstruct(
         overrides: dict[str, Any] = parse_overrides(settings)
         if walk != Walk.auto:
             overrides["retrieval.walk"] = walk.value
+        if order != Order.auto:
+            overrides["retrieval.order"] = order.value
         if own_focal:
             overrides["retrieval.shared_focal"] = False
         if perspective != Perspective.auto:
@@ -104,7 +115,13 @@ def reconstruct(
     for record in JobFolder(out).read_mask_sources():
         for warning in record.warnings:
             typer.echo(f"warning: {warning}")
-    if (JobFolder(out).read_retrieval() or {}).get("direction_ambiguous"):
+    retrieval = JobFolder(out).read_retrieval() or {}
+    if retrieval.get("reordered") and retrieval.get("order_mode") == "auto":
+        from cadnerf_core.config_retrieval import reorder_warning
+
+        names = [m["name"] for m in retrieval["matches"]]
+        typer.echo(f"warning: {reorder_warning([names[i] for i in retrieval['order']])}")
+    if retrieval.get("direction_ambiguous"):
         from cadnerf_core.config import AMBIGUOUS_HINT
 
         typer.echo(f"warning: {AMBIGUOUS_HINT} (--walk)")

@@ -33,6 +33,19 @@ class Walk(StrEnum):
     cw = "cw"
 
 
+class Order(StrEnum):
+    """The photos' order."""
+
+    auto = "auto"
+    walk = "walk"
+    any = "any"
+
+
+ORDER_HELP = ("The photos' order: walk (taken walking round the object, in this order), any "
+              "(no order: found from the photos), or auto (the given order unless the photos "
+              "do not look like a walk in it; then the order found, with a warning).")
+
+
 class Perspective(StrEnum):
     """Which library silhouette set to match."""
 
@@ -142,6 +155,9 @@ def summary_lines(result: RetrievalResult) -> list[str]:
         from cadnerf_core.config import AMBIGUOUS_HINT
 
         lines.insert(1, f"warning: {AMBIGUOUS_HINT}")
+    if result.order and result.order != sorted(result.order):
+        walked = ", ".join(result.matches[i].name for i in result.order)
+        lines.insert(1, f"walking order{' (reordered)' if result.reordered else ''}: {walked}")
     lines += [f"  {t['model_id']:<24} {t['category']:<12} votes {t['votes']}  "
               f"summed IoU {t['score']:.2f}" for t in result.top_models]
     lines.append("photos:")
@@ -153,8 +169,8 @@ def summary_lines(result: RetrievalResult) -> list[str]:
 
 
 def retrieve_command(
-    photos: list[Path] = typer.Argument(..., help="Photos in walking order (JPEG, PNG, WebP, "
-                                        "HEIC, AVIF)."),
+    photos: list[Path] = typer.Argument(..., help="Photos, in walking order unless --order "
+                                        "says otherwise (JPEG, PNG, WebP, HEIC, AVIF)."),
     masks: list[Path] = typer.Option([], "--masks", "-m", help="A mask per photo, in order "
                                      "(repeat the option), or one folder of masks named "
                                      "like the photos."),
@@ -165,6 +181,7 @@ def retrieve_command(
     walk: Walk = typer.Option(Walk.auto, "--walk", help="Which way round the photos were "
                               "taken: ccw (counter-clockwise seen from above, the object on "
                               "your left), cw, or auto (found from the photos)."),
+    order: Order = typer.Option(Order.auto, "--order", help=ORDER_HELP),
     own_focal: bool = typer.Option(False, "--own-focal", help="Each photo keeps a focal "
                                    "length of its own (photos taken at different zooms); by "
                                    "default they share one."),
@@ -189,7 +206,8 @@ def retrieve_command(
         found = [result.mask for result in photo_masks(loaded)]
         lib = load_library(library)
         config = RetrievalConfig(solver="paper" if solver == Solver.paper else "dp",
-                                 walk=walk.value, shared_focal=not own_focal,
+                                 walk=walk.value, order=order.value,
+                                 shared_focal=not own_focal,
                                  perspective=perspective.value,
                                  exclude_models=parse_model_ids(exclude_models))
         result = retrieve(found, [p.name for p in loaded], lib, config,

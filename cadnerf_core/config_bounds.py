@@ -1,5 +1,6 @@
 """Bounds of the pipeline config (``cadnerf_core.config``): the largest value of each field that
-scales a job's work or memory, and the budget on points per pass x network width.
+scales a job's work or memory, and the budget on points per pass x network width; and the base
+class of its sections.
 
 Each bound is several times what the largest preset uses, so no sensible job is refused;
 with ``MAX_POINT_WIDTH`` they keep the largest accepted job within a 6 GiB worker
@@ -10,8 +11,19 @@ from __future__ import annotations
 
 from typing import TYPE_CHECKING
 
+from pydantic import BaseModel, ConfigDict
+
 if TYPE_CHECKING:
     from cadnerf_core.config import PipelineConfig
+
+
+
+class Frozen(BaseModel):
+    """Base of every config section: immutable, unknown keys rejected (a typo in an override
+    must fail loudly)."""
+
+    model_config = ConfigDict(frozen=True, extra="forbid")
+
 
 MAX_STEPS = 50_000  # per phase (``paper``: 20 000 in phase three)
 MAX_POINTS = 262_144  # CAD occupancy points per phase-one step (``standard``: 32 768)

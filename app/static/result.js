@@ -29,7 +29,7 @@ export async function showResult(jobId) {
   }));
   warnings.hidden = !warnings.children.length;
   renderMatches(result.photos);
-  plotCameras(result.photos);
+  plotCameras(result.photos, result.order || []);
   renderMasks(result.photos).catch((err) => showNotice(`the mask pictures could not be loaded: ${err.message}`));
   const list = $("downloads");
   list.replaceChildren();
@@ -130,19 +130,29 @@ function svgElement(name, attributes) {
   return element;
 }
 
-function plotCameras(photos) {
+function plotCameras(photos, order) {
   // Top-down view: world x to the right, world z downwards on screen; +Y (up) points at the viewer.
+  // A dashed line joins the cameras in the walking order the poses were found in.
   const svg = $("cameras");
   svg.replaceChildren();
   const placed = photos.filter((p) => p.c2w && !p.discarded);
   const radius = Math.max(1.2, ...placed.map((p) => Math.hypot(p.c2w[0][3], p.c2w[2][3])));
   const scale = 1.4 / radius;
+  const byName = new Map(placed.map((p) => [p.name, p]));
+  const walked = order.map((name) => byName.get(name)).filter(Boolean);
+  $("walk-order").textContent = walked.length
+    ? `Walking order: ${walked.map((p) => p.index + 1).join(" \u2192 ")}` : "";
   svg.append(svgElement("circle", { cx: 0, cy: 0, r: scale, fill: "#dfe7f7", stroke: "#9fb3d9", "stroke-width": 0.01 }));
   svg.append(svgElement("circle", { cx: 0, cy: 0, r: 0.03, fill: "#2f6fde" }));
   for (const [text, x, y] of [["front (+z)", -0.3, 1.55], ["+x", 1.45, 0.05]]) {
     const label = svgElement("text", { x, y, "font-size": 0.11, fill: "#5b6475" });
     label.textContent = text;
     svg.append(label);
+  }
+  if (walked.length > 2) {
+    const points = walked.map((p) => `${p.c2w[0][3] * scale},${p.c2w[2][3] * scale}`).join(" ");
+    svg.append(svgElement("polygon", { points, fill: "none", stroke: "#5b6475",
+      "stroke-width": 0.015, "stroke-dasharray": "0.05 0.04" }));
   }
   for (const photo of placed) {
     const x = photo.c2w[0][3] * scale, z = photo.c2w[2][3] * scale;

@@ -111,6 +111,7 @@ export async function submitJob(event) {
   const retrieval = {};
   const walk = $("walk").value;
   if (walk !== "auto") retrieval.walk = walk;
+  if ($("any-order").checked) retrieval.order = "any";
   const focal = $("focal").value.trim();
   if (focal !== "") retrieval.focal_35mm = Number(focal);
   if (Object.keys(retrieval).length) config.overrides = { retrieval };

@@ -66,6 +66,13 @@ class RetrievalResult:
     alternatives: list[RetrievalResult] = field(default_factory=list)
     """The next best hypotheses (model, walking direction, poses), best first, when
     ``RetrievalConfig.hypotheses`` asks for more than one; not written to ``retrieval.json``."""
+    order: list[int] = field(default_factory=list)
+    """The photos' indices in the walking order retrieval used (empty: as given)."""
+    order_mode: str = "walk"
+    """``RetrievalConfig.order`` of the search that found this result."""
+    reordered: bool = False
+    """The photos did not look like a walk in the order given (``RetrievalConfig.order``
+    "auto") or came in no order ("any"), and ``order`` differs from it as a cycle."""
     hypotheses: list[dict[str, Any]] = field(default_factory=list)
     """The hypotheses a short silhouette fit compared (model, direction, retrieval score, fit
     score), in retrieval's order, when there were several; this result is the best fit's."""
@@ -84,6 +91,8 @@ class RetrievalResult:
                 "direction_lead": self.direction_lead,
                 "direction_ambiguous": self.direction_ambiguous,
                 "perspective": self.perspective,
+                "order": self.order or [m.index for m in self.matches],
+                "order_mode": self.order_mode, "reordered": self.reordered,
                 "discarded": [m.index for m in self.matches if m.discarded],
                 "matches": [m.to_json() for m in self.matches],
                 **({"hypotheses": self.hypotheses} if self.hypotheses else {})}

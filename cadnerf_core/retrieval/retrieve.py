@@ -12,11 +12,12 @@ import dataclasses
 import logging
 from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, TypeVar
 
 import numpy as np
 
 from cadnerf_core.config import AMBIGUOUS_HINT, RetrievalConfig
+from cadnerf_core.config_retrieval import reorder_warning
 from cadnerf_core.errors import InputError
 from cadnerf_core.intake.crop import CropBox, apply_crop
 from cadnerf_core.intake.photos import canonical_masks
@@ -28,6 +29,9 @@ from cadnerf_core.retrieval.scoring import azimuth_bins, iou_table, vote_models
 
 if TYPE_CHECKING:
     from cadnerf_core.library.format import Library
+    from cadnerf_core.retrieval.ordering import OrderChoice
+
+T = TypeVar("T")
 
 log = logging.getLogger(__name__)
 
@@ -79,6 +83,14 @@ def direction_evidence(images: Sequence[np.ndarray], masks: Sequence[np.ndarray]
     by their canonical boxes at ``APPEARANCE_SIZE``."""
     from cadnerf_core.retrieval.direction import walk_direction_evidence
 
+    rgbs, crops = _appearance_crops(images, masks, boxes)
+    return walk_direction_evidence(rgbs, crops)
+
+
+def _appearance_crops(images: Sequence[np.ndarray], masks: Sequence[np.ndarray],
+                      boxes: Sequence[CropBox]) -> tuple[np.ndarray, np.ndarray]:
+    """The photos composited on white inside their masks and cropped by their canonical boxes
+    at ``APPEARANCE_SIZE``, with the masks' crops. Returns [P, S, S, 3] float, [P, S, S] bool."""
     rgbs, crops = [], []
     for image, mask, b in zip(images, masks, boxes, strict=True):
         box = CropBox(b.x0, b.y0, b.side, APPEARANCE_SIZE)
@@ -86,7 +98,7 @@ def direction_evidence(images: Sequence[np.ndarray], masks: Sequence[np.ndarray]
         rgb = apply_crop(np.asarray(image, dtype=np.float32), box, fill=1.0)
         rgbs.append(np.clip(rgb * alpha + (1.0 - alpha), 0.0, 1.0))
         crops.append(alpha[..., 0] > 0.5)
-    return walk_direction_evidence(np.stack(rgbs), np.stack(crops))
+    return np.stack(rgbs), np.stack(crops)
 
 
 def _choose_walk(iou: np.ndarray, m: int, ranking: Sequence[tuple[int, int, float]],
@@ -111,7 +123,8 @@ def retrieve(masks: Sequence[np.ndarray], names: Sequence[str], library: Library
     """Retrieve the CAD model and a library pose for every photo.
 
     Args:
-        masks: P full-photo masks [H_i, W_i] bool, in walking order.
+        masks: P full-photo masks [H_i, W_i] bool, in walking order (or in any order:
+            ``config.order``).
         names: P photo names.
         library: the loaded library.
         config: solver settings (defaults when None).
@@ -125,12 +138,22 @@ def retrieve(masks: Sequence[np.ndarray], names: Sequence[str], library: Library
             refer to: the job's ``image_size``, its NeRF's crops (None: the library's
             silhouette size; IoU is always computed at the library's size).
     Returns:
-        The RetrievalResult.
+        The RetrievalResult, its matches in the photos' given order; ``order`` says the
+        walking order used.
     """
     config = config or RetrievalConfig()
     allowed = allowed_models(library, config.exclude_models)
     spec = library.spec  # both silhouette sets share the crop size and margin
     crops, boxes = canonical_masks(masks, spec.silhouette_size, spec.margin)
+    if config.order != "walk" and len(masks) > 3:  # three photos make one cycle either way
+        choice = _order(crops, boxes, masks, images, library, allowed, config)
+        walk = config.model_copy(update={"order": "walk"})
+        found = retrieve([masks[i] for i in choice.order], [names[i] for i in choice.order],
+                         library, walk, progress, _pick(images, choice.order),
+                         _pick(focals, choice.order), crop_size)
+        if choice.reordered and config.order == "auto":
+            log.warning("%s", reorder_warning([names[i] for i in choice.order]))
+        return _in_given_order(found, choice.order, config.order, choice.reordered)
     evidence = 0.0
     if images is not None and config.solver == "dp" and config.appearance_weight > 0:
         evidence = direction_evidence(images, masks, boxes)
@@ -162,6 +185,47 @@ def retrieve(masks: Sequence[np.ndarray], names: Sequence[str], library: Library
         log.warning("%s (lead %.3f IoU, texture evidence %+.2f)", AMBIGUOUS_HINT,
                     chosen.direction_lead, chosen.direction_evidence)
     return chosen
+
+
+def _pick(items: Sequence[T] | None, order: Sequence[int]) -> list[T] | None:
+    """``items`` in ``order`` (None stays None)."""
+    return None if items is None else [items[i] for i in order]
+
+
+def _order(crops: np.ndarray, boxes: Sequence[CropBox], masks: Sequence[np.ndarray],
+           images: Sequence[np.ndarray] | None, library: Library, allowed: np.ndarray,
+           config: RetrievalConfig) -> OrderChoice:
+    """The order to walk the photos in (``config.order`` "any" or "auto"), searched on the
+    silhouette set ``config.perspective`` names (the far one when "auto") among the most voted
+    models, with the photos' colour similarity where they are given."""
+    from cadnerf_core.retrieval.ordering import choose_order, neighbour_similarity
+
+    views = library.view_set("near" if config.perspective == "near" else "far")
+    silhouettes = views.silhouettes
+    if len(allowed) < len(silhouettes):
+        silhouettes = silhouettes[allowed]
+    iou = iou_table(crops, silhouettes)
+    _, ranking = vote_models(iou)
+    similarity = None
+    if images is not None and config.similarity_weight > 0:
+        rgbs, insides = _appearance_crops(images, masks, boxes)
+        similarity = neighbour_similarity(list(rgbs), list(insides))
+    az_index = azimuth_bins(views.az_el, views.spec.n_azimuths)
+    candidates = [m for m, _, _ in ranking[:TOP_MODELS]]
+    return choose_order(iou, candidates, az_index, views.spec.n_azimuths, config.order,
+                        config.order_margin, config.spread_weight, similarity,
+                        config.similarity_weight)
+
+
+def _in_given_order(result: RetrievalResult, order: Sequence[int], mode: str,
+                    reordered: bool) -> RetrievalResult:
+    """A result found on photos taken in ``order`` with every match indexed as given and in
+    the given order again (its alternatives likewise); it records the walking order."""
+    matches = sorted((dataclasses.replace(m, index=order[m.index]) for m in result.matches),
+                     key=lambda m: m.index)
+    others = [_in_given_order(a, order, mode, reordered) for a in result.alternatives]
+    return dataclasses.replace(result, matches=matches, alternatives=others, order=list(order),
+                               order_mode=mode, reordered=reordered)
 
 
 def allowed_models(library: Library, exclude: Sequence[str]) -> np.ndarray:

@@ -157,6 +157,20 @@ def test_result_is_409_until_succeeded_then_complete(client: TestClient, setting
     assert len(warnings) == 2 and "walking direction is a guess" in warnings[1]
     assert '"walk": "cw"' in warnings[1]
     assert result["photos"][0]["silhouette"].endswith("/silhouette/0?perspective=near")
+    assert result["order"] == ["photo_0.png", "photo_1.png", "photo_2.png"]
+    assert not result["reordered"]
+    # Photos given as a walk that did not look like one: the order found, and a warning.
+    folder.write_retrieval({**(folder.read_retrieval() or {}), "direction_ambiguous": False,
+                            "order": [2, 0, 1], "order_mode": "auto", "reordered": True})
+    result = client.get(f"/v1/jobs/{job['id']}/result").json()
+    assert result["order"] == ["photo_2.png", "photo_0.png", "photo_1.png"] and result["reordered"]
+    assert "photo_2.png, photo_0.png, photo_1.png" in result["warnings"][-1]
+    # Asked for ("any"): reported, not warned; an unusable order falls back to the given one.
+    folder.write_retrieval({**(folder.read_retrieval() or {}), "order_mode": "any"})
+    assert len(client.get(f"/v1/jobs/{job['id']}/result").json()["warnings"]) == 1
+    folder.write_retrieval({**(folder.read_retrieval() or {}), "order": [0, 0, 7]})
+    result = client.get(f"/v1/jobs/{job['id']}/result").json()
+    assert result["order"] == ["photo_0.png", "photo_1.png", "photo_2.png"]
 
 
 def test_library_silhouettes_are_served_as_png_for_listed_models_only(

@@ -33,6 +33,7 @@ def test_upload_progress_video_and_screenshot(live_service, photo_set: list[Path
             page.select_option("#preset", TINY_PRESET)
             # A box looks alike walked either way round: the photographer says which way.
             page.select_option("#walk", "cw")
+            page.check("#any-order")  # the order searched for, as when the user cannot tell
             # The renders carry no EXIF: their focal length (40 degrees across a square photo
             # is 42 mm in 35 mm terms) given in the optional part of the form.
             page.click("details summary")
@@ -60,6 +61,12 @@ def test_upload_progress_video_and_screenshot(live_service, photo_set: list[Path
             job_config = json.loads(max(live_service.settings.data_root.rglob("config.json"),
                                         key=lambda p: p.stat().st_mtime).read_text())
             assert job_config["retrieval"]["focal_35mm"] == 42.0
+            assert job_config["retrieval"]["order"] == "any"
+            walked = page.inner_text("#walk-order")  # the order used, around the cameras
+            assert walked.startswith("Walking order:")
+            numbers = walked.split(":")[1].replace("\u2192", " ").split()
+            assert len(numbers) >= 2 and len(set(numbers)) == len(numbers)
+            assert set(numbers) <= {str(i + 1) for i in range(len(photo_set))}
             assert page.locator("#warnings").is_hidden()
             _check_masks(page, len(photo_set))
             page.wait_for_timeout(500)

@@ -1,0 +1,237 @@
+"""Photos in any order (``RetrievalConfig.order``): found walks, poses, and the solver's time.
+
+- Synthetic walks: every mesh of ``../shared/eval/meshes`` rendered as walks of 6 and 9 views
+  at 128 px (as the retrieval benchmark renders them, both walking directions), the mesh's
+  look-alikes left out of the library (``benchmarks.lookalikes``). Each walk is retrieved in
+  order with ``walk`` and ``auto``, and shuffled with fixed seeds with ``walk`` (what a
+  shuffled set got before), ``any`` and ``auto``: the median rotation error of the retrieved
+  poses (kept photos, after similarity alignment), and whether the walk's cyclic order was
+  found (up to start and direction).
+- Solver time: the order search of 10 photos against the full candidate table of the shipped
+  library (every azimuth and elevation), for one model and for the five most voted.
+- Real photos: ``ners_espresso`` and ``raydiffusion_robot`` with their shipped masks, in
+  walking order and shuffled: the model, and how far each shuffled run's poses are from the
+  ordered run's (median rotation difference after similarity alignment).
+
+QUICK: the retrieval benchmark's three quick meshes, one shuffle per walk.
+
+Usage: ``python -m benchmarks.bench_order [--quick]`` prints the section.
+"""
+
+from __future__ import annotations
+
+import argparse
+import logging
+import statistics
+import sys
+import tempfile
+import time
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from benchmarks.bench_eval import Z_UP, mesh_file
+from benchmarks.lookalikes import excluded
+from benchmarks.retrieval_walks import EVAL_ROOT, QUICK_MESHES, SEED, SIZE, VIEW_COUNTS
+
+log = logging.getLogger(__name__)
+
+ROOT = Path(__file__).resolve().parents[1]
+LIBRARY_DIR = ROOT / "library_data" / "build"
+SHUFFLES = 3  # fixed seeds 0 .. SHUFFLES - 1 per walk (QUICK: 1)
+REAL_SETS = ("ners_espresso", "raydiffusion_robot")
+
+
+@dataclass
+class Walk:
+    """One rendered walk retrieved in order and shuffled."""
+
+    mesh: str
+    views: int
+    ordered: dict[str, float]  # order mode -> median rotation error, photos in order
+    shuffled: dict[str, list[float]]  # order mode -> errors over the shuffles
+    found: dict[str, list[bool]]  # order mode -> cyclic order found, per shuffle
+
+
+def _retrieve(data: Any, perm: np.ndarray, library: Any, mode: str, exclude: tuple[str, ...],
+              ) -> tuple[float, bool]:
+    """Retrieve the walk's photos in the order ``perm`` with ``order`` = ``mode``. Returns
+    the median rotation error and whether the walk's cyclic order was found."""
+    from benchmarks.retrieval_walks import rotation_error
+    from cadnerf_core.config import RetrievalConfig
+    from cadnerf_core.retrieval.ordering import same_cycle
+    from cadnerf_core.retrieval.retrieve import retrieve
+
+    config = RetrievalConfig(order=mode, exclude_models=exclude)  # type: ignore[arg-type]
+    result = retrieve([data.masks[i] for i in perm], [data.names[i] for i in perm], library,
+                      config, images=[data.images[i] for i in perm])
+    order = result.order or list(range(len(perm)))
+    walked = [int(perm[i]) for i in order]
+    return (rotation_error(result, data.c2w[perm]),
+            same_cycle(walked, list(range(len(perm)))))
+
+
+def walk_set(name: str, views: int, direction: int, library: Any, work: Path,
+             shuffles: int) -> Walk:
+    """Render one walk of a mesh and retrieve it in order and shuffled."""
+    from cadnerf_core.evaluation.dataset import load_dataset, render_dataset
+
+    folder = render_dataset(mesh_file(EVAL_ROOT / "meshes" / name),
+                            work / f"{name}_{views}_{direction}", views, SIZE, SEED + views,
+                            up="z" if name in Z_UP else "y", direction=direction)
+    data = load_dataset(folder)
+    exclude = excluded(name)
+    identity = np.arange(views)
+    ordered = {mode: _retrieve(data, identity, library, mode, exclude)[0]
+               for mode in ("walk", "auto")}
+    shuffled: dict[str, list[float]] = {"walk": [], "any": [], "auto": []}
+    found: dict[str, list[bool]] = {"walk": [], "any": [], "auto": []}
+    for seed in range(shuffles):
+        perm = np.random.default_rng(seed).permutation(views)
+        for mode in shuffled:
+            error, right = _retrieve(data, perm, library, mode, exclude)
+            shuffled[mode].append(error)
+            found[mode].append(right)
+    return Walk(name, views, ordered, shuffled, found)
+
+
+def solver_lines(library: Any) -> list[str]:
+    """Time of the order search on 10 photos x the shipped library's full table."""
+    from cadnerf_core.config import RetrievalConfig
+    from cadnerf_core.retrieval.ordering import any_order, choose_order
+    from cadnerf_core.retrieval.scoring import azimuth_bins
+
+    config = RetrievalConfig()
+    spec = library.spec
+    rng = np.random.default_rng(0)
+    iou = rng.random((10, 5, spec.n_views))
+    similarity = rng.random((10, 10))
+    similarity = (similarity + similarity.T) / 2
+    az = azimuth_bins(library.az_el, spec.n_azimuths)
+    one, five = [], []
+    for _ in range(5):
+        start = time.perf_counter()
+        any_order(iou[:, 0], az, spec.n_azimuths, config.spread_weight, similarity,
+                  config.similarity_weight)
+        one.append(time.perf_counter() - start)
+        start = time.perf_counter()
+        choose_order(iou, range(5), az, spec.n_azimuths, "any", config.order_margin,
+                     config.spread_weight, similarity, config.similarity_weight)
+        five.append(time.perf_counter() - start)
+    return [f"- Order search, 10 photos x {spec.n_views} views ({spec.n_azimuths} azimuths x "
+            f"{len(spec.elevations)} elevations, every view a candidate): "
+            f"**{statistics.median(one):.3f} s** for one model (target < 0.5 s); "
+            f"{statistics.median(five):.3f} s for the five most voted (what a job runs), "
+            f"median of 5."]
+
+
+def real_lines(library: Any, shuffles: int) -> list[str]:
+    """The real photo sets in order and shuffled."""
+    from benchmarks.retrieval_real import real_set_photos
+    from cadnerf_core.cameras import pose_errors
+    from cadnerf_core.config import RetrievalConfig
+    from cadnerf_core.intake.photos import load_photos
+    from cadnerf_core.retrieval.retrieve import retrieve
+
+    lines = []
+    for name in REAL_SETS:
+        if not (EVAL_ROOT / "photos" / name).is_dir():
+            continue
+        paths, mask_paths, _ = real_set_photos(name)
+        photos = load_photos(paths, mask_paths)
+        masks = [p.mask for p in photos if p.mask is not None]
+        images = [p.rgb for p in photos]
+        names = [p.name for p in photos]
+        exclude = excluded(name)
+        base = retrieve(masks, names, library, RetrievalConfig(order="walk",
+                                                               exclude_models=exclude),
+                        images=images)
+        ref = np.stack([m.c2w for m in base.matches])
+        runs = []
+        for seed in range(shuffles):
+            perm = np.random.default_rng(seed).permutation(len(photos))
+            got = retrieve([masks[i] for i in perm], [names[i] for i in perm], library,
+                           RetrievalConfig(order="any", exclude_models=exclude),
+                           images=[images[i] for i in perm])
+            rot, _ = pose_errors(np.stack([m.c2w for m in got.matches]), ref[perm])
+            runs.append(f"seed {seed}: {got.model_id}, {float(np.median(rot)):.1f} deg")
+        lines.append(f"- {name} ({len(photos)} photos, shipped masks): in order "
+                     f"**{base.model_id}**; shuffled, `any`: " + "; ".join(runs) + ".")
+    return lines
+
+
+def _table(walks: list[Walk]) -> list[str]:
+    """Per view count: medians over walks, and the share of shuffles whose order was found."""
+    rows = ["| views | in order, `walk` | in order, `auto` | shuffled, `walk` | shuffled, "
+            "`any` | shuffled, `auto` | order found, `any` | order found, `auto` | `auto` "
+            "worse than `walk` in order |",
+            "|---|---|---|---|---|---|---|---|---|"]
+    for views in sorted({w.views for w in walks}):
+        group = [w for w in walks if w.views == views]
+
+        def med(values: list[float]) -> str:
+            return f"{statistics.median(values):.1f}"
+
+        def share(mode: str, of: list[Walk] = group) -> str:
+            hits = [h for w in of for h in w.found[mode]]
+            return f"{100.0 * sum(hits) / len(hits):.0f} %"
+
+        worse = sum(w.ordered["auto"] > w.ordered["walk"] + 0.5 for w in group)
+        rows.append(f"| {views} | {med([w.ordered['walk'] for w in group])} | "
+                    f"{med([w.ordered['auto'] for w in group])} | "
+                    f"{med([e for w in group for e in w.shuffled['walk']])} | "
+                    f"**{med([e for w in group for e in w.shuffled['any']])}** | "
+                    f"{med([e for w in group for e in w.shuffled['auto']])} | "
+                    f"**{share('any')}** | {share('auto')} | {worse} of {len(group)} |")
+    return rows
+
+
+def _mesh_rows(walks: list[Walk]) -> list[str]:
+    rows = ["| mesh | views | in order, `walk` | shuffled, `any` (per seed) | order found |",
+            "|---|---|---|---|---|"]
+    for w in walks:
+        errors = ", ".join(f"{e:.1f}" for e in w.shuffled["any"])
+        rows.append(f"| {w.mesh} | {w.views} | {w.ordered['walk']:.1f} | {errors} | "
+                    f"{sum(w.found['any'])}/{len(w.found['any'])} |")
+    return rows
+
+
+def run(quick: bool, library_dir: Path = LIBRARY_DIR) -> str:
+    """Run the order benchmark. Returns its markdown section."""
+    from cadnerf_core.library.format import load_library
+
+    head = ["## Order", "", f"Command: `python -m benchmarks.bench_order"
+            f"{' --quick' if quick else ''}`", ""]
+    library = load_library(library_dir)
+    lines = [*head, *solver_lines(library), ""]
+    if not (EVAL_ROOT / "meshes").is_dir():
+        return "\n".join([*lines, "Walks not run: `../shared/eval` is absent.", ""])
+    meshes = QUICK_MESHES if quick else sorted(p.name for p in (EVAL_ROOT / "meshes").iterdir())
+    shuffles = 1 if quick else SHUFFLES
+    walks = []
+    with tempfile.TemporaryDirectory() as tmp:
+        for i, name in enumerate(meshes):
+            for views in VIEW_COUNTS:
+                direction = 1 if (i + views) % 2 else -1
+                walks.append(walk_set(name, views, direction, library, Path(tmp), shuffles))
+                log.info("%s, %d views: %s", name, views, walks[-1])
+    lines += [f"Median rotation error (degrees) of the retrieved poses over {len(meshes)} meshes "
+              f"(look-alikes left out), {shuffles} shuffle(s) per walk; order found: the "
+              "walk's cyclic order recovered, up to start and direction.", "",
+              *_table(walks), "", *_mesh_rows(walks), "", *real_lines(library, shuffles), ""]
+    return "\n".join(lines)
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--quick", action="store_true")
+    args = parser.parse_args(argv)
+    logging.basicConfig(level=logging.INFO, format="%(asctime)s %(levelname)s %(message)s")
+    print(run(args.quick))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
