@@ -29,7 +29,7 @@ order, which chooses the direction (texture cue included) and may discard photos
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
 import cv2
@@ -60,8 +60,8 @@ def _layers(n_bits: int) -> list[np.ndarray]:
 
 
 def any_order(iou: np.ndarray, az_index: np.ndarray, n_az: int, spread_weight: float,
-              similarity: np.ndarray | None = None,
-              similarity_weight: float = 0.0) -> OrderSearch:
+              similarity: np.ndarray | None = None, similarity_weight: float = 0.0,
+              check: Callable[[], None] | None = None) -> OrderSearch:
     """The best walk through photos in any order (see the module docstring).
 
     Args:
@@ -71,6 +71,7 @@ def any_order(iou: np.ndarray, az_index: np.ndarray, n_az: int, spread_weight: f
         spread_weight: weight of the gap-spread term.
         similarity: [P, P] symmetric appearance similarity of the photos (None: none).
         similarity_weight: weight of the neighbours' similarity.
+        check: called between layers of the search (a cancelled job's check raises).
     Returns:
         The walk: photo order, view per photo, objective.
     """
@@ -93,6 +94,8 @@ def any_order(iou: np.ndarray, az_index: np.ndarray, n_az: int, spread_weight: f
     g = np.full((1 << others, n_photos, n_az, n_az), NEG, np.float32)
     g[0, 0, :, 0] = table[0, :, 0]
     for layer in _layers(others)[:-1]:
+        if check is not None:
+            check()
         for start in range(0, len(layer), CHUNK):
             sets = layer[start:start + CHUNK]
             # h[s, last, b0, j]: best over j' <= j of g[s, last, b0, j'] plus the step's gain,
@@ -232,8 +235,8 @@ class OrderChoice:
 
 def choose_order(iou: np.ndarray, candidates: Sequence[int], az_index: np.ndarray, n_az: int,
                  mode: str, margin: float, spread_weight: float,
-                 similarity: np.ndarray | None = None,
-                 similarity_weight: float = 0.0) -> OrderChoice:
+                 similarity: np.ndarray | None = None, similarity_weight: float = 0.0,
+                 check: Callable[[], None] | None = None) -> OrderChoice:
     """The walking order of photos given in any order (``mode`` "any") or perhaps in walking
     order ("auto": kept unless the best walk beats it by more than ``margin`` IoU a photo).
 
@@ -241,6 +244,7 @@ def choose_order(iou: np.ndarray, candidates: Sequence[int], az_index: np.ndarra
         iou: [P, M, V] IoU of each photo with each view of each model.
         candidates: the models (indices into M) whose best walks compete, best voted first.
         az_index, n_az: the views' azimuth bins and their number.
+        check: called often during the search (a cancelled job's check raises).
     Returns:
         The order, from the candidate model with the best walk in any order.
     """
@@ -249,7 +253,7 @@ def choose_order(iou: np.ndarray, candidates: Sequence[int], az_index: np.ndarra
     best: tuple[float, int, list[int]] | None = None
     for m in candidates:
         found = any_order(iou[:, m, :], az_index, n_az, spread_weight, similarity,
-                          similarity_weight)
+                          similarity_weight, check)
         if best is None or found.score > best[0]:
             best = (found.score, m, found.order)
     assert best is not None, "no candidate model"

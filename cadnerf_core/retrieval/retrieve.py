@@ -146,7 +146,7 @@ def retrieve(masks: Sequence[np.ndarray], names: Sequence[str], library: Library
     spec = library.spec  # both silhouette sets share the crop size and margin
     crops, boxes = canonical_masks(masks, spec.silhouette_size, spec.margin)
     if config.order != "walk" and len(masks) > 3:  # three photos make one cycle either way
-        choice = _order(crops, boxes, masks, images, library, allowed, config)
+        choice = _order(crops, boxes, masks, images, library, allowed, config, progress)
         walk = config.model_copy(update={"order": "walk"})
         found = retrieve([masks[i] for i in choice.order], [names[i] for i in choice.order],
                          library, walk, progress, _pick(images, choice.order),
@@ -194,7 +194,7 @@ def _pick(items: Sequence[T] | None, order: Sequence[int]) -> list[T] | None:
 
 def _order(crops: np.ndarray, boxes: Sequence[CropBox], masks: Sequence[np.ndarray],
            images: Sequence[np.ndarray] | None, library: Library, allowed: np.ndarray,
-           config: RetrievalConfig) -> OrderChoice:
+           config: RetrievalConfig, progress: Progress | None) -> OrderChoice:
     """The order to walk the photos in (``config.order`` "any" or "auto"), searched on the
     silhouette set ``config.perspective`` names (the far one when "auto") among the most voted
     models, with the photos' colour similarity where they are given."""
@@ -214,7 +214,7 @@ def _order(crops: np.ndarray, boxes: Sequence[CropBox], masks: Sequence[np.ndarr
     candidates = [m for m, _, _ in ranking[:TOP_MODELS]]
     return choose_order(iou, candidates, az_index, views.spec.n_azimuths, config.order,
                         config.order_margin, config.spread_weight, similarity,
-                        config.similarity_weight)
+                        config.similarity_weight, progress.check if progress else None)
 
 
 def _in_given_order(result: RetrievalResult, order: Sequence[int], mode: str,
