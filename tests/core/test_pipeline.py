@@ -223,6 +223,16 @@ def test_cli_retrieve_warns_of_a_guessed_direction_unless_given(tmp_path: Path,
     data = json.loads(left_out.stdout)
     assert data["model_id"] != "cuboid_slab"
     assert "cuboid_slab" not in {t["model_id"] for t in data["top_models"]}
+    # Photos in any order: the walking order found is reported, by index and by name.
+    shuffled = [photos[i] for i in (2, 0, 3, 1)]
+    anyhow = CliRunner().invoke(app, ["retrieve", *shuffled, "--library",
+                                      str(tiny_library_dir), "--order", "any", "--json"])
+    assert anyhow.exit_code == 0, anyhow.output
+    data = json.loads(anyhow.stdout)
+    assert data["order_mode"] == "any" and sorted(data["order"]) == [0, 1, 2, 3]
+    assert [m["name"] for m in data["matches"]] == [Path(p).name for p in shuffled]
+    bad = CliRunner().invoke(app, [*common, "--order", "sideways"])
+    assert bad.exit_code == 2 and "--order" in bad.output
     unknown = CliRunner().invoke(app, [*common, "--exclude-models", "mug,no_such_model"])
     assert unknown.exit_code == 2
     assert "no model 'no_such_model' in the library" in unknown.output
