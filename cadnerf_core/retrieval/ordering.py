@@ -71,7 +71,7 @@ def any_order(iou: np.ndarray, az_index: np.ndarray, n_az: int, spread_weight: f
         spread_weight: weight of the gap-spread term.
         similarity: [P, P] symmetric appearance similarity of the photos (None: none).
         similarity_weight: weight of the neighbours' similarity.
-        check: called between layers of the search (a cancelled job's check raises).
+        check: called every few milliseconds of the search (a cancelled job's check raises).
     Returns:
         The walk: photo order, view per photo, objective.
     """
@@ -94,9 +94,9 @@ def any_order(iou: np.ndarray, az_index: np.ndarray, n_az: int, spread_weight: f
     g = np.full((1 << others, n_photos, n_az, n_az), NEG, np.float32)
     g[0, 0, :, 0] = table[0, :, 0]
     for layer in _layers(others)[:-1]:
-        if check is not None:
-            check()
         for start in range(0, len(layer), CHUNK):
+            if check is not None:
+                check()
             sets = layer[start:start + CHUNK]
             # h[s, last, b0, j]: best over j' <= j of g[s, last, b0, j'] plus the step's gain,
             # computed only where ``last`` is photo 0 or a member of s (elsewhere impossible)
