@@ -22,6 +22,7 @@ from cadnerf_core.config_bounds import (
     MAX_WEIGHT,
     check_point_budget,
 )
+from cadnerf_core.config_matches import MatchesConfig
 
 
 class _Frozen(BaseModel):
@@ -280,6 +281,8 @@ class RetrievalConfig(_Frozen):
     """Library model ids never retrieved (a leave-out evaluation: the object's own look-alike
     left out, so the figures say how the method does on objects the library has not seen).
     Ids the library lacks are an error when the job runs."""
+    matches: MatchesConfig = Field(default_factory=MatchesConfig)
+    """SIFT matches between the photos: the walking direction where the object has texture."""
 
     @model_validator(mode="after")
     def _check_excluded(self) -> RetrievalConfig:

@@ -12,7 +12,7 @@ import dataclasses
 import logging
 from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -33,6 +33,9 @@ log = logging.getLogger(__name__)
 
 TOP_MODELS = 5  # models listed in a result, best first
 APPEARANCE_SIZE = 128  # side of the crops the texture direction cue looks at
+FOCAL_GUESS = 1.2
+"""Focal length per pixel of the longer side assumed for matching photos whose own is unknown
+(COLMAP's default: about 45 degrees across); the sign of a turn does not depend on it."""
 
 
 def solve_poses(iou: np.ndarray, az_index: np.ndarray, n_azimuths: int,
@@ -89,6 +92,24 @@ def direction_evidence(images: Sequence[np.ndarray], masks: Sequence[np.ndarray]
     return walk_direction_evidence(np.stack(rgbs), np.stack(crops))
 
 
+def photo_pairs(images: Sequence[np.ndarray], masks: Sequence[np.ndarray],
+                focals: Sequence[float | None] | None, config: RetrievalConfig) -> list[Any]:
+    """SIFT matches between every pair of photos (``matches.match_photos``), each photo's
+    camera centred, its focal length its own where known, else the median of the known ones,
+    else ``FOCAL_GUESS``. Returns the ``matches.PairMatch`` list."""
+    from cadnerf_core.retrieval.matches import match_photos
+
+    known = [f for f in focals or [] if f is not None]
+    intrinsics = []
+    for i, mask in enumerate(masks):
+        height, width = mask.shape[:2]
+        own = focals[i] if focals is not None else None
+        focal = own or (float(np.median(known)) if known else FOCAL_GUESS * max(height, width))
+        intrinsics.append(np.array([[focal, 0.0, width / 2.0], [0.0, focal, height / 2.0],
+                                    [0.0, 0.0, 1.0]]))
+    return match_photos(images, masks, intrinsics, config.matches)
+
+
 def _choose_walk(iou: np.ndarray, m: int, ranking: Sequence[tuple[int, int, float]],
                  az_index: np.ndarray, n_azimuths: int, config: RetrievalConfig,
                  evidence: float) -> tuple[int, PoseSearchResult]:
@@ -132,10 +153,21 @@ def retrieve(masks: Sequence[np.ndarray], names: Sequence[str], library: Library
     spec = library.spec  # both silhouette sets share the crop size and margin
     crops, boxes = canonical_masks(masks, spec.silhouette_size, spec.margin)
     evidence = 0.0
+    pairs: list[Any] = []
     if images is not None and config.solver == "dp" and config.appearance_weight > 0:
         evidence = direction_evidence(images, masks, boxes)
+        if config.matches.enabled:
+            from cadnerf_core.retrieval.matches import walk_evidence
+
+            pairs = photo_pairs(images, masks, focals, config)
+            turns = walk_evidence(pairs, config.matches)
+            log.info("matches: %s inliers over %d pairs; walking-direction evidence %+.2f "
+                     "(texture %+.2f)", sum(p.inliers for p in pairs), len(pairs), turns,
+                     evidence)
+            evidence += turns
     photos = _Photos(names, [mask.shape[:2] for mask in masks], crops, boxes, evidence, focals,
-                     crop_size or spec.silhouette_size, allowed)
+                     crop_size or spec.silhouette_size, allowed,
+                     [p.to_json() for p in pairs])
     near = library.near
     known = [f for f in focals or [] if f is not None]
     wanted = config.perspective
@@ -197,6 +229,7 @@ class _Photos:
     focals: Sequence[float | None] | None
     crop_size: int  # side of the crop that K_canon and box refer to
     allowed: np.ndarray  # [M'] library indices of the models that may be chosen
+    pairs: list[dict[str, Any]]  # the SIFT matches between photo pairs, summarised
 
 
 def _retrieve_from(photos: _Photos, library: Library, config: RetrievalConfig,
@@ -235,13 +268,14 @@ def _retrieve_from(photos: _Photos, library: Library, config: RetrievalConfig,
         progress.step("retrieval", steps[0] + 2, steps[1])
     others = [RetrievalResult(models[o].id, models[o].category, top,
                               _matches(photos, library, iou, o, walk, config), config.solver,
-                              walk.direction, walk.score, evidence, perspective=perspective)
+                              walk.direction, walk.score, evidence, perspective=perspective,
+                              photo_pairs=photos.pairs)
               for o, walk in _alternatives(iou, ranking, az_index, spec.n_azimuths, config,
                                            evidence, (m, found.direction))]
     return RetrievalResult(models[m].id, models[m].category, top, matches, config.solver,
                            found.direction, found.score, evidence, found.direction_lead,
                            perspective=perspective, direction_ambiguous=ambiguous,
-                           alternatives=others)
+                           alternatives=others, photo_pairs=photos.pairs)
 
 
 def _matches(photos: _Photos, library: Library, iou: np.ndarray, m: int,
