@@ -56,7 +56,7 @@ class WalkResult:
     error: dict[bool, float]  # matches on? -> median rotation error (degrees)
     found: dict[bool, int]  # matches on? -> walking direction found
     guess: dict[bool, bool]  # matches on? -> direction flagged ambiguous
-    turns: int  # consecutive pairs with a turn
+    turns: int  # consecutive pairs with a turn of a walking step's size
     right: int  # of which the sign is the walk's
 
 
@@ -78,8 +78,9 @@ def walk(name: str, views: int, direction: int, library: Any, work: Path) -> Wal
     data = load_dataset(folder)
     results = {on: retrieve(list(data.masks), data.names, library, _config(name, on),
                             images=list(data.images)) for on in (False, True)}
-    turns = [p["turn_deg"] for p in results[True].photo_pairs
-             if p["j"] == p["i"] + 1 and p["turn_deg"] is not None]
+    low, high = (share * 360.0 / views for share in _config(name, True).matches.turn_range)
+    turns = [p["turn_deg"] for p in results[True].photo_pairs if p["j"] == p["i"] + 1
+             and p["turn_deg"] is not None and low <= abs(p["turn_deg"]) <= high]
     return WalkResult(name, views, direction,
                       {on: rotation_error(r, data.c2w) for on, r in results.items()},
                       {on: r.direction for on, r in results.items()},
@@ -90,7 +91,7 @@ def walk(name: str, views: int, direction: int, library: Any, work: Path) -> Wal
 def walk_lines(results: list[WalkResult]) -> list[str]:
     """Per mesh: median rotation error off/on, walks with the right direction, guesses."""
     lines = ["| mesh | walks | median rot. error, off | on | right direction, off | on | "
-             "flagged a guess, off | on | consecutive pairs with a turn (right sign) |",
+             "flagged a guess, off | on | consecutive pairs with a usable turn (right sign) |",
              "| --- | --- | --- | --- | --- | --- | --- | --- | --- |"]
     for mesh in dict.fromkeys(r.mesh for r in results):
         own = [r for r in results if r.mesh == mesh]

@@ -7,7 +7,7 @@ Its own module so that ``config`` stays one screenful per section; ``config`` ne
 
 from __future__ import annotations
 
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import BaseModel, ConfigDict, Field, model_validator
 
 from cadnerf_core.config_bounds import MAX_MATCH_SIZE
 
@@ -28,9 +28,18 @@ class MatchesConfig(BaseModel):
     """Fewest inliers of the essential matrix for a pair's relative rotation to be used."""
     threshold_px: float = Field(default=1.0, ge=0.1, le=10.0)
     """RANSAC threshold on the epipolar distance, in pixels of the searched crops."""
-    min_turn_deg: float = Field(default=3.0, ge=0.0, le=90.0)
-    """Turns smaller than this between consecutive photos say nothing about the direction."""
-    evidence_per_pair: float = Field(default=2.5, ge=0.0, le=100.0)
-    """Direction evidence each consecutive pair with a known turn adds, in the texture cue's
-    unit (``RetrievalConfig.appearance_weight`` converts it to IoU; 2.5 is 1 IoU a pair at its
-    default 0.2, more than silhouettes' usual lead: verified matches are rarely wrong)."""
+    turn_range: tuple[float, float] = (0.4, 2.0)
+    """Turns between consecutive photos used for the direction, as multiples of an even step
+    (360 degrees over the photo count): smaller ones are mostly features that travel with the
+    camera (highlights, reflections, shading), larger ones mismatched repeats."""
+    evidence_per_pair: float = Field(default=1.25, ge=0.0, le=100.0)
+    """Direction evidence each consecutive pair with a usable turn adds, in the texture cue's
+    unit (``RetrievalConfig.appearance_weight`` converts it to IoU: 0.5 a pair at its default
+    0.2); none at all when the usable turns disagree in sign."""
+
+    @model_validator(mode="after")
+    def _check_range(self) -> MatchesConfig:
+        low, high = self.turn_range
+        if not 0.0 <= low <= high <= 10.0:
+            raise ValueError(f"turn_range must satisfy 0 <= low <= high <= 10, got {low, high}")
+        return self

@@ -263,14 +263,19 @@ def match_photos(images: Sequence[np.ndarray], masks: Sequence[np.ndarray],
             for i in range(len(features)) for j in range(i + 1, len(features))]
 
 
-def walk_evidence(pairs: Sequence[PairMatch], config: MatchesConfig) -> float:
+def walk_evidence(pairs: Sequence[PairMatch], n_photos: int, config: MatchesConfig) -> float:
     """Evidence for the walking direction from the turns between consecutive photos.
 
-    Each consecutive pair (i, i + 1) whose turn is known and at least ``config.min_turn_deg``
-    adds ``config.evidence_per_pair`` times the turn's sign, so it is in the unit of the
+    A consecutive pair (i, i + 1) counts when its turn is known and its size within
+    ``config.turn_range`` times an even step (360 / ``n_photos`` degrees). When the counted
+    turns agree in sign, each adds ``config.evidence_per_pair`` times it, in the unit of the
     texture cue (``direction.walk_direction_evidence``): > 0 favours increasing azimuth.
-    Returns 0 when no consecutive pair has enough inliers (a texture-less object).
+    Returns 0 when none counts (a texture-less object) or they disagree.
     """
-    votes = [math.copysign(1.0, p.turn_deg) for p in pairs if p.j == p.i + 1
-             and p.turn_deg is not None and abs(p.turn_deg) >= config.min_turn_deg]
-    return config.evidence_per_pair * float(sum(votes))
+    step = 360.0 / max(n_photos, 1)
+    low, high = config.turn_range
+    signs = [math.copysign(1.0, p.turn_deg) for p in pairs if p.j == p.i + 1
+             and p.turn_deg is not None and low * step <= abs(p.turn_deg) <= high * step]
+    if len(set(signs)) != 1:
+        return 0.0
+    return config.evidence_per_pair * float(sum(signs))

@@ -160,7 +160,7 @@ def retrieve(masks: Sequence[np.ndarray], names: Sequence[str], library: Library
             from cadnerf_core.retrieval.matches import walk_evidence
 
             pairs = photo_pairs(images, masks, focals, config)
-            turns = walk_evidence(pairs, config.matches)
+            turns = walk_evidence(pairs, len(masks), config.matches)
             log.info("matches: %s inliers over %d pairs; walking-direction evidence %+.2f "
                      "(texture %+.2f)", sum(p.inliers for p in pairs), len(pairs), turns,
                      evidence)

@@ -13,6 +13,7 @@ from cadnerf_core.cameras import intrinsics_from_fov, orbit_pose
 from cadnerf_core.config import MatchesConfig, RetrievalConfig
 from cadnerf_core.mesh.renderer import MeshRenderer
 from cadnerf_core.retrieval.matches import (
+    PairMatch,
     match_photos,
     mutual_matches,
     sampson_errors,
@@ -65,14 +66,15 @@ def test_matched_turns_tell_the_walking_direction(direction: int) -> None:
     config = MatchesConfig()
     pairs = match_photos(images, masks, _intrinsics(3), config)
     assert [(p.i, p.j) for p in pairs] == [(0, 1), (0, 2), (1, 2)]
-    assert walk_evidence(pairs, config) == pytest.approx(2 * direction * config.evidence_per_pair)
+    assert walk_evidence(pairs, 12, config) == pytest.approx(
+        2 * direction * config.evidence_per_pair)
 
 
 def test_a_plain_object_gives_no_turn_and_no_evidence() -> None:
     images, masks = _photos(_ball(False), [0.0, 25.0, 50.0])
     pairs = match_photos(images, masks, _intrinsics(3), MatchesConfig())
     assert all(p.turn_deg is None and p.rotation is None for p in pairs)
-    assert walk_evidence(pairs, MatchesConfig()) == 0.0
+    assert walk_evidence(pairs, 12, MatchesConfig()) == 0.0
 
 
 def test_vertical_turn_of_orbiting_cameras_follows_the_azimuth() -> None:
@@ -108,3 +110,19 @@ def test_retrieval_records_the_pairs_and_plain_photos_change_nothing(tiny_librar
     assert "photo_pairs" not in off.to_json()
     assert on.direction_evidence == off.direction_evidence
     assert [m.view for m in on.matches] == [m.view for m in off.matches]
+
+
+def _pair(i: int, turn: float | None) -> PairMatch:
+    return PairMatch(i, i + 1, 50, 40, 0.2, turn, None, np.zeros((0, 2, 2)))
+
+
+def test_only_walking_sized_agreeing_turns_count() -> None:
+    config = MatchesConfig()  # 6 photos: an even step is 60 degrees, turns 24-120 count
+    per_pair = config.evidence_per_pair
+    assert walk_evidence([_pair(0, 50.0), _pair(1, 70.0), _pair(2, None)], 6, config) \
+        == pytest.approx(2 * per_pair)
+    assert walk_evidence([_pair(0, -50.0), _pair(3, 5.0), _pair(4, 150.0)], 6, config) \
+        == pytest.approx(-per_pair)  # a 5-degree turn (camera-fixed features) and a 150
+    assert walk_evidence([_pair(0, 50.0), _pair(1, -50.0)], 6, config) == 0.0
+    far = PairMatch(0, 2, 50, 40, 0.2, 60.0, None, np.zeros((0, 2, 2)))
+    assert walk_evidence([far], 6, config) == 0.0  # not consecutive
