@@ -37,6 +37,14 @@ class MatchesConfig(BaseModel):
     unit (``RetrievalConfig.appearance_weight`` converts it to IoU: 0.5 a pair at its default
     0.2); none at all when the usable turns disagree in sign."""
 
+    step_weight: float = Field(default=0.0, ge=0.0, le=10.0)
+    """IoU the DP's walk loses, at most, where a step between consecutive photos differs from
+    the turn their matches measured. 0 (off): measured no better on level walks, where the
+    retrieved poses' error is mostly in elevation, which the steps do not constrain."""
+    step_tolerance_deg: float = Field(default=15.0, ge=1.0, le=180.0)
+    """Difference in degrees between a walk's step and the measured turn at which the loss
+    reaches ``step_weight`` (quadratic below)."""
+
     @model_validator(mode="after")
     def _check_range(self) -> MatchesConfig:
         low, high = self.turn_range

@@ -263,19 +263,36 @@ def match_photos(images: Sequence[np.ndarray], masks: Sequence[np.ndarray],
             for i in range(len(features)) for j in range(i + 1, len(features))]
 
 
+def usable_turns(pairs: Sequence[PairMatch], n_photos: int,
+                 config: MatchesConfig) -> list[PairMatch]:
+    """The consecutive pairs (i, i + 1) whose turn is known and, in size, within
+    ``config.turn_range`` times an even step (360 / ``n_photos`` degrees): smaller turns are
+    mostly features that travel with the camera, larger ones mismatched repeats."""
+    step = 360.0 / max(n_photos, 1)
+    low, high = config.turn_range
+    return [p for p in pairs if p.j == p.i + 1 and p.turn_deg is not None
+            and low * step <= abs(p.turn_deg) <= high * step]
+
+
 def walk_evidence(pairs: Sequence[PairMatch], n_photos: int, config: MatchesConfig) -> float:
     """Evidence for the walking direction from the turns between consecutive photos.
 
-    A consecutive pair (i, i + 1) counts when its turn is known and its size within
-    ``config.turn_range`` times an even step (360 / ``n_photos`` degrees). When the counted
-    turns agree in sign, each adds ``config.evidence_per_pair`` times it, in the unit of the
-    texture cue (``direction.walk_direction_evidence``): > 0 favours increasing azimuth.
+    The consecutive pairs of ``usable_turns`` count. When their turns agree in sign, each
+    adds ``config.evidence_per_pair`` times it, in the unit of the texture cue (``direction.walk_direction_evidence``): > 0 favours increasing azimuth.
     Returns 0 when none counts (a texture-less object) or they disagree.
     """
-    step = 360.0 / max(n_photos, 1)
-    low, high = config.turn_range
-    signs = [math.copysign(1.0, p.turn_deg) for p in pairs if p.j == p.i + 1
-             and p.turn_deg is not None and low * step <= abs(p.turn_deg) <= high * step]
+    signs = [math.copysign(1.0, p.turn_deg) for p in usable_turns(pairs, n_photos, config)
+             if p.turn_deg is not None]
     if len(set(signs)) != 1:
         return 0.0
     return config.evidence_per_pair * float(sum(signs))
+
+
+def measured_steps(pairs: Sequence[PairMatch], n_photos: int,
+                   config: MatchesConfig) -> np.ndarray:
+    """The size in degrees of the turn from photo p - 1 to photo p where a usable pair
+    (``usable_turns``) measured it, else NaN. Returns [n_photos] float64 (entry 0 NaN)."""
+    steps = np.full(n_photos, np.nan)
+    for p in usable_turns(pairs, n_photos, config):
+        steps[p.j] = abs(float(p.turn_deg or 0.0))
+    return steps

@@ -39,7 +39,8 @@ FOCAL_GUESS = 1.2
 
 
 def solve_poses(iou: np.ndarray, az_index: np.ndarray, n_azimuths: int,
-                config: RetrievalConfig, evidence: float = 0.0) -> PoseSearchResult:
+                config: RetrievalConfig, evidence: float = 0.0,
+                steps: np.ndarray | None = None) -> PoseSearchResult:
     """Run the configured pose solver on one model's IoU table.
 
     Args:
@@ -48,6 +49,9 @@ def solve_poses(iou: np.ndarray, az_index: np.ndarray, n_azimuths: int,
         n_azimuths: number of azimuth bins.
         evidence: texture evidence for the walking direction (> 0: increasing azimuth),
             used by the DP when it reaches ``config.appearance_threshold``.
+        steps: [P] size in degrees of the turn from photo p - 1 to photo p that the photos'
+            matches measured (NaN where unknown), a prior on the DP's steps
+            (``MatchesConfig.step_weight``); None: none.
     Returns:
         chosen views (-1 = discarded), score and direction.
     """
@@ -57,7 +61,7 @@ def solve_poses(iou: np.ndarray, az_index: np.ndarray, n_azimuths: int,
         # view indices do not depend on the bins' numbering.
         bins = az_index if given > 0 else (-np.asarray(az_index)) % n_azimuths
         forward = config.model_copy(update={"walk": "auto", "both_directions": False})
-        found = solve_poses(iou, bins, n_azimuths, forward)
+        found = solve_poses(iou, bins, n_azimuths, forward, steps=steps)
         return dataclasses.replace(found, direction=given, direction_lead=None)
     if config.solver == "paper":
         found = paper_algorithm1(iou, az_index, config.top_k, config.max_discard)
@@ -70,9 +74,13 @@ def solve_poses(iou: np.ndarray, az_index: np.ndarray, n_azimuths: int,
     if abs(evidence) >= config.appearance_threshold:
         # Each direction gains (or loses) weight * evidence: the decreasing walk pays twice.
         backward_cost += 2.0 * config.appearance_weight * evidence
+    bin_deg = 360.0 / n_azimuths
     return cyclic_dp(iou, az_index, n_azimuths, config.discard_penalty, config.max_discard,
                      config.both_directions, config.cyclic, backward_cost=backward_cost,
-                     spread_weight=config.spread_weight)
+                     spread_weight=config.spread_weight,
+                     steps=None if steps is None else steps / bin_deg,
+                     step_weight=config.matches.step_weight,
+                     step_tolerance=config.matches.step_tolerance_deg / bin_deg)
 
 
 def direction_evidence(images: Sequence[np.ndarray], masks: Sequence[np.ndarray],
@@ -112,13 +120,13 @@ def photo_pairs(images: Sequence[np.ndarray], masks: Sequence[np.ndarray],
 
 def _choose_walk(iou: np.ndarray, m: int, ranking: Sequence[tuple[int, int, float]],
                  az_index: np.ndarray, n_azimuths: int, config: RetrievalConfig,
-                 evidence: float) -> tuple[int, PoseSearchResult]:
+                 evidence: float, steps: np.ndarray | None) -> tuple[int, PoseSearchResult]:
     """The model and its walk: the voted model ``m``'s, or (``model_choice`` "walk", DP) the
     best walk of the ``TOP_MODELS`` most voted. Returns (model index, its walk)."""
-    found = solve_poses(iou[:, m, :], az_index, n_azimuths, config, evidence)
+    found = solve_poses(iou[:, m, :], az_index, n_azimuths, config, evidence, steps)
     if config.model_choice == "walk" and config.solver == "dp":
         for other, _, _ in ranking[1:TOP_MODELS]:
-            walk = solve_poses(iou[:, other, :], az_index, n_azimuths, config, evidence)
+            walk = solve_poses(iou[:, other, :], az_index, n_azimuths, config, evidence, steps)
             if walk.score > found.score:
                 m, found = other, walk
     return m, found
@@ -154,20 +162,22 @@ def retrieve(masks: Sequence[np.ndarray], names: Sequence[str], library: Library
     crops, boxes = canonical_masks(masks, spec.silhouette_size, spec.margin)
     evidence = 0.0
     pairs: list[Any] = []
+    steps = None
     if images is not None and config.solver == "dp" and config.appearance_weight > 0:
         evidence = direction_evidence(images, masks, boxes)
         if config.matches.enabled:
-            from cadnerf_core.retrieval.matches import walk_evidence
+            from cadnerf_core.retrieval.matches import measured_steps, walk_evidence
 
             pairs = photo_pairs(images, masks, focals, config)
             turns = walk_evidence(pairs, len(masks), config.matches)
+            steps = measured_steps(pairs, len(masks), config.matches)
             log.info("matches: %s inliers over %d pairs; walking-direction evidence %+.2f "
                      "(texture %+.2f)", sum(p.inliers for p in pairs), len(pairs), turns,
                      evidence)
             evidence += turns
     photos = _Photos(names, [mask.shape[:2] for mask in masks], crops, boxes, evidence, focals,
                      crop_size or spec.silhouette_size, allowed,
-                     [p.to_json() for p in pairs])
+                     [p.to_json() for p in pairs], steps)
     near = library.near
     known = [f for f in focals or [] if f is not None]
     wanted = config.perspective
@@ -230,6 +240,7 @@ class _Photos:
     crop_size: int  # side of the crop that K_canon and box refer to
     allowed: np.ndarray  # [M'] library indices of the models that may be chosen
     pairs: list[dict[str, Any]]  # the SIFT matches between photo pairs, summarised
+    steps: np.ndarray | None  # [P] measured turn (degrees) from photo p - 1 to p, or NaN
 
 
 def _retrieve_from(photos: _Photos, library: Library, config: RetrievalConfig,
@@ -248,14 +259,16 @@ def _retrieve_from(photos: _Photos, library: Library, config: RetrievalConfig,
     if progress is not None:
         progress.step("retrieval", steps[0] + 1, steps[1])
     az_index = azimuth_bins(library.az_el, spec.n_azimuths)
-    m, found = _choose_walk(iou, voted, ranking, az_index, spec.n_azimuths, config, evidence)
+    m, found = _choose_walk(iou, voted, ranking, az_index, spec.n_azimuths, config, evidence,
+                            photos.steps)
     ambiguous = (found.direction_lead is not None
                  and found.direction_lead < config.ambiguity_margin
                  and abs(evidence) < config.appearance_threshold)
     if ambiguous and found.direction < 0 and config.ambiguous_walk == "ccw":
         ccw = config.model_copy(update={"walk": "ccw"})
         lead = found.direction_lead
-        m, found = _choose_walk(iou, voted, ranking, az_index, spec.n_azimuths, ccw, evidence)
+        m, found = _choose_walk(iou, voted, ranking, az_index, spec.n_azimuths, ccw, evidence,
+                                photos.steps)
         found = dataclasses.replace(found, direction_lead=lead)
     models = [library.models[i] for i in allowed]
     top = [{"model_id": models[i].id, "category": models[i].category,
@@ -271,7 +284,7 @@ def _retrieve_from(photos: _Photos, library: Library, config: RetrievalConfig,
                               walk.direction, walk.score, evidence, perspective=perspective,
                               photo_pairs=photos.pairs)
               for o, walk in _alternatives(iou, ranking, az_index, spec.n_azimuths, config,
-                                           evidence, (m, found.direction))]
+                                           evidence, photos.steps, (m, found.direction))]
     return RetrievalResult(models[m].id, models[m].category, top, matches, config.solver,
                            found.direction, found.score, evidence, found.direction_lead,
                            perspective=perspective, direction_ambiguous=ambiguous,
@@ -297,7 +310,8 @@ def _matches(photos: _Photos, library: Library, iou: np.ndarray, m: int,
 
 def _alternatives(iou: np.ndarray, ranking: Sequence[tuple[int, int, float]],
                   az_index: np.ndarray, n_azimuths: int, config: RetrievalConfig,
-                  evidence: float, chosen: tuple[int, int]) -> list[tuple[int, PoseSearchResult]]:
+                  evidence: float, steps: np.ndarray | None,
+                  chosen: tuple[int, int]) -> list[tuple[int, PoseSearchResult]]:
     """The best walks after the ``chosen`` (model, direction), best score first: each of the
     ``TOP_MODELS`` most voted models walked each allowed way round; ``config.hypotheses`` - 1
     of them. Returns (model index, walk) pairs."""
@@ -308,7 +322,7 @@ def _alternatives(iou: np.ndarray, ranking: Sequence[tuple[int, int, float]],
     for other, _, _ in ranking[:TOP_MODELS]:
         for walk in walks:
             given = config.model_copy(update={"walk": walk})
-            result = solve_poses(iou[:, other, :], az_index, n_azimuths, given, evidence)
+            result = solve_poses(iou[:, other, :], az_index, n_azimuths, given, evidence, steps)
             if (other, result.direction) != chosen:
                 found.append((other, result))
     found.sort(key=lambda pair: -pair[1].score)
