@@ -278,7 +278,8 @@ def walk_evidence(pairs: Sequence[PairMatch], n_photos: int, config: MatchesConf
     """Evidence for the walking direction from the turns between consecutive photos.
 
     The consecutive pairs of ``usable_turns`` count. When their turns agree in sign, each
-    adds ``config.evidence_per_pair`` times it, in the unit of the texture cue (``direction.walk_direction_evidence``): > 0 favours increasing azimuth.
+    adds ``config.evidence_per_pair`` times its sign, in the unit of the texture cue
+    (``direction.walk_direction_evidence``): > 0 favours increasing azimuth.
     Returns 0 when none counts (a texture-less object) or they disagree.
     """
     signs = [math.copysign(1.0, p.turn_deg) for p in usable_turns(pairs, n_photos, config)
