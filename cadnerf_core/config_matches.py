@@ -35,7 +35,7 @@ class MatchesConfig(BaseModel):
     evidence_per_pair: float = Field(default=1.25, ge=0.0, le=100.0)
     """Direction evidence each consecutive pair with a usable turn adds, in the texture cue's
     unit (``RetrievalConfig.appearance_weight`` converts it to IoU: 0.5 a pair at its default
-    0.2); none at all when the usable turns disagree in sign."""
+    0.2); none at all when their signs are split (``matches.AGREEMENT``)."""
 
     step_weight: float = Field(default=0.0, ge=0.0, le=10.0)
     """IoU the DP's walk loses, at most, where a step between consecutive photos differs from

@@ -36,6 +36,9 @@ MAX_FEATURES = 2000
 get an equal share): bounds the cost of matching a pair."""
 TILTS = (math.sqrt(2.0), 2.0)
 """Foreshortenings simulated, along each image axis (ASIFT's first two tilts)."""
+AGREEMENT = 0.75
+"""Share of the consecutive turns that must agree in sign for them to give evidence (one
+mismatched pair in four or five is common; a split vote is none)."""
 MASK_DILATION = 0.02
 """Share of the crop's long side by which a mask is grown before features are looked for."""
 
@@ -277,16 +280,18 @@ def usable_turns(pairs: Sequence[PairMatch], n_photos: int,
 def walk_evidence(pairs: Sequence[PairMatch], n_photos: int, config: MatchesConfig) -> float:
     """Evidence for the walking direction from the turns between consecutive photos.
 
-    The consecutive pairs of ``usable_turns`` count. When their turns agree in sign, each
-    adds ``config.evidence_per_pair`` times its sign, in the unit of the texture cue
-    (``direction.walk_direction_evidence``): > 0 favours increasing azimuth.
-    Returns 0 when none counts (a texture-less object) or they disagree.
+    The consecutive pairs of ``usable_turns`` vote with their sign. When at least
+    ``AGREEMENT`` of the votes agree, the evidence is ``config.evidence_per_pair`` times
+    their sum, in the unit of the texture cue (``direction.walk_direction_evidence``):
+    > 0 favours increasing azimuth. Returns 0 when no pair votes (a texture-less object) or
+    the votes are split.
     """
     signs = [math.copysign(1.0, p.turn_deg) for p in usable_turns(pairs, n_photos, config)
              if p.turn_deg is not None]
-    if len(set(signs)) != 1:
+    total = float(sum(signs))
+    if not signs or (len(signs) + abs(total)) / 2.0 < AGREEMENT * len(signs):
         return 0.0
-    return config.evidence_per_pair * float(sum(signs))
+    return config.evidence_per_pair * total
 
 
 def measured_steps(pairs: Sequence[PairMatch], n_photos: int,

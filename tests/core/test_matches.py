@@ -116,7 +116,7 @@ def _pair(i: int, turn: float | None) -> PairMatch:
     return PairMatch(i, i + 1, 50, 40, 0.2, turn, None, np.zeros((0, 2, 2)))
 
 
-def test_only_walking_sized_agreeing_turns_count() -> None:
+def test_only_walking_sized_turns_that_mostly_agree_count() -> None:
     config = MatchesConfig()  # 6 photos: an even step is 60 degrees, turns 24-120 count
     per_pair = config.evidence_per_pair
     assert walk_evidence([_pair(0, 50.0), _pair(1, 70.0), _pair(2, None)], 6, config) \
@@ -124,5 +124,8 @@ def test_only_walking_sized_agreeing_turns_count() -> None:
     assert walk_evidence([_pair(0, -50.0), _pair(3, 5.0), _pair(4, 150.0)], 6, config) \
         == pytest.approx(-per_pair)  # a 5-degree turn (camera-fixed features) and a 150
     assert walk_evidence([_pair(0, 50.0), _pair(1, -50.0)], 6, config) == 0.0
+    three_to_one = [_pair(0, -50.0), _pair(1, -40.0), _pair(2, -60.0), _pair(3, 45.0)]
+    assert walk_evidence(three_to_one, 6, config) == pytest.approx(-2 * per_pair)
+    assert walk_evidence(three_to_one[1:], 6, config) == 0.0  # two to one: split
     far = PairMatch(0, 2, 50, 40, 0.2, 60.0, None, np.zeros((0, 2, 2)))
     assert walk_evidence([far], 6, config) == 0.0  # not consecutive
