@@ -24,6 +24,7 @@ from cadnerf_core.config_bounds import (
 )
 from cadnerf_core.config_bounds import Frozen as _Frozen
 from cadnerf_core.config_retrieval import AMBIGUOUS_HINT as AMBIGUOUS_HINT
+from cadnerf_core.config_retrieval import MatchesConfig as MatchesConfig
 from cadnerf_core.config_retrieval import RetrievalConfig as RetrievalConfig
 
 

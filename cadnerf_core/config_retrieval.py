@@ -9,6 +9,7 @@ from typing import Literal
 from pydantic import Field, model_validator
 
 from cadnerf_core.config_bounds import Frozen as _Frozen
+from cadnerf_core.config_matches import MatchesConfig
 
 AMBIGUOUS_HINT = ("the walking direction is a guess: these photos look alike walked either way "
                   "round, so counter-clockwise was assumed (the object on your left as you "
@@ -100,6 +101,9 @@ class RetrievalConfig(_Frozen):
     """Library model ids never retrieved (a leave-out evaluation: the object's own look-alike
     left out, so the figures say how the method does on objects the library has not seen).
     Ids the library lacks are an error when the job runs."""
+    matches: MatchesConfig = Field(default_factory=MatchesConfig)
+    """SIFT matches between the photos: the walking direction where the object has texture,
+    and which photos neighbour each other when their order is searched."""
 
     @model_validator(mode="after")
     def _check_excluded(self) -> RetrievalConfig:

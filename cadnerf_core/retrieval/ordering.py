@@ -180,7 +180,7 @@ def same_cycle(a: Sequence[int], b: Sequence[int]) -> bool:
     return a in (forward, backward)
 
 
-def _standardised(values: np.ndarray) -> np.ndarray:
+def standardised(values: np.ndarray) -> np.ndarray:
     """``values`` [P, P] less the mean of its off-diagonal entries, over their standard
     deviation (all 0 where they do not vary: a cue that says nothing)."""
     off = values[~np.eye(len(values), dtype=bool)]
@@ -193,7 +193,7 @@ def _standardised(values: np.ndarray) -> np.ndarray:
 def neighbour_similarity(images: Sequence[np.ndarray],
                          masks: Sequence[np.ndarray]) -> np.ndarray:
     """How alike the photos look, for the prior that neighbours in a walk look alike: the mean
-    of two standardised cues (``_standardised``), the histogram intersection of their
+    of two standardised cues (``standardised``), the histogram intersection of their
     hue-saturation histograms inside the masks (the colours of the side they see) and the IoU
     of their masks' canonical crops (their outlines).
 
@@ -217,7 +217,7 @@ def neighbour_similarity(images: Sequence[np.ndarray],
     inter = flat @ flat.T
     area = flat.sum(axis=1)
     outline = inter / np.maximum(area[:, None] + area[None, :] - inter, 1.0)
-    return (_standardised(colour) + _standardised(outline)) / 2.0
+    return (standardised(colour) + standardised(outline)) / 2.0
 
 
 @dataclass(frozen=True)

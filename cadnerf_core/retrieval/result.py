@@ -52,7 +52,8 @@ class RetrievalResult:
     direction: int
     score: float
     direction_evidence: float = 0.0
-    """Texture evidence for the walking direction (> 0: increasing azimuth; 0: none used)."""
+    """Evidence for the walking direction from the texture cue plus the turns between matched
+    consecutive photos (> 0: increasing azimuth; 0: none used)."""
     direction_lead: float | None = None
     """The DP's objective of its best walk less that of the best walk the other way (None
     when the direction was given or the paper's solver ran)."""
@@ -76,6 +77,10 @@ class RetrievalResult:
     hypotheses: list[dict[str, Any]] = field(default_factory=list)
     """The hypotheses a short silhouette fit compared (model, direction, retrieval score, fit
     score), in retrieval's order, when there were several; this result is the best fit's."""
+    photo_pairs: list[dict[str, Any]] = field(default_factory=list)
+    """The SIFT matches between every pair of photos (``matches.PairMatch.to_json``: photos
+    i and j, mutual matches, inliers, inlier ratio, median Sampson error in pixels, turn about
+    the vertical axis); empty when matching was off or had no photos."""
 
     @property
     def kept(self) -> list[PhotoMatch]:
@@ -95,4 +100,5 @@ class RetrievalResult:
                 "order_mode": self.order_mode, "reordered": self.reordered,
                 "discarded": [m.index for m in self.matches if m.discarded],
                 "matches": [m.to_json() for m in self.matches],
-                **({"hypotheses": self.hypotheses} if self.hypotheses else {})}
+                **({"hypotheses": self.hypotheses} if self.hypotheses else {}),
+                **({"photo_pairs": self.photo_pairs} if self.photo_pairs else {})}

@@ -12,7 +12,7 @@ import dataclasses
 import logging
 from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, TypeVar
+from typing import TYPE_CHECKING, Any, TypeVar
 
 import numpy as np
 
@@ -23,6 +23,14 @@ from cadnerf_core.intake.crop import CropBox, apply_crop
 from cadnerf_core.intake.photos import canonical_masks
 from cadnerf_core.progress import Progress
 from cadnerf_core.retrieval.cameras import angle_mismatch, photo_match, share_focal
+from cadnerf_core.retrieval.matches import (
+    PairMatch,
+    inlier_table,
+    match_photos,
+    measured_steps,
+    reindexed,
+    walk_evidence,
+)
 from cadnerf_core.retrieval.posesearch import PoseSearchResult, cyclic_dp, paper_algorithm1
 from cadnerf_core.retrieval.result import PhotoMatch, RetrievalResult
 from cadnerf_core.retrieval.scoring import azimuth_bins, iou_table, vote_models
@@ -37,10 +45,14 @@ log = logging.getLogger(__name__)
 
 TOP_MODELS = 5  # models listed in a result, best first
 APPEARANCE_SIZE = 128  # side of the crops the texture direction cue looks at
+FOCAL_GUESS = 1.2
+"""Focal length per pixel of the longer side assumed for matching photos whose own is unknown
+(COLMAP's default: about 45 degrees across); the sign of a turn does not depend on it."""
 
 
 def solve_poses(iou: np.ndarray, az_index: np.ndarray, n_azimuths: int,
-                config: RetrievalConfig, evidence: float = 0.0) -> PoseSearchResult:
+                config: RetrievalConfig, evidence: float = 0.0,
+                steps: np.ndarray | None = None) -> PoseSearchResult:
     """Run the configured pose solver on one model's IoU table.
 
     Args:
@@ -49,6 +61,9 @@ def solve_poses(iou: np.ndarray, az_index: np.ndarray, n_azimuths: int,
         n_azimuths: number of azimuth bins.
         evidence: texture evidence for the walking direction (> 0: increasing azimuth),
             used by the DP when it reaches ``config.appearance_threshold``.
+        steps: [P] size in degrees of the turn from photo p - 1 to photo p that the photos'
+            matches measured (NaN where unknown), a prior on the DP's steps
+            (``MatchesConfig.step_weight``); None: none.
     Returns:
         chosen views (-1 = discarded), score and direction.
     """
@@ -58,7 +73,7 @@ def solve_poses(iou: np.ndarray, az_index: np.ndarray, n_azimuths: int,
         # view indices do not depend on the bins' numbering.
         bins = az_index if given > 0 else (-np.asarray(az_index)) % n_azimuths
         forward = config.model_copy(update={"walk": "auto", "both_directions": False})
-        found = solve_poses(iou, bins, n_azimuths, forward)
+        found = solve_poses(iou, bins, n_azimuths, forward, steps=steps)
         return dataclasses.replace(found, direction=given, direction_lead=None)
     if config.solver == "paper":
         found = paper_algorithm1(iou, az_index, config.top_k, config.max_discard)
@@ -71,9 +86,13 @@ def solve_poses(iou: np.ndarray, az_index: np.ndarray, n_azimuths: int,
     if abs(evidence) >= config.appearance_threshold:
         # Each direction gains (or loses) weight * evidence: the decreasing walk pays twice.
         backward_cost += 2.0 * config.appearance_weight * evidence
+    bin_deg = 360.0 / n_azimuths
     return cyclic_dp(iou, az_index, n_azimuths, config.discard_penalty, config.max_discard,
                      config.both_directions, config.cyclic, backward_cost=backward_cost,
-                     spread_weight=config.spread_weight)
+                     spread_weight=config.spread_weight,
+                     steps=None if steps is None else steps / bin_deg,
+                     step_weight=config.matches.step_weight,
+                     step_tolerance=config.matches.step_tolerance_deg / bin_deg)
 
 
 def direction_evidence(images: Sequence[np.ndarray], masks: Sequence[np.ndarray],
@@ -101,15 +120,32 @@ def _appearance_crops(images: Sequence[np.ndarray], masks: Sequence[np.ndarray],
     return np.stack(rgbs), np.stack(crops)
 
 
+def photo_pairs(images: Sequence[np.ndarray], masks: Sequence[np.ndarray],
+                focals: Sequence[float | None] | None,
+                config: RetrievalConfig) -> list[PairMatch]:
+    """SIFT matches between every pair of photos (``matches.match_photos``), each photo's
+    camera centred, its focal length its own where known, else the median of the known ones,
+    else ``FOCAL_GUESS``. Returns the ``matches.PairMatch`` list."""
+    known = [f for f in focals or [] if f is not None]
+    intrinsics = []
+    for i, mask in enumerate(masks):
+        height, width = mask.shape[:2]
+        own = focals[i] if focals is not None else None
+        focal = own or (float(np.median(known)) if known else FOCAL_GUESS * max(height, width))
+        intrinsics.append(np.array([[focal, 0.0, width / 2.0], [0.0, focal, height / 2.0],
+                                    [0.0, 0.0, 1.0]]))
+    return match_photos(images, masks, intrinsics, config.matches)
+
+
 def _choose_walk(iou: np.ndarray, m: int, ranking: Sequence[tuple[int, int, float]],
                  az_index: np.ndarray, n_azimuths: int, config: RetrievalConfig,
-                 evidence: float) -> tuple[int, PoseSearchResult]:
+                 evidence: float, steps: np.ndarray | None) -> tuple[int, PoseSearchResult]:
     """The model and its walk: the voted model ``m``'s, or (``model_choice`` "walk", DP) the
     best walk of the ``TOP_MODELS`` most voted. Returns (model index, its walk)."""
-    found = solve_poses(iou[:, m, :], az_index, n_azimuths, config, evidence)
+    found = solve_poses(iou[:, m, :], az_index, n_azimuths, config, evidence, steps)
     if config.model_choice == "walk" and config.solver == "dp":
         for other, _, _ in ranking[1:TOP_MODELS]:
-            walk = solve_poses(iou[:, other, :], az_index, n_azimuths, config, evidence)
+            walk = solve_poses(iou[:, other, :], az_index, n_azimuths, config, evidence, steps)
             if walk.score > found.score:
                 m, found = other, walk
     return m, found
@@ -145,20 +181,47 @@ def retrieve(masks: Sequence[np.ndarray], names: Sequence[str], library: Library
     allowed = allowed_models(library, config.exclude_models)
     spec = library.spec  # both silhouette sets share the crop size and margin
     crops, boxes = canonical_masks(masks, spec.silhouette_size, spec.margin)
+    pairs: list[PairMatch] = []
+    if images is not None and config.solver == "dp" and config.matches.enabled:
+        pairs = photo_pairs(images, masks, focals, config)
+        log.info("matches: %d inliers over %d pairs", sum(p.inliers for p in pairs),
+                 len(pairs))
     if config.order != "walk" and len(masks) > 3:  # three photos make one cycle either way
-        choice = _order(crops, boxes, masks, images, library, allowed, config, progress)
+        choice = _order(crops, boxes, masks, images, library, allowed, config, progress,
+                        pairs)
         walk = config.model_copy(update={"order": "walk"})
-        found = retrieve([masks[i] for i in choice.order], [names[i] for i in choice.order],
-                         library, walk, progress, _pick(images, choice.order),
-                         _pick(focals, choice.order), crop_size)
+        position = [int(k) for k in np.argsort(choice.order)]  # photo -> place in the walk
+        found = _retrieve([masks[i] for i in choice.order], [names[i] for i in choice.order],
+                          library, walk, progress, _pick(images, choice.order),
+                          _pick(focals, choice.order), crop_size, reindexed(pairs, position))
         if choice.reordered and config.order == "auto":
             log.warning("%s", reorder_warning([names[i] for i in choice.order]))
-        return _in_given_order(found, choice.order, config.order, choice.reordered)
+        return _in_given_order(found, choice.order, config.order, choice.reordered,
+                               [p.to_json() for p in pairs])
+    return _retrieve(masks, names, library, config, progress, images, focals, crop_size, pairs)
+
+
+def _retrieve(masks: Sequence[np.ndarray], names: Sequence[str], library: Library,
+              config: RetrievalConfig, progress: Progress | None,
+              images: Sequence[np.ndarray] | None, focals: Sequence[float | None] | None,
+              crop_size: int | None, pairs: Sequence[PairMatch]) -> RetrievalResult:
+    """``retrieve`` of photos in walking order, with their ``pairs`` matched already."""
+    allowed = allowed_models(library, config.exclude_models)
+    spec = library.spec
+    crops, boxes = canonical_masks(masks, spec.silhouette_size, spec.margin)
     evidence = 0.0
+    steps = None
     if images is not None and config.solver == "dp" and config.appearance_weight > 0:
         evidence = direction_evidence(images, masks, boxes)
+        if pairs:
+            turns = walk_evidence(pairs, len(masks), config.matches)
+            steps = measured_steps(pairs, len(masks), config.matches)
+            log.info("walking-direction evidence: matches %+.2f, texture %+.2f", turns,
+                     evidence)
+            evidence += turns
     photos = _Photos(names, [mask.shape[:2] for mask in masks], crops, boxes, evidence, focals,
-                     crop_size or spec.silhouette_size, allowed)
+                     crop_size or spec.silhouette_size, allowed,
+                     [p.to_json() for p in pairs], steps)
     near = library.near
     known = [f for f in focals or [] if f is not None]
     wanted = config.perspective
@@ -194,11 +257,13 @@ def _pick(items: Sequence[T] | None, order: Sequence[int]) -> list[T] | None:
 
 def _order(crops: np.ndarray, boxes: Sequence[CropBox], masks: Sequence[np.ndarray],
            images: Sequence[np.ndarray] | None, library: Library, allowed: np.ndarray,
-           config: RetrievalConfig, progress: Progress | None) -> OrderChoice:
+           config: RetrievalConfig, progress: Progress | None,
+           pairs: Sequence[PairMatch]) -> OrderChoice:
     """The order to walk the photos in (``config.order`` "any" or "auto"), searched on the
     silhouette set ``config.perspective`` names (the far one when "auto") among the most voted
-    models, with the photos' colour similarity where they are given."""
-    from cadnerf_core.retrieval.ordering import choose_order, neighbour_similarity
+    models, with the photos' likeness (colours, outlines, and the matches between them where
+    the object has texture) as the prior that neighbours look alike."""
+    from cadnerf_core.retrieval.ordering import choose_order, neighbour_similarity, standardised
 
     views = library.view_set("near" if config.perspective == "near" else "far")
     silhouettes = views.silhouettes
@@ -210,6 +275,8 @@ def _order(crops: np.ndarray, boxes: Sequence[CropBox], masks: Sequence[np.ndarr
     if images is not None and config.similarity_weight > 0:
         rgbs, insides = _appearance_crops(images, masks, boxes)
         similarity = neighbour_similarity(list(rgbs), list(insides))
+        if any(p.inliers for p in pairs):  # shared points: the surest sign of neighbours
+            similarity = similarity + standardised(np.log1p(inlier_table(pairs, len(masks))))
     az_index = azimuth_bins(views.az_el, views.spec.n_azimuths)
     candidates = [m for m, _, _ in ranking[:TOP_MODELS]]
     return choose_order(iou, candidates, az_index, views.spec.n_azimuths, config.order,
@@ -218,14 +285,15 @@ def _order(crops: np.ndarray, boxes: Sequence[CropBox], masks: Sequence[np.ndarr
 
 
 def _in_given_order(result: RetrievalResult, order: Sequence[int], mode: str,
-                    reordered: bool) -> RetrievalResult:
+                    reordered: bool, pairs: list[dict[str, Any]]) -> RetrievalResult:
     """A result found on photos taken in ``order`` with every match indexed as given and in
-    the given order again (its alternatives likewise); it records the walking order."""
+    the given order again (its alternatives likewise), and the photos' ``pairs`` as matched
+    in the given order; it records the walking order."""
     matches = sorted((dataclasses.replace(m, index=order[m.index]) for m in result.matches),
                      key=lambda m: m.index)
-    others = [_in_given_order(a, order, mode, reordered) for a in result.alternatives]
+    others = [_in_given_order(a, order, mode, reordered, pairs) for a in result.alternatives]
     return dataclasses.replace(result, matches=matches, alternatives=others, order=list(order),
-                               order_mode=mode, reordered=reordered)
+                               order_mode=mode, reordered=reordered, photo_pairs=pairs)
 
 
 def allowed_models(library: Library, exclude: Sequence[str]) -> np.ndarray:
@@ -261,6 +329,8 @@ class _Photos:
     focals: Sequence[float | None] | None
     crop_size: int  # side of the crop that K_canon and box refer to
     allowed: np.ndarray  # [M'] library indices of the models that may be chosen
+    pairs: list[dict[str, Any]]  # the SIFT matches between photo pairs, summarised
+    steps: np.ndarray | None  # [P] measured turn (degrees) from photo p - 1 to p, or NaN
 
 
 def _retrieve_from(photos: _Photos, library: Library, config: RetrievalConfig,
@@ -279,14 +349,16 @@ def _retrieve_from(photos: _Photos, library: Library, config: RetrievalConfig,
     if progress is not None:
         progress.step("retrieval", steps[0] + 1, steps[1])
     az_index = azimuth_bins(library.az_el, spec.n_azimuths)
-    m, found = _choose_walk(iou, voted, ranking, az_index, spec.n_azimuths, config, evidence)
+    m, found = _choose_walk(iou, voted, ranking, az_index, spec.n_azimuths, config, evidence,
+                            photos.steps)
     ambiguous = (found.direction_lead is not None
                  and found.direction_lead < config.ambiguity_margin
                  and abs(evidence) < config.appearance_threshold)
     if ambiguous and found.direction < 0 and config.ambiguous_walk == "ccw":
         ccw = config.model_copy(update={"walk": "ccw"})
         lead = found.direction_lead
-        m, found = _choose_walk(iou, voted, ranking, az_index, spec.n_azimuths, ccw, evidence)
+        m, found = _choose_walk(iou, voted, ranking, az_index, spec.n_azimuths, ccw, evidence,
+                                photos.steps)
         found = dataclasses.replace(found, direction_lead=lead)
     models = [library.models[i] for i in allowed]
     top = [{"model_id": models[i].id, "category": models[i].category,
@@ -299,13 +371,14 @@ def _retrieve_from(photos: _Photos, library: Library, config: RetrievalConfig,
         progress.step("retrieval", steps[0] + 2, steps[1])
     others = [RetrievalResult(models[o].id, models[o].category, top,
                               _matches(photos, library, iou, o, walk, config), config.solver,
-                              walk.direction, walk.score, evidence, perspective=perspective)
+                              walk.direction, walk.score, evidence, perspective=perspective,
+                              photo_pairs=photos.pairs)
               for o, walk in _alternatives(iou, ranking, az_index, spec.n_azimuths, config,
-                                           evidence, (m, found.direction))]
+                                           evidence, photos.steps, (m, found.direction))]
     return RetrievalResult(models[m].id, models[m].category, top, matches, config.solver,
                            found.direction, found.score, evidence, found.direction_lead,
                            perspective=perspective, direction_ambiguous=ambiguous,
-                           alternatives=others)
+                           alternatives=others, photo_pairs=photos.pairs)
 
 
 def _matches(photos: _Photos, library: Library, iou: np.ndarray, m: int,
@@ -327,7 +400,8 @@ def _matches(photos: _Photos, library: Library, iou: np.ndarray, m: int,
 
 def _alternatives(iou: np.ndarray, ranking: Sequence[tuple[int, int, float]],
                   az_index: np.ndarray, n_azimuths: int, config: RetrievalConfig,
-                  evidence: float, chosen: tuple[int, int]) -> list[tuple[int, PoseSearchResult]]:
+                  evidence: float, steps: np.ndarray | None,
+                  chosen: tuple[int, int]) -> list[tuple[int, PoseSearchResult]]:
     """The best walks after the ``chosen`` (model, direction), best score first: each of the
     ``TOP_MODELS`` most voted models walked each allowed way round; ``config.hypotheses`` - 1
     of them. Returns (model index, walk) pairs."""
@@ -338,7 +412,7 @@ def _alternatives(iou: np.ndarray, ranking: Sequence[tuple[int, int, float]],
     for other, _, _ in ranking[:TOP_MODELS]:
         for walk in walks:
             given = config.model_copy(update={"walk": walk})
-            result = solve_poses(iou[:, other, :], az_index, n_azimuths, given, evidence)
+            result = solve_poses(iou[:, other, :], az_index, n_azimuths, given, evidence, steps)
             if (other, result.direction) != chosen:
                 found.append((other, result))
     found.sort(key=lambda pair: -pair[1].score)

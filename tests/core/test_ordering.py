@@ -118,3 +118,20 @@ def test_a_shuffled_walk_is_retrieved_in_any_order(tiny_library: Any) -> None:
 def test_the_reorder_warning_names_the_order_and_the_way_back() -> None:
     text = reorder_warning(["c.jpg", "a.jpg", "b.jpg"])
     assert "c.jpg, a.jpg, b.jpg" in text and '"walk"' in text
+
+
+def test_matched_pairs_follow_the_photos_into_the_walking_order() -> None:
+    from cadnerf_core.retrieval.matches import PairMatch, inlier_table, reindexed
+
+    rotation = np.array([[0.0, 0.0, 1.0], [0.0, 1.0, 0.0], [-1.0, 0.0, 0.0]])
+    points = np.arange(8, dtype=float).reshape(2, 2, 2)
+    pairs = [PairMatch(0, 1, 40, 30, 0.5, 25.0, rotation, points),
+             PairMatch(0, 2, 10, 0, None, None, None, np.zeros((0, 2, 2)))]
+    moved = reindexed(pairs, [2, 0, 1])  # photo 0 walks last, 1 first, 2 second
+    swapped = moved[0]  # (0, 1) became (2, 0): stored as (0, 2), turned round
+    assert (swapped.i, swapped.j, swapped.turn_deg) == (0, 2, -25.0)
+    assert np.allclose(swapped.rotation, rotation.T)
+    assert np.array_equal(swapped.points[:, 0], points[:, 1])
+    assert (moved[1].i, moved[1].j, moved[1].turn_deg) == (1, 2, None)
+    table = inlier_table(moved, 3)
+    assert table[0, 2] == table[2, 0] == 30 and table.trace() == 0

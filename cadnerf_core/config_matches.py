@@ -1,0 +1,51 @@
+"""The config section of the SIFT matches between photos (``retrieval.matches``,
+``cadnerf_core.retrieval.matches``).
+
+Its own module so that ``config`` stays one screenful per section; ``config_retrieval`` nests it in
+``RetrievalConfig`` and ``config`` re-exports it. Torch-free, like ``config``.
+"""
+
+from __future__ import annotations
+
+from pydantic import Field, model_validator
+
+from cadnerf_core.config_bounds import MAX_MATCH_SIZE, Frozen
+
+
+class MatchesConfig(Frozen):
+    """SIFT matches between the photos, and what retrieval takes from them."""
+
+    enabled: bool = True
+    """Match the photos (needs them, not only masks) and let the turns between consecutive
+    photos tell the walking direction; off, or with too few inliers (a texture-less object),
+    retrieval runs on silhouettes and the texture cue alone."""
+    size: int = Field(default=640, ge=64, le=MAX_MATCH_SIZE)
+    """Long side in pixels of the object's bounding-box crop features are found in (photos are
+    only shrunk): about 0.3 s a photo at 640 on a CPU core, whatever the photo's size."""
+    min_inliers: int = Field(default=20, ge=8, le=1000)
+    """Fewest inliers of the essential matrix for a pair's relative rotation to be used."""
+    threshold_px: float = Field(default=1.0, ge=0.1, le=10.0)
+    """RANSAC threshold on the epipolar distance, in pixels of the searched crops."""
+    turn_range: tuple[float, float] = (0.4, 2.0)
+    """Turns between consecutive photos used for the direction, as multiples of an even step
+    (360 degrees over the photo count): smaller ones are mostly features that travel with the
+    camera (highlights, reflections, shading), larger ones mismatched repeats."""
+    evidence_per_pair: float = Field(default=1.25, ge=0.0, le=100.0)
+    """Direction evidence each consecutive pair with a usable turn adds, in the texture cue's
+    unit (``RetrievalConfig.appearance_weight`` converts it to IoU: 0.5 a pair at its default
+    0.2); none at all when their signs are split (``matches.AGREEMENT``)."""
+
+    step_weight: float = Field(default=0.0, ge=0.0, le=10.0)
+    """IoU the DP's walk loses, at most, where a step between consecutive photos differs from
+    the turn their matches measured. 0 (off): measured no better on level walks, where the
+    retrieved poses' error is mostly in elevation, which the steps do not constrain."""
+    step_tolerance_deg: float = Field(default=15.0, ge=1.0, le=180.0)
+    """Difference in degrees between a walk's step and the measured turn at which the loss
+    reaches ``step_weight`` (quadratic below)."""
+
+    @model_validator(mode="after")
+    def _check_range(self) -> MatchesConfig:
+        low, high = self.turn_range
+        if not 0.0 <= low <= high <= 10.0:
+            raise ValueError(f"turn_range must satisfy 0 <= low <= high <= 10, got {low, high}")
+        return self

@@ -1,0 +1,329 @@
+"""Points the photos share: SIFT matches between every pair, checked by epipolar geometry.
+
+Silhouettes cannot tell which way round a walk went on an object that looks alike from
+mirrored sides (a bottle, a mug, a lamp), but its texture can: a label, a print, wood grain.
+Each photo's SIFT features (OpenCV, no learned weights) are found inside its mask (dilated a
+little, so features on the outline count), on a crop of the object's bounding box downscaled
+to ``MatchesConfig.size`` pixels on its long side, so ten 12-megapixel photos cost seconds.
+Every pair is matched by nearest descriptors (Lowe's ratio test, kept only when mutual) and
+the matches are checked by RANSAC on the essential matrix with a focal-length estimate; the
+surviving inliers give the pair's relative rotation (``cv2.recoverPose``).
+
+Between two photos taken walking round an upright object, that rotation is a turn about the
+object's vertical axis: by the walking step, positive when the library azimuth increases
+(the camera orbits counter-clockwise seen from above, ``cameras.spherical_position``).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass
+from typing import Any
+
+import cv2
+import numpy as np
+
+from cadnerf_core.config import MatchesConfig
+from cadnerf_core.intake.crop import mask_bbox
+
+RATIO = 0.8
+"""Lowe's ratio test: a match is kept when its nearest descriptor is this much nearer than
+the second nearest."""
+RANSAC_PROB = 0.999
+MAX_FEATURES = 2000
+"""Most SIFT features kept per photo (the strongest of each of its 1 + 2 * len(TILTS) images
+get an equal share): bounds the cost of matching a pair."""
+TILTS = (math.sqrt(2.0), 2.0)
+"""Foreshortenings simulated, along each image axis (ASIFT's first two tilts)."""
+AGREEMENT = 0.75
+"""Share of the consecutive turns that must agree in sign for them to give evidence (one
+mismatched pair in four or five is common; a split vote is none)."""
+MASK_DILATION = 0.02
+"""Share of the crop's long side by which a mask is grown before features are looked for."""
+
+
+@dataclass(frozen=True)
+class Features:
+    """One photo's SIFT features: ``points [N, 2]`` in the photo's pixels (float64),
+    ``descriptors [N, 128]`` float32, and ``scale``: crop pixels per photo pixel where they
+    were found."""
+
+    points: np.ndarray
+    descriptors: np.ndarray
+    scale: float = 1.0
+
+
+NO_FEATURES = Features(np.zeros((0, 2)), np.zeros((0, 128), np.float32))
+
+
+@dataclass(frozen=True)
+class PairMatch:
+    """The verified matches between photos ``i < j``.
+
+    ``matched``: mutual ratio-test matches; ``inliers``: those the essential matrix keeps;
+    ``sampson_px``: their median Sampson error in photo pixels; ``turn_deg``: the turn about
+    the vertical axis from photo i to photo j (> 0: azimuth increasing), None when the pair
+    has fewer than ``MatchesConfig.min_inliers``; ``rotation [3, 3]``: camera i to camera j
+    (OpenCV axes, ``x_j = R @ x_i + t``), None likewise; ``points [K, 2, 2]``: the inliers'
+    photo pixels in i and j.
+    """
+
+    i: int
+    j: int
+    matched: int
+    inliers: int
+    sampson_px: float | None
+    turn_deg: float | None
+    rotation: np.ndarray | None
+    points: np.ndarray
+
+    @property
+    def inlier_ratio(self) -> float:
+        """Share of the mutual matches the geometry keeps (0 when none were matched)."""
+        return self.inliers / self.matched if self.matched else 0.0
+
+    def to_json(self) -> dict[str, Any]:
+        """JSON-ready summary (no points)."""
+        return {"i": self.i, "j": self.j, "matched": self.matched, "inliers": self.inliers,
+                "inlier_ratio": round(self.inlier_ratio, 4),
+                "sampson_px": None if self.sampson_px is None else round(self.sampson_px, 3),
+                "turn_deg": None if self.turn_deg is None else round(self.turn_deg, 2)}
+
+
+def _sift(gray: np.ndarray, inside: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """SIFT points [N, 2] (pixel centres at integers) and descriptors [N, 128] of one image."""
+    share = MAX_FEATURES // (1 + 2 * len(TILTS))
+    sift = cv2.SIFT_create(nfeatures=share)  # type: ignore[attr-defined]
+    keypoints, descriptors = sift.detectAndCompute(gray, inside)
+    if descriptors is None or not keypoints:
+        return np.zeros((0, 2)), np.zeros((0, 128), np.float32)
+    return np.array([k.pt for k in keypoints], dtype=np.float64), descriptors
+
+
+def _tilted(gray: np.ndarray, inside: np.ndarray, tilt: float,
+            axis: int) -> tuple[np.ndarray, np.ndarray]:
+    """SIFT features of the image shrunk by ``tilt`` along ``axis`` (0: x, 1: y), as an
+    oblique view would show it (ASIFT's simulated tilt, anti-aliased first); points in the
+    unshrunk image's pixels."""
+    sigma = [0.01, 0.01]
+    sigma[axis] = 0.8 * math.sqrt(tilt * tilt - 1.0)
+    blurred = cv2.GaussianBlur(gray, (0, 0), sigmaX=sigma[0], sigmaY=sigma[1])
+    factor = np.ones(2)
+    factor[axis] = 1.0 / tilt
+    shape = (max(1, round(gray.shape[1] * factor[0])), max(1, round(gray.shape[0] * factor[1])))
+    points, descriptors = _sift(cv2.resize(blurred, shape, interpolation=cv2.INTER_LINEAR),
+                                cv2.resize(inside, shape, interpolation=cv2.INTER_NEAREST))
+    return (points + 0.5) / factor - 0.5, descriptors
+
+
+def detect(image: np.ndarray, mask: np.ndarray, size: int) -> Features:
+    """SIFT features of one photo inside its (slightly grown) mask, from the photo and from
+    its copies shrunk horizontally and vertically by each of ``TILTS``.
+
+    Walking round an object foreshortens its surfaces across the photo (and a change of
+    height, along it): a surface facing one photo is seen obliquely from the next, and
+    SIFT alone matches little beyond about 30 degrees of turn. The shrunk copies simulate
+    those oblique views (ASIFT's idea, along the two axes that matter rather than every
+    direction: a third of its cost).
+
+    Args:
+        image: [H, W, 3] float in [0, 1] (or uint8).
+        mask: [H, W] bool, non-empty.
+        size: long side in pixels of the object's bounding-box crop searched (never enlarged).
+    Returns:
+        The features, their points in the photo's own pixels.
+    """
+    x0, y0, x1, y1 = mask_bbox(mask)
+    scale = min(1.0, size / max(x1 - x0, y1 - y0))
+    crop = np.ascontiguousarray(image[y0:y1, x0:x1, :3])
+    if crop.dtype != np.uint8:  # grey and shrunk before the conversion: a 12 MP crop is slow
+        crop = crop.astype(np.float32)
+    gray: np.ndarray = cv2.cvtColor(crop, cv2.COLOR_RGB2GRAY)
+    inside: np.ndarray = mask[y0:y1, x0:x1].astype(np.uint8) * 255
+    shape = (max(1, round((x1 - x0) * scale)), max(1, round((y1 - y0) * scale)))
+    if scale < 1.0:
+        gray = cv2.resize(gray, shape, interpolation=cv2.INTER_AREA)
+        inside = cv2.resize(inside, shape, interpolation=cv2.INTER_NEAREST)
+    if gray.dtype != np.uint8:
+        gray = (np.clip(gray, 0.0, 1.0) * 255.0 + 0.5).astype(np.uint8)
+    grow = max(1, round(MASK_DILATION * max(shape)))
+    inside = cv2.dilate(inside, np.ones((2 * grow + 1, 2 * grow + 1), np.uint8))
+    found = [_sift(gray, inside)] + [_tilted(gray, inside, tilt, axis)
+                                     for tilt in TILTS for axis in (0, 1)]
+    points = np.concatenate([p for p, _ in found])
+    # Pixel centres: crop pixel c covers photo pixels [c / s, (c + 1) / s).
+    points = (points + 0.5) / scale - 0.5 + np.array([x0, y0], dtype=np.float64)
+    return Features(points, np.concatenate([d for _, d in found]).astype(np.float32), scale)
+
+
+def _two_nearest(d2: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Per row of squared distances [N, M] (M >= 2, changed in place): the nearest column and
+    whether it passes the ratio test against the second nearest. Returns [N] int64, [N] bool."""
+    rows = np.arange(len(d2))
+    nearest = d2.argmin(axis=1)
+    first = d2[rows, nearest].copy()
+    d2[rows, nearest] = np.inf
+    return nearest, first < RATIO**2 * d2.min(axis=1)
+
+
+def mutual_matches(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Descriptor matches passing Lowe's ratio test both ways and agreeing.
+
+    One matrix product gives every squared distance (``|a|^2 + |b|^2 - 2 a.b``), so both
+    directions cost one BLAS call: far quicker than a brute-force matcher per direction.
+
+    Args:
+        a: [Na, D], b: [Nb, D] descriptors.
+    Returns:
+        [M, 2] int64 index pairs (into a, into b), by increasing index into a.
+    """
+    if len(a) < 2 or len(b) < 2:
+        return np.zeros((0, 2), dtype=np.int64)
+    a = np.asarray(a, dtype=np.float32)
+    b = np.asarray(b, dtype=np.float32)
+    d2 = (a * a).sum(axis=1)[:, None] + (b * b).sum(axis=1)[None, :] - 2.0 * (a @ b.T)
+    backward, backward_ok = _two_nearest(d2.T.copy())
+    forward, forward_ok = _two_nearest(d2)
+    rows = np.flatnonzero(forward_ok & backward_ok[forward]
+                          & (backward[forward] == np.arange(len(a))))
+    return np.stack([rows, forward[rows]], axis=1).astype(np.int64)
+
+
+def sampson_errors(F: np.ndarray, x_a: np.ndarray, x_b: np.ndarray) -> np.ndarray:
+    """Sampson distances of point pairs [N, 2] to the fundamental matrix ``F`` (x_b^T F x_a
+    = 0), in the points' units. Returns [N]."""
+    ha = np.concatenate([x_a, np.ones((len(x_a), 1))], axis=1)
+    hb = np.concatenate([x_b, np.ones((len(x_b), 1))], axis=1)
+    fa, fb = ha @ F.T, hb @ F
+    num = np.einsum("ni,ni->n", hb, fa) ** 2
+    den = fa[:, 0] ** 2 + fa[:, 1] ** 2 + fb[:, 0] ** 2 + fb[:, 1] ** 2
+    return np.asarray(np.sqrt(num / np.maximum(den, 1e-18)))
+
+
+def vertical_turn_deg(R: np.ndarray) -> float:
+    """The turn about the object's vertical axis, in degrees, of a relative rotation ``R``
+    (camera i to camera j) between photos of an upright object.
+
+    The world's up is about camera i's -y axis, tilted toward -z by the elevation, so the turn
+    is the rotation vector's part in camera i's y-z plane: positive about +y (the azimuth of
+    ``cameras.spherical_position`` increasing). Its x part (a change of elevation) is left out.
+    """
+    rotvec = cv2.Rodrigues(np.asarray(R, dtype=np.float64))[0].ravel()
+    return math.degrees(math.copysign(math.hypot(rotvec[1], rotvec[2]), rotvec[1]))
+
+
+def verify_pair(i: int, j: int, a: Features, b: Features, K_a: np.ndarray, K_b: np.ndarray,
+                config: MatchesConfig) -> PairMatch:
+    """Match two photos' features and keep those the essential matrix explains.
+
+    Args:
+        i, j: the photos' indices; a, b: their features.
+        K_a, K_b: [3, 3] their intrinsics in photo pixels (the focal length an estimate).
+        config: ``threshold_px`` (RANSAC, in pixels of the searched crops) and ``min_inliers``.
+    Returns:
+        The pair's matches.
+    """
+    pairs = mutual_matches(a.descriptors, b.descriptors)
+    empty = np.zeros((0, 2, 2))
+    if len(pairs) < max(8, config.min_inliers):
+        return PairMatch(i, j, len(pairs), 0, None, None, None, empty)
+    x_a, x_b = a.points[pairs[:, 0]], b.points[pairs[:, 1]]
+    n_a = cv2.undistortPoints(x_a.reshape(-1, 1, 2), K_a, None).reshape(-1, 2)
+    n_b = cv2.undistortPoints(x_b.reshape(-1, 1, 2), K_b, None).reshape(-1, 2)
+    # The threshold is set in the searched crops' pixels: in normalised image units here.
+    focal = float(np.mean([K_a[0, 0] * a.scale, K_b[0, 0] * b.scale]))
+    threshold = config.threshold_px / focal
+    cv2.setRNGSeed(0)  # RANSAC's samples: the same photos give the same answer
+    E, inlier = cv2.findEssentialMat(n_a, n_b, np.eye(3), cv2.RANSAC, RANSAC_PROB, threshold)
+    if E is None or E.shape != (3, 3):
+        return PairMatch(i, j, len(pairs), 0, None, None, None, empty)
+    count, R, _, pose_mask = cv2.recoverPose(E, n_a, n_b, np.eye(3), mask=inlier.copy())
+    keep = pose_mask.ravel() > 0
+    inliers = int(keep.sum())
+    F = np.linalg.inv(K_b).T @ E @ np.linalg.inv(K_a)
+    sampson = float(np.median(sampson_errors(F, x_a[keep], x_b[keep]))) if inliers else None
+    points = np.stack([x_a[keep], x_b[keep]], axis=1)
+    if inliers < config.min_inliers:
+        return PairMatch(i, j, len(pairs), inliers, sampson, None, None, points)
+    return PairMatch(i, j, len(pairs), inliers, sampson, vertical_turn_deg(R), R, points)
+
+
+def match_photos(images: Sequence[np.ndarray], masks: Sequence[np.ndarray],
+                 intrinsics: Sequence[np.ndarray], config: MatchesConfig) -> list[PairMatch]:
+    """SIFT matches between every pair of photos, verified (``verify_pair``).
+
+    Args:
+        images: P photos [H_i, W_i, 3] float in [0, 1]; masks: P [H_i, W_i] bool.
+        intrinsics: P [3, 3] intrinsics in photo pixels (focal lengths may be estimates).
+        config: the matching settings.
+    Returns:
+        P * (P - 1) / 2 pairs, (0, 1), (0, 2), ... (an empty mask gives a photo no features).
+    """
+    features = [detect(image, mask, config.size) if mask.any() else NO_FEATURES
+                for image, mask in zip(images, masks, strict=True)]
+    return [verify_pair(i, j, features[i], features[j], intrinsics[i], intrinsics[j], config)
+            for i in range(len(features)) for j in range(i + 1, len(features))]
+
+
+def reindexed(pairs: Sequence[PairMatch], position: Sequence[int]) -> list[PairMatch]:
+    """The pairs of photos renumbered: photo k becomes ``position[k]``; a pair whose photos
+    swap order is turned round (the turn negated, the rotation inverted, the points swapped)."""
+    out = []
+    for p in pairs:
+        i, j = position[p.i], position[p.j]
+        if i < j:
+            out.append(dataclasses.replace(p, i=i, j=j))
+            continue
+        out.append(dataclasses.replace(
+            p, i=j, j=i, turn_deg=None if p.turn_deg is None else -p.turn_deg,
+            rotation=None if p.rotation is None else p.rotation.T,
+            points=p.points[:, ::-1]))
+    return out
+
+
+def inlier_table(pairs: Sequence[PairMatch], n_photos: int) -> np.ndarray:
+    """Inliers of every pair as a symmetric [n_photos, n_photos] table (0 on the diagonal)."""
+    table = np.zeros((n_photos, n_photos))
+    for p in pairs:
+        table[p.i, p.j] = table[p.j, p.i] = p.inliers
+    return table
+
+
+def usable_turns(pairs: Sequence[PairMatch], n_photos: int,
+                 config: MatchesConfig) -> list[PairMatch]:
+    """The consecutive pairs (i, i + 1) whose turn is known and, in size, within
+    ``config.turn_range`` times an even step (360 / ``n_photos`` degrees): smaller turns are
+    mostly features that travel with the camera, larger ones mismatched repeats."""
+    step = 360.0 / max(n_photos, 1)
+    low, high = config.turn_range
+    return [p for p in pairs if p.j == p.i + 1 and p.turn_deg is not None
+            and low * step <= abs(p.turn_deg) <= high * step]
+
+
+def walk_evidence(pairs: Sequence[PairMatch], n_photos: int, config: MatchesConfig) -> float:
+    """Evidence for the walking direction from the turns between consecutive photos.
+
+    The consecutive pairs of ``usable_turns`` vote with their sign. When at least
+    ``AGREEMENT`` of the votes agree, the evidence is ``config.evidence_per_pair`` times
+    their sum, in the unit of the texture cue (``direction.walk_direction_evidence``):
+    > 0 favours increasing azimuth. Returns 0 when no pair votes (a texture-less object) or
+    the votes are split.
+    """
+    signs = [math.copysign(1.0, p.turn_deg) for p in usable_turns(pairs, n_photos, config)
+             if p.turn_deg is not None]
+    total = float(sum(signs))
+    if not signs or (len(signs) + abs(total)) / 2.0 < AGREEMENT * len(signs):
+        return 0.0
+    return config.evidence_per_pair * total
+
+
+def measured_steps(pairs: Sequence[PairMatch], n_photos: int,
+                   config: MatchesConfig) -> np.ndarray:
+    """The size in degrees of the turn from photo p - 1 to photo p where a usable pair
+    (``usable_turns``) measured it, else NaN. Returns [n_photos] float64 (entry 0 NaN)."""
+    steps = np.full(n_photos, np.nan)
+    for p in usable_turns(pairs, n_photos, config):
+        steps[p.j] = abs(float(p.turn_deg or 0.0))
+    return steps

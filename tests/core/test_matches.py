@@ -1,0 +1,131 @@
+"""SIFT matches between photos: the turn between two rendered photos of a textured ball, and
+nothing from a plain one."""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+import pytest
+import trimesh
+
+from cadnerf_core.cameras import intrinsics_from_fov, orbit_pose
+from cadnerf_core.config import MatchesConfig, RetrievalConfig
+from cadnerf_core.mesh.renderer import MeshRenderer
+from cadnerf_core.retrieval.matches import (
+    PairMatch,
+    match_photos,
+    mutual_matches,
+    sampson_errors,
+    vertical_turn_deg,
+    walk_evidence,
+)
+from cadnerf_core.retrieval.retrieve import retrieve
+
+SIZE = 256
+FOV = 40.0
+
+
+def _ball(textured: bool) -> trimesh.Trimesh:
+    """A sphere (the same silhouette from everywhere) with random blotches of grey, or plain."""
+    mesh = trimesh.creation.icosphere(subdivisions=5, radius=0.8)
+    rng = np.random.default_rng(3)
+    grey = rng.integers(30, 230, len(mesh.vertices)) if textured \
+        else np.full(len(mesh.vertices), 150)
+    colours = np.stack([grey, grey, grey, np.full_like(grey, 255)], axis=1).astype(np.uint8)
+    mesh.visual = trimesh.visual.ColorVisuals(mesh, vertex_colors=colours)
+    return mesh
+
+
+def _photos(mesh: trimesh.Trimesh, azimuths: list[float],
+            elevation: float = 15.0) -> tuple[list[np.ndarray], list[np.ndarray]]:
+    renderer = MeshRenderer(mesh)
+    K = intrinsics_from_fov(FOV, SIZE)
+    shots = [renderer.render(K, orbit_pose(a, elevation, 3.0), SIZE, SIZE) for a in azimuths]
+    return [s.rgb for s in shots], [s.mask for s in shots]
+
+
+def _intrinsics(n: int) -> list[np.ndarray]:
+    return [intrinsics_from_fov(FOV, SIZE)] * n
+
+
+@pytest.mark.parametrize("turn", [25.0, -25.0])
+def test_the_turn_between_two_photos_has_its_sign_and_about_its_size(turn: float) -> None:
+    images, masks = _photos(_ball(True), [40.0, 40.0 + turn])
+    (pair,) = match_photos(images, masks, _intrinsics(2), MatchesConfig())
+    assert pair.inliers >= MatchesConfig().min_inliers
+    assert pair.turn_deg is not None
+    assert abs(pair.turn_deg - turn) < 5.0
+    assert pair.sampson_px is not None and pair.sampson_px < 1.0
+    assert 0.0 < pair.inlier_ratio <= 1.0
+
+
+@pytest.mark.parametrize("direction", [1, -1])
+def test_matched_turns_tell_the_walking_direction(direction: int) -> None:
+    images, masks = _photos(_ball(True), [100.0 + direction * 30.0 * i for i in range(3)])
+    config = MatchesConfig()
+    pairs = match_photos(images, masks, _intrinsics(3), config)
+    assert [(p.i, p.j) for p in pairs] == [(0, 1), (0, 2), (1, 2)]
+    assert walk_evidence(pairs, 12, config) == pytest.approx(
+        2 * direction * config.evidence_per_pair)
+
+
+def test_a_plain_object_gives_no_turn_and_no_evidence() -> None:
+    images, masks = _photos(_ball(False), [0.0, 25.0, 50.0])
+    pairs = match_photos(images, masks, _intrinsics(3), MatchesConfig())
+    assert all(p.turn_deg is None and p.rotation is None for p in pairs)
+    assert walk_evidence(pairs, 12, MatchesConfig()) == 0.0
+
+
+def test_vertical_turn_of_orbiting_cameras_follows_the_azimuth() -> None:
+    for elevation in (0.0, 30.0):
+        a, b = orbit_pose(10.0, elevation, 3.0), orbit_pose(40.0, elevation, 3.0)
+        R = np.linalg.inv(b)[:3, :3] @ a[:3, :3]  # camera a to camera b
+        assert vertical_turn_deg(R) == pytest.approx(30.0, abs=1e-6)
+        assert vertical_turn_deg(R.T) == pytest.approx(-30.0, abs=1e-6)
+
+
+def test_mutual_matches_keep_only_distinct_agreeing_nearest_neighbours() -> None:
+    a = np.array([[0, 0], [10, 0], [0, 10]], np.float32)
+    b = np.array([[0.1, 0], [10, 0.2], [5, 5], [0, 9.9]], np.float32)
+    assert mutual_matches(a, b).tolist() == [[0, 0], [1, 1], [2, 3]]
+    b_ambiguous = np.array([[0.1, 0], [-0.1, 0], [10, 0]], np.float32)
+    assert mutual_matches(a, b_ambiguous).tolist() == [[1, 2]]
+
+
+def test_sampson_error_is_the_distance_to_a_horizontal_epipolar_line() -> None:
+    F = np.array([[0.0, 0.0, 0.0], [0.0, 0.0, -1.0], [0.0, 1.0, 0.0]])  # a sideways shift
+    x_a = np.array([[5.0, 3.0], [1.0, 2.0]])
+    x_b = np.array([[9.0, 3.0], [4.0, 6.0]])  # on its line, 4 px off it
+    assert sampson_errors(F, x_a, x_b) == pytest.approx([0.0, 4.0 / np.sqrt(2.0)])
+
+
+def test_retrieval_records_the_pairs_and_plain_photos_change_nothing(tiny_library: Any) -> None:
+    images, masks = _photos(_ball(False), [0.0, 120.0, 240.0])
+    names = ["a", "b", "c"]
+    on = retrieve(masks, names, tiny_library, images=images)
+    off = retrieve(masks, names, tiny_library,
+                   RetrievalConfig(matches=MatchesConfig(enabled=False)), images=images)
+    assert [(p["i"], p["j"]) for p in on.to_json()["photo_pairs"]] == [(0, 1), (0, 2), (1, 2)]
+    assert "photo_pairs" not in off.to_json()
+    assert on.direction_evidence == off.direction_evidence
+    assert [m.view for m in on.matches] == [m.view for m in off.matches]
+
+
+def _pair(i: int, turn: float | None) -> PairMatch:
+    return PairMatch(i, i + 1, 50, 40, 0.2, turn, None, np.zeros((0, 2, 2)))
+
+
+def test_only_walking_sized_turns_that_mostly_agree_count() -> None:
+    config = MatchesConfig()  # 6 photos: an even step is 60 degrees, turns 24-120 count
+    per_pair = config.evidence_per_pair
+    assert walk_evidence([_pair(0, 50.0), _pair(1, 70.0), _pair(2, None)], 6, config) \
+        == pytest.approx(2 * per_pair)
+    assert walk_evidence([_pair(0, -50.0), _pair(3, 5.0), _pair(4, 150.0)], 6, config) \
+        == pytest.approx(-per_pair)  # a 5-degree turn (camera-fixed features) and a 150
+    assert walk_evidence([_pair(0, 50.0), _pair(1, -50.0)], 6, config) == 0.0
+    three_to_one = [_pair(0, -50.0), _pair(1, -40.0), _pair(2, -60.0), _pair(3, 45.0)]
+    assert walk_evidence(three_to_one, 6, config) == pytest.approx(-2 * per_pair)
+    assert walk_evidence(three_to_one[1:], 6, config) == 0.0  # two to one: split
+    far = PairMatch(0, 2, 50, 40, 0.2, 60.0, None, np.zeros((0, 2, 2)))
+    assert walk_evidence([far], 6, config) == 0.0  # not consecutive
