@@ -10,8 +10,9 @@
 - Solver time: the order search of 10 photos against the full candidate table of the shipped
   library (every azimuth and elevation), for one model and for the five most voted.
 - Real photos: ``ners_espresso`` and ``raydiffusion_robot`` with their shipped masks, in
-  walking order and shuffled: the model, and how far each shuffled run's poses are from the
-  ordered run's (median rotation difference after similarity alignment).
+  walking order and shuffled: the model, whether the walk was found, and how far each shuffled
+  run's poses are from the ordered run's (median rotation difference after similarity
+  alignment).
 
 QUICK: the retrieval benchmark's three quick meshes, one shuffle per walk.
 
@@ -133,6 +134,7 @@ def real_lines(library: Any, shuffles: int) -> list[str]:
     from cadnerf_core.cameras import pose_errors
     from cadnerf_core.config import RetrievalConfig
     from cadnerf_core.intake.photos import load_photos
+    from cadnerf_core.retrieval.ordering import same_cycle
     from cadnerf_core.retrieval.retrieve import retrieve
 
     lines = []
@@ -156,9 +158,16 @@ def real_lines(library: Any, shuffles: int) -> list[str]:
                            RetrievalConfig(order="any", exclude_models=exclude),
                            images=[images[i] for i in perm])
             rot, _ = pose_errors(np.stack([m.c2w for m in got.matches]), ref[perm])
-            runs.append(f"seed {seed}: {got.model_id}, {float(np.median(rot)):.1f} deg")
+            walked = [int(perm[i]) for i in got.order]
+            found = "order found" if same_cycle(walked, list(range(len(perm)))) else \
+                "order not found"
+            ambiguous = ", direction a guess" if got.direction_ambiguous else ""
+            runs.append(f"seed {seed}: {got.model_id}, {found}{ambiguous}, "
+                        f"{float(np.median(rot)):.1f} deg")
+        guess = " (direction a guess)" if base.direction_ambiguous else ""
         lines.append(f"- {name} ({len(photos)} photos, shipped masks): in order "
-                     f"**{base.model_id}**; shuffled, `any`: " + "; ".join(runs) + ".")
+                     f"**{base.model_id}**{guess}; shuffled, `any` (poses against the ordered "
+                     "run's): " + "; ".join(runs) + ".")
     return lines
 
 
