@@ -21,8 +21,8 @@ class TrainData:
     masks: torch.Tensor  # [N, H, W] float 0/1
     K: torch.Tensor  # [N, 3, 3] intrinsics of each crop
     scene_images: torch.Tensor | None = None  # [N, H, W, 3] with the photo's own background
-    # [N, H, W] float in [0, 1]: each pixel's weight in the object's losses (0 where its mask
-    # is in doubt); None: every pixel weighs 1.
+    # [N, H, W] float in [0, 1]: each pixel's weight in the silhouette losses (0 where its
+    # mask is in doubt); None: every pixel weighs 1.
     weights: torch.Tensor | None = None
 
     @classmethod

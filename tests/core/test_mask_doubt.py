@@ -7,10 +7,11 @@ import pytest
 import torch
 
 from cadnerf_core.intake.crop import canonical_box
-from cadnerf_core.intake.masks import doubt_map
-from cadnerf_core.intake.photos import doubt_weights
+from cadnerf_core.intake.masks import doubt_map, photo_masks
+from cadnerf_core.intake.photos import Photo, doubt_weights
 from cadnerf_core.nerf import phases
 from cadnerf_core.nerf.state import TrainData
+from tests.core.test_masks import _object_scene, needs_learned
 
 
 def test_doubt_map_marks_where_the_cut_and_the_first_look_disagree_inside_the_box() -> None:
@@ -65,3 +66,17 @@ def test_a_pixel_weighing_zero_gives_no_gradient() -> None:
     assert acc.grad is not None
     assert acc.grad[0].item() == 0.0 and acc.grad[1].item() == pytest.approx(0.4)
     assert phases.pixel_weights(TrainData(images, masks, torch.eye(3)[None]), img, x, y) is None
+
+
+@needs_learned
+def test_only_a_learned_mask_carries_a_doubt_map() -> None:
+    photo, truth = _object_scene(True)
+    learned, grabcut = photo_masks([photo], "learned")[0], photo_masks([photo], "grabcut")[0]
+    assert learned.doubt is not None and learned.doubt.dtype == bool
+    height, width = truth.shape
+    assert learned.doubt.shape[1] / learned.doubt.shape[0] == pytest.approx(width / height,
+                                                                            rel=0.02)
+    assert learned.doubt.mean() < 0.1  # an easy object: the two looks mostly agree
+    assert grabcut.doubt is None
+    uploaded = photo_masks([Photo("own.png", photo.rgb, truth, mask_source="uploaded")])[0]
+    assert uploaded.doubt is None
