@@ -254,11 +254,6 @@ class RetrievalConfig(_Frozen):
     model_choice: Literal["votes", "walk"] = "walk"
     """"votes": the model most photos' best views belong to (the paper, whose solver always
     votes). "walk": of the five most voted, the one whose best ordered walk scores best."""
-    model_margin: float = Field(default=0.005, ge=0.0, le=1.0)
-    """"walk" only: IoU per photo by which another model's walk must beat the voted model's to
-    be chosen instead. Closer walks are a tie, which the votes decide: a choice then does not
-    turn on a few pixels of a mask (on the synthetic walks the walk's preferred model leads by
-    0.0148 per photo or more)."""
     appearance_weight: float = Field(default=0.2, ge=0.0, le=10.0)
     """DP only, photos given: IoU per unit of texture evidence by which the direction the
     photos' texture favours is preferred (0: silhouettes alone; more overrides them)."""

@@ -93,17 +93,13 @@ def _choose_walk(iou: np.ndarray, m: int, ranking: Sequence[tuple[int, int, floa
                  az_index: np.ndarray, n_azimuths: int, config: RetrievalConfig,
                  evidence: float) -> tuple[int, PoseSearchResult]:
     """The model and its walk: the voted model ``m``'s, or (``model_choice`` "walk", DP) the
-    best walk of the ``TOP_MODELS`` most voted where it beats the voted model's walk by more
-    than ``model_margin`` per photo. Returns (model index, its walk)."""
+    best walk of the ``TOP_MODELS`` most voted. Returns (model index, its walk)."""
     found = solve_poses(iou[:, m, :], az_index, n_azimuths, config, evidence)
     if config.model_choice == "walk" and config.solver == "dp":
-        best, best_walk = m, found
         for other, _, _ in ranking[1:TOP_MODELS]:
             walk = solve_poses(iou[:, other, :], az_index, n_azimuths, config, evidence)
-            if walk.score > best_walk.score:
-                best, best_walk = other, walk
-        if best_walk.score > found.score + config.model_margin * len(iou):
-            m, found = best, best_walk
+            if walk.score > found.score:
+                m, found = other, walk
     return m, found
 
 
