@@ -368,10 +368,9 @@ def phase3_step(state: TrainState, data: TrainData, optimizer: torch.optim.Optim
             out = render_batch(state, data, pimg, px, py, True, pose_optimizer is not None,
                                white)
             assert out.rgb is not None
-            # With its own background a photo's colours hold wherever its mask is in doubt.
-            weight = None if scene else pixel_weights(data, pimg, px, py)
-            loss = weighted_mse(out.rgb, target[pimg, py, px], weight)
+            loss = F.mse_loss(out.rgb, target[pimg, py, px])
             if cfg.mask_weight > 0:
+                weight = pixel_weights(data, pimg, px, py)
                 loss = loss + cfg.mask_weight * weighted_mse(out.acc, data.masks[pimg, py, px],
                                                              weight)
             yield _pass_loss(state, loss, out, cfg, share, prior if i == 0 else None)
