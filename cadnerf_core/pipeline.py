@@ -43,6 +43,7 @@ class Intake:
     photos: list[Any]  # cadnerf_core.intake.photos.Photo
     masks: list[np.ndarray]  # [H_i, W_i] bool
     retrieval: RetrievalResult
+    doubts: list[np.ndarray | None] | None = None  # per photo, ``MaskResult.doubt``
 
 
 def read_job_config(job_dir: Path) -> PipelineConfig:
@@ -92,25 +93,28 @@ def run_intake(job_dir: Path, library: Library, config: PipelineConfig,
     if len(retrieval.kept) < 2:
         raise InputError("fewer than two photos could be matched to the retrieved model",
                          item=INPUTS, hint="use 3 to 10 photos walking around the object")
-    return Intake(names, photos, masks, retrieval)
+    return Intake(names, photos, masks, retrieval, [result.doubt for result in found])
 
 
 def training_data(intake: Intake, config: PipelineConfig, margin: float,
                   device: torch.device) -> TrainData:
-    """Canonical crops (on white), masks and crop intrinsics of the kept photos."""
-    from cadnerf_core.intake.photos import canonical_views
+    """Canonical crops (on white), masks, crop intrinsics and loss weights of the kept photos
+    (``intake.photos.doubt_weights``: pixels where a learned mask is in doubt weigh 0)."""
+    from cadnerf_core.intake.photos import canonical_views, doubt_weights
     from cadnerf_core.nerf.state import TrainData
 
     kept = intake.retrieval.kept
     photos = [intake.photos[m.index] for m in kept]
     masks = [intake.masks[m.index] for m in kept]
-    rgb, crops, _ = canonical_views(photos, masks, config.image_size, margin)
+    rgb, crops, boxes = canonical_views(photos, masks, config.image_size, margin)
+    doubts = [None if intake.doubts is None else intake.doubts[m.index] for m in kept]
+    weights = doubt_weights(doubts, [mask.shape for mask in masks], boxes)
     scene = None
     if config.scene_mode:
         scene = np.stack([np.clip(apply_crop(p.rgb.astype(np.float32), m.box, fill=1.0), 0, 1)
                           for p, m in zip(photos, kept, strict=True)])
     K = np.stack([m.K_canon for m in kept])
-    return TrainData.from_numpy(rgb, crops, K, device, scene)
+    return TrainData.from_numpy(rgb, crops, K, device, scene, weights)
 
 
 def _peak_memory_mb(device: torch.device) -> dict[str, float]:

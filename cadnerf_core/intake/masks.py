@@ -7,6 +7,12 @@ working size of ``WORK_SIDE`` pixels, seeded from its levels (sure and probable 
 background). Without the network, GrabCut alone is seeded from a band along the image border.
 Either way the component nearest the centre (weighted by size) is kept, its holes filled, and
 the result scaled back to the photo's size. ``mask_checks`` then warns about doubtful masks.
+
+A learned mask also says where it is in doubt: the pixels on which the refined cut and the
+network's first look at the whole photo disagree (background seen through a gap that the close
+look took for object, or parts the cut dropped). Training leaves them out of its silhouette
+losses (``TrainData.weights``), so the other views decide the shape there; the colour loss
+still counts them.
 """
 
 from __future__ import annotations
@@ -26,7 +32,7 @@ from cadnerf_core.intake import saliency
 from cadnerf_core.intake.limits import MAX_COVER, MIN_COVER, cover_problem
 from cadnerf_core.intake.mask_checks import mask_warnings, median_cover
 from cadnerf_core.intake.photos import Photo
-from cadnerf_core.intake.resize import downscaled, resized_mask
+from cadnerf_core.intake.resize import downscaled, fitted_size, resized_mask
 from cadnerf_core.jobfolder import MaskSource
 from cadnerf_core.progress import Progress
 
@@ -41,6 +47,7 @@ GRABCUT_ITERATIONS = 5
 # probable background, below SURE_OBJECT probable object, above it sure object.
 SURE_BACKGROUND, OBJECT, SURE_OBJECT = 0.1, 0.5, 0.9
 MIN_AGREEMENT = 0.75  # IoU with the network's own mask below which GrabCut's cut is dropped
+DOUBT_SIDE = 1024  # the doubt map is kept at about this many pixels on the longer side
 MASK_HINT = "upload a mask for this photo (white = object, black = background)"
 
 MaskMethod = Literal["auto", "learned", "grabcut"]
@@ -53,6 +60,9 @@ class MaskResult:
     mask: np.ndarray  # [H, W] bool, the photo's own size (after EXIF orientation)
     source: MaskSource
     warnings: list[str] = field(default_factory=list)  # each names the photo and what to do
+    # [h, w] bool over the whole photo at about DOUBT_SIDE px (its aspect ratio): pixels
+    # whose side is in doubt; None for a photo's own mask and for GrabCut alone.
+    doubt: np.ndarray | None = None
 
 
 def largest_component(mask: np.ndarray, weight: np.ndarray | None = None) -> np.ndarray:
@@ -141,21 +151,23 @@ def refine_saliency(image: np.ndarray, sal: np.ndarray) -> tuple[np.ndarray, np.
     return largest_component(own, weight), own
 
 
-def _learned(rgb: np.ndarray, session: Any) -> tuple[np.ndarray, np.ndarray]:
+def _learned(rgb: np.ndarray, session: Any) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The network's object: a first pass on the whole photo finds it; a second on its box
     (cut from the full photo, about ``WORK_SIDE`` pixels) sees it closer, and GrabCut refines
     that map. The working resolution is spent on the object, not on the scene.
 
     Returns:
-        mask [H, W] bool, and the first pass's salient pixels [h, w] bool (the whole photo).
+        mask [H, W] bool; the first pass's salient pixels [h, w] bool (the whole photo); and
+        the doubt map (``doubt_map``) [h', w'] bool over the whole photo at ``DOUBT_SIDE``.
     """
     height, width = rgb.shape[:2]
     image = downscaled(rgb, WORK_SIDE)
     first = cv2.resize(saliency.predict(session, image), (image.shape[1], image.shape[0]))
     salient = first > OBJECT
     coarse = largest_component(salient, centre_weight(first.shape))
+    doubt_size = fitted_size(rgb.shape, DOUBT_SIDE) or (width, height)
     if not coarse.any():
-        return np.zeros((height, width), bool), salient
+        return np.zeros((height, width), bool), salient, np.zeros(doubt_size[::-1], bool)
     y0, y1, x0, x1 = saliency.object_box(coarse)
     sy, sx = height / image.shape[0], width / image.shape[1]
     top, left = int(y0 * sy), int(x0 * sx)
@@ -166,7 +178,36 @@ def _learned(rgb: np.ndarray, session: Any) -> tuple[np.ndarray, np.ndarray]:
     cut = refine_saliency(crop, sal)[0]
     mask = np.zeros((height, width), bool)
     mask[top:bottom, left:right] = resized_mask(cut, right - left, bottom - top)
-    return mask, salient
+    doubt = doubt_map(cut, first, (top / height, bottom / height, left / width, right / width),
+                      doubt_size)
+    return mask, salient, doubt
+
+
+def doubt_map(cut: np.ndarray, first: np.ndarray, box: tuple[float, float, float, float],
+              size: tuple[int, int]) -> np.ndarray:
+    """Where a learned mask is in doubt: inside the object's box, the pixels on which the
+    refined ``cut`` and the first pass's map (``first > OBJECT``) disagree.
+
+    Args:
+        cut: [hc, wc] bool, the refined object inside the box.
+        first: [h, w] float, the first pass's map over the whole photo.
+        box: (top, bottom, left, right) of the box, fractions of the photo's height, width.
+        size: (width, height) of the map to return.
+    Returns:
+        [height, width] bool over the whole photo (outside the box: False).
+    """
+    width, height = size
+    top, bottom = round(box[0] * height), round(box[1] * height)
+    left, right = round(box[2] * width), round(box[3] * width)
+    doubt = np.zeros((height, width), bool)
+    if bottom <= top or right <= left:
+        return doubt
+    fh, fw = first.shape
+    seen = cv2.resize(first[int(box[0] * fh):max(int(box[0] * fh) + 1, round(box[1] * fh)),
+                            int(box[2] * fw):max(int(box[2] * fw) + 1, round(box[3] * fw))],
+                      (right - left, bottom - top), interpolation=cv2.INTER_LINEAR) > OBJECT
+    doubt[top:bottom, left:right] = resized_mask(cut, right - left, bottom - top) != seen
+    return doubt
 
 
 def check_cover(mask: np.ndarray, name: str, automatic: bool) -> None:
@@ -201,7 +242,7 @@ def check_uploaded(mask: np.ndarray, name: str) -> None:
 
 
 def found_mask(photo: Photo, method: Literal["grabcut", "learned"],
-               session: Any = None) -> tuple[np.ndarray, np.ndarray]:
+               session: Any = None) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
     """Find the object in a photo (its own mask, if any, is ignored here).
 
     Args:
@@ -209,19 +250,21 @@ def found_mask(photo: Photo, method: Literal["grabcut", "learned"],
         method: "grabcut" (border-seeded) or "learned" (``session``: a saliency model from
             ``saliency.load_model``).
     Returns:
-        mask [H, W] bool, and everything the method kept before the object's component was
-        chosen, [h, w] bool at its working size (for the second-object check).
+        mask [H, W] bool; everything the method kept before the object's component was
+        chosen, [h, w] bool at its working size (for the second-object check); and where the
+        mask is in doubt (``MaskResult.doubt``; None for GrabCut alone).
     Raises:
         InputError: naming the photo if the mask covers < 1% or > 95% of it.
     """
     height, width = photo.rgb.shape[:2]
+    doubt = None
     if method == "learned":
-        mask, kept = _learned(photo.rgb, session)
+        mask, kept, doubt = _learned(photo.rgb, session)
     else:
         small, kept = _grabcut(downscaled(photo.rgb, GRABCUT_SIDE))
         mask = resized_mask(small, width, height)
     check_cover(mask, photo.name, automatic=True)
-    return mask, kept
+    return mask, kept, doubt
 
 
 def remove_background(photo: Photo, method: Literal["grabcut", "learned"] = "grabcut",
@@ -254,7 +297,8 @@ def photo_masks(photos: Sequence[Photo], method: MaskMethod = "auto",
         model_path: a local ONNX saliency model for the learned method (None: the bundled one).
         progress: reports stage "masks" after each photo and checks for cancellation.
     Returns:
-        N results: mask [H_i, W_i] bool, its source, warnings (see ``mask_checks``).
+        N results: mask [H_i, W_i] bool, its source, warnings (see ``mask_checks``), and
+        where a learned mask is in doubt.
     Raises:
         InputError: an unusable mask (too little or too much of the photo), or an unknown
             method, or a model file that is missing or unreadable.
@@ -264,6 +308,7 @@ def photo_masks(photos: Sequence[Photo], method: MaskMethod = "auto",
     session = saliency.load_model(model_path) if needs_model else None
     masks: list[np.ndarray] = []
     kept: list[np.ndarray] = []
+    doubts: list[np.ndarray | None] = []
     sources: list[MaskSource] = []
     for i, photo in enumerate(photos):
         if photo.mask is not None:
@@ -273,19 +318,22 @@ def photo_masks(photos: Sequence[Photo], method: MaskMethod = "auto",
                 check_cover(photo.mask, photo.name, automatic=False)
             masks.append(photo.mask)
             kept.append(photo.mask)
+            doubts.append(None)
             sources.append(photo.mask_source or "uploaded")
         else:
-            mask, raw = found_mask(photo, chosen, session)
+            mask, raw, doubt = found_mask(photo, chosen, session)
             masks.append(mask)
             kept.append(raw)
+            doubts.append(doubt)
             sources.append(chosen)
             log.debug("%s: background removed (%s), %.1f%% kept", photo.name, chosen,
                       100 * mask.mean())
         if progress is not None:
             progress.step("masks", i + 1, len(photos))
     median = median_cover(masks)
-    return [MaskResult(mask, source, mask_warnings(photo.name, mask, raw, median))
-            for photo, mask, raw, source in zip(photos, masks, kept, sources, strict=True)]
+    return [MaskResult(mask, source, mask_warnings(photo.name, mask, raw, median), doubt)
+            for photo, mask, raw, source, doubt in zip(photos, masks, kept, sources, doubts,
+                                                       strict=True)]
 
 
 def mask_overlay(rgb: np.ndarray, mask: np.ndarray) -> np.ndarray:

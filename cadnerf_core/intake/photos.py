@@ -339,3 +339,29 @@ def canonical_views(photos: Sequence[Photo], masks: Sequence[np.ndarray], size: 
         rgb = apply_crop(photo.rgb.astype(np.float32), box, fill=1.0)
         rgbs.append(np.clip(rgb * alpha + (1.0 - alpha), 0.0, 1.0))
     return np.stack(rgbs).astype(np.float32), crops, boxes
+
+
+def doubt_weights(doubts: Sequence[np.ndarray | None], shapes: Sequence[tuple[int, ...]],
+                  boxes: Sequence[CropBox]) -> np.ndarray | None:
+    """Per-pixel loss weights of canonical crops: 0 where a mask is in doubt, else 1.
+
+    Args:
+        doubts: N maps [h_i, w_i] bool over whole photos at any size of the photo's aspect
+            ratio (``MaskResult.doubt``), or None where a mask is not in doubt anywhere.
+        shapes: the N photos' (H_i, W_i, ...) shapes, the pixels ``boxes`` refer to.
+        boxes: the N canonical crop boxes.
+    Returns:
+        [N, S, S] float32 in [0, 1] (partly doubtful pixels weigh in between), or None when
+        no photo has a doubt map.
+    """
+    if all(doubt is None for doubt in doubts):
+        return None
+    size = boxes[0].size
+    out = np.ones((len(boxes), size, size), np.float32)
+    for i, (doubt, shape, box) in enumerate(zip(doubts, shapes, boxes, strict=True)):
+        if doubt is None:
+            continue
+        scale = doubt.shape[1] / shape[1]  # doubt-map pixels per photo pixel
+        small = CropBox(box.x0 * scale, box.y0 * scale, box.side * scale, size)
+        out[i] -= apply_crop(doubt.astype(np.float32), small)
+    return np.clip(out, 0.0, 1.0)

@@ -141,6 +141,31 @@ def sample_pixels(data: TrainData, n: int) -> tuple[torch.Tensor, torch.Tensor, 
     return img, rem % data.width, rem // data.width
 
 
+def weighted_mse(pred: torch.Tensor, target: torch.Tensor,
+                 weight: torch.Tensor | None) -> torch.Tensor:
+    """Mean squared error of a batch where each ray counts by its ``weight``.
+
+    Args:
+        pred, target: [n] or [n, C].
+        weight: [n] in [0, 1] (``TrainData.weights`` at the batch's pixels), or None: plain MSE.
+    Returns:
+        Scalar: sum of weighted squared errors over the summed weight (times C); 0 with a
+        gradient when every weight is 0.
+    """
+    if weight is None:
+        return F.mse_loss(pred, target)
+    error = (pred - target) ** 2
+    if error.dim() > 1:
+        error = error.mean(dim=-1)
+    return (weight * error).sum() / weight.sum().clamp_min(1e-6)
+
+
+def pixel_weights(data: TrainData, img: torch.Tensor, x: torch.Tensor,
+                  y: torch.Tensor) -> torch.Tensor | None:
+    """Loss weights [n] of pixels (img, x, y), or None when every pixel weighs 1."""
+    return None if data.weights is None else data.weights[img, y, x]
+
+
 def render_batch(state: TrainState, data: TrainData, img: torch.Tensor, x: torch.Tensor,
                  y: torch.Tensor, with_color: bool, pose_grad: bool,
                  background: torch.Tensor | None = None) -> RenderOutput:
@@ -250,7 +275,8 @@ def phase2_step(state: TrainState, data: TrainData, optimizer: torch.optim.Optim
         for i, (part, share) in enumerate(ray_passes(state, len(img))):
             out = render_batch(state, data, img[part], x[part], y[part], False,
                                pose_optimizer is not None)
-            loss = F.mse_loss(out.acc, data.masks[img[part], y[part], x[part]])
+            weight = pixel_weights(data, img[part], x[part], y[part])
+            loss = weighted_mse(out.acc, data.masks[img[part], y[part], x[part]], weight)
             yield _pass_loss(state, loss, out, cfg, share, prior if i == 0 else None)
 
     return _apply_step(losses(), optimizer, pose_optimizer)
@@ -344,7 +370,9 @@ def phase3_step(state: TrainState, data: TrainData, optimizer: torch.optim.Optim
             assert out.rgb is not None
             loss = F.mse_loss(out.rgb, target[pimg, py, px])
             if cfg.mask_weight > 0:
-                loss = loss + cfg.mask_weight * F.mse_loss(out.acc, data.masks[pimg, py, px])
+                weight = pixel_weights(data, pimg, px, py)
+                loss = loss + cfg.mask_weight * weighted_mse(out.acc, data.masks[pimg, py, px],
+                                                             weight)
             yield _pass_loss(state, loss, out, cfg, share, prior if i == 0 else None)
 
     return _apply_step(losses(), optimizer, pose_optimizer)

@@ -21,16 +21,22 @@ class TrainData:
     masks: torch.Tensor  # [N, H, W] float 0/1
     K: torch.Tensor  # [N, 3, 3] intrinsics of each crop
     scene_images: torch.Tensor | None = None  # [N, H, W, 3] with the photo's own background
+    # [N, H, W] float in [0, 1]: each pixel's weight in the silhouette losses (0 where its
+    # mask is in doubt); None: every pixel weighs 1.
+    weights: torch.Tensor | None = None
 
     @classmethod
     def from_numpy(cls, images: np.ndarray, masks: np.ndarray, K: np.ndarray,
-                   device: torch.device, scene_images: np.ndarray | None = None) -> TrainData:
-        """Move numpy arrays (images [N,H,W,3] f32, masks [N,H,W] bool, K [N,3,3]) to ``device``."""
-        scene = None if scene_images is None else torch.from_numpy(
-            np.ascontiguousarray(scene_images, dtype=np.float32)).to(device)
-        return cls(torch.from_numpy(np.ascontiguousarray(images, dtype=np.float32)).to(device),
-                   torch.from_numpy(np.asarray(masks, dtype=np.float32)).to(device),
-                   torch.from_numpy(np.asarray(K, dtype=np.float32)).to(device), scene)
+                   device: torch.device, scene_images: np.ndarray | None = None,
+                   weights: np.ndarray | None = None) -> TrainData:
+        """Move numpy arrays (images [N,H,W,3] f32, masks [N,H,W] bool, K [N,3,3], optional
+        weights [N,H,W] f32) to ``device``."""
+        def tensor(array: np.ndarray) -> torch.Tensor:
+            return torch.from_numpy(np.ascontiguousarray(array, dtype=np.float32)).to(device)
+
+        return cls(tensor(images), tensor(masks), tensor(K),
+                   None if scene_images is None else tensor(scene_images),
+                   None if weights is None else tensor(weights))
 
     @property
     def n_images(self) -> int:
