@@ -179,49 +179,79 @@ def retrieve(masks: Sequence[np.ndarray], names: Sequence[str], library: Library
     """
     config = config or RetrievalConfig()
     allowed = allowed_models(library, config.exclude_models)
+    seen = _look(masks, images, focals, library, config)
+    if config.order != "walk" and len(masks) > 3:  # three photos make one cycle either way
+        choice = _order(seen, library, allowed, config, progress)
+        walk = config.model_copy(update={"order": "walk"})
+        found = _retrieve(seen.in_order(choice.order), [names[i] for i in choice.order],
+                          library, allowed, walk, progress, _pick(focals, choice.order),
+                          crop_size)
+        if choice.reordered and config.order == "auto":
+            log.warning("%s", reorder_warning([names[i] for i in choice.order]))
+        return _in_given_order(found, choice.order, config.order, choice.reordered,
+                               [p.to_json() for p in seen.pairs])
+    return _retrieve(seen, names, library, allowed, config, progress, focals, crop_size)
+
+
+@dataclass
+class _Seen:
+    """What retrieval reads off the photos whatever their order, computed once: each photo's
+    size, canonical mask crop and box, its appearance crops (None without the photos) and the
+    matches between every pair."""
+
+    sizes: list[tuple[int, int]]  # (height, width) of each photo
+    crops: np.ndarray  # canonical masks [P, S, S]
+    boxes: list[CropBox]  # photo -> canonical crop
+    appearance: tuple[np.ndarray, np.ndarray] | None  # ``_appearance_crops``
+    pairs: list[PairMatch]
+
+    def in_order(self, order: Sequence[int]) -> _Seen:
+        """The same photos taken in ``order`` (the pairs renumbered)."""
+        position = [int(k) for k in np.argsort(order)]  # photo -> its place in the walk
+        appearance = None if self.appearance is None else (
+            self.appearance[0][list(order)], self.appearance[1][list(order)])
+        return _Seen([self.sizes[i] for i in order], self.crops[list(order)],
+                     [self.boxes[i] for i in order], appearance,
+                     reindexed(self.pairs, position))
+
+
+def _look(masks: Sequence[np.ndarray], images: Sequence[np.ndarray] | None,
+          focals: Sequence[float | None] | None, library: Library,
+          config: RetrievalConfig) -> _Seen:
+    """``_Seen`` of the photos: crops at the library's silhouette size; the appearance crops
+    and the matches where the photos are given (the matches only for the DP, when enabled)."""
     spec = library.spec  # both silhouette sets share the crop size and margin
     crops, boxes = canonical_masks(masks, spec.silhouette_size, spec.margin)
+    appearance = None if images is None else _appearance_crops(images, masks, boxes)
     pairs: list[PairMatch] = []
     if images is not None and config.solver == "dp" and config.matches.enabled:
         pairs = photo_pairs(images, masks, focals, config)
         log.info("matches: %d inliers over %d pairs", sum(p.inliers for p in pairs),
                  len(pairs))
-    if config.order != "walk" and len(masks) > 3:  # three photos make one cycle either way
-        choice = _order(crops, boxes, masks, images, library, allowed, config, progress,
-                        pairs)
-        walk = config.model_copy(update={"order": "walk"})
-        position = [int(k) for k in np.argsort(choice.order)]  # photo -> place in the walk
-        found = _retrieve([masks[i] for i in choice.order], [names[i] for i in choice.order],
-                          library, walk, progress, _pick(images, choice.order),
-                          _pick(focals, choice.order), crop_size, reindexed(pairs, position))
-        if choice.reordered and config.order == "auto":
-            log.warning("%s", reorder_warning([names[i] for i in choice.order]))
-        return _in_given_order(found, choice.order, config.order, choice.reordered,
-                               [p.to_json() for p in pairs])
-    return _retrieve(masks, names, library, config, progress, images, focals, crop_size, pairs)
+    return _Seen([mask.shape[:2] for mask in masks], crops, boxes, appearance, pairs)
 
 
-def _retrieve(masks: Sequence[np.ndarray], names: Sequence[str], library: Library,
+def _retrieve(seen: _Seen, names: Sequence[str], library: Library, allowed: np.ndarray,
               config: RetrievalConfig, progress: Progress | None,
-              images: Sequence[np.ndarray] | None, focals: Sequence[float | None] | None,
-              crop_size: int | None, pairs: Sequence[PairMatch]) -> RetrievalResult:
-    """``retrieve`` of photos in walking order, with their ``pairs`` matched already."""
-    allowed = allowed_models(library, config.exclude_models)
-    spec = library.spec
-    crops, boxes = canonical_masks(masks, spec.silhouette_size, spec.margin)
+              focals: Sequence[float | None] | None, crop_size: int | None) -> RetrievalResult:
+    """``retrieve`` of photos in walking order, from what was ``seen`` of them."""
+    from cadnerf_core.retrieval.direction import walk_direction_evidence
+
     evidence = 0.0
     steps = None
-    if images is not None and config.solver == "dp" and config.appearance_weight > 0:
-        evidence = direction_evidence(images, masks, boxes)
-        if pairs:
-            turns = walk_evidence(pairs, len(masks), config.matches)
-            steps = measured_steps(pairs, len(masks), config.matches)
+    n_photos = len(seen.sizes)
+    if seen.appearance is not None and config.solver == "dp" and config.appearance_weight > 0:
+        evidence = walk_direction_evidence(*seen.appearance)
+        if seen.pairs:
+            turns = walk_evidence(seen.pairs, n_photos, config.matches)
+            steps = measured_steps(seen.pairs, n_photos, config.matches)
             log.info("walking-direction evidence: matches %+.2f, texture %+.2f", turns,
                      evidence)
             evidence += turns
-    photos = _Photos(names, [mask.shape[:2] for mask in masks], crops, boxes, evidence, focals,
-                     crop_size or spec.silhouette_size, allowed,
-                     [p.to_json() for p in pairs], steps)
+    photos = _Photos(names, seen.sizes, seen.crops, seen.boxes, evidence, focals,
+                     crop_size or library.spec.silhouette_size, allowed,
+                     [p.to_json() for p in seen.pairs], steps)
+
     near = library.near
     known = [f for f in focals or [] if f is not None]
     wanted = config.perspective
@@ -255,10 +285,8 @@ def _pick(items: Sequence[T] | None, order: Sequence[int]) -> list[T] | None:
     return None if items is None else [items[i] for i in order]
 
 
-def _order(crops: np.ndarray, boxes: Sequence[CropBox], masks: Sequence[np.ndarray],
-           images: Sequence[np.ndarray] | None, library: Library, allowed: np.ndarray,
-           config: RetrievalConfig, progress: Progress | None,
-           pairs: Sequence[PairMatch]) -> OrderChoice:
+def _order(seen: _Seen, library: Library, allowed: np.ndarray, config: RetrievalConfig,
+           progress: Progress | None) -> OrderChoice:
     """The order to walk the photos in (``config.order`` "any" or "auto"), searched on the
     silhouette set ``config.perspective`` names (the far one when "auto") among the most voted
     models, with the photos' likeness (colours, outlines, and the matches between them where
@@ -269,14 +297,14 @@ def _order(crops: np.ndarray, boxes: Sequence[CropBox], masks: Sequence[np.ndarr
     silhouettes = views.silhouettes
     if len(allowed) < len(silhouettes):
         silhouettes = silhouettes[allowed]
-    iou = iou_table(crops, silhouettes)
+    iou = iou_table(seen.crops, silhouettes)
     _, ranking = vote_models(iou)
     similarity = None
-    if images is not None and config.similarity_weight > 0:
-        rgbs, insides = _appearance_crops(images, masks, boxes)
-        similarity = neighbour_similarity(list(rgbs), list(insides))
-        if any(p.inliers for p in pairs):  # shared points: the surest sign of neighbours
-            similarity = similarity + standardised(np.log1p(inlier_table(pairs, len(masks))))
+    if seen.appearance is not None and config.similarity_weight > 0:
+        similarity = neighbour_similarity(list(seen.appearance[0]), list(seen.appearance[1]))
+        if any(p.inliers for p in seen.pairs):  # shared points: the surest sign of neighbours
+            shared = np.log1p(inlier_table(seen.pairs, len(seen.sizes)))
+            similarity = similarity + standardised(shared)
     az_index = azimuth_bins(views.az_el, views.spec.n_azimuths)
     candidates = [m for m, _, _ in ranking[:TOP_MODELS]]
     return choose_order(iou, candidates, az_index, views.spec.n_azimuths, config.order,
