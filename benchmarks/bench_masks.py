@@ -14,7 +14,6 @@ Usage: ``python -m benchmarks.bench_masks [--quick] [--library DIR]`` prints the
 
 from __future__ import annotations
 
-import argparse
 import os
 import resource
 import shutil
@@ -200,13 +199,10 @@ def run(quick: bool, library_dir: Path = LIBRARY_DIR) -> str:
 
 
 def main(argv: list[str] | None = None) -> int:
-    """Print the section (``--quick``: no training jobs)."""
-    parser = argparse.ArgumentParser(description="CAD-NeRF mask benchmark")
-    parser.add_argument("--quick", action="store_true")
-    parser.add_argument("--library", type=Path, default=LIBRARY_DIR)
-    args = parser.parse_args(argv)
-    sys.stdout.write(run(args.quick, args.library))
-    return 0
+    """Print the section (``--quick``: the short run)."""
+    from benchmarks.run import area_main
+
+    return area_main(run, "CAD-NeRF mask benchmark", argv)
 
 
 if __name__ == "__main__":

@@ -21,7 +21,6 @@ Usage: ``python -m benchmarks.bench_order [--quick]`` prints the section.
 
 from __future__ import annotations
 
-import argparse
 import logging
 import statistics
 import sys
@@ -234,12 +233,10 @@ def run(quick: bool, library_dir: Path = LIBRARY_DIR) -> str:
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--quick", action="store_true")
-    args = parser.parse_args(argv)
-    logging.basicConfig(level=logging.INFO, format="%(asctime)s %(levelname)s %(message)s")
-    print(run(args.quick))
-    return 0
+    """Print the section (``--quick``: the short run)."""
+    from benchmarks.run import area_main
+
+    return area_main(run, "CAD-NeRF order benchmark", argv)
 
 
 if __name__ == "__main__":

@@ -22,7 +22,6 @@ Usage: ``python -m benchmarks.bench_retrieval [--quick] [--library DIR]`` prints
 
 from __future__ import annotations
 
-import argparse
 import logging
 import shutil
 import statistics
@@ -168,15 +167,10 @@ def run(quick: bool, library_dir: Path = LIBRARY_DIR) -> str:
 
 
 def main(argv: list[str] | None = None) -> int:
-    """Print the section (``--quick`` for 3 meshes)."""
-    parser = argparse.ArgumentParser(description="CAD-NeRF retrieval benchmark")
-    parser.add_argument("--quick", action="store_true")
-    parser.add_argument("--library", type=Path, default=LIBRARY_DIR)
-    args = parser.parse_args(argv)
-    logging.basicConfig(level=logging.INFO,
-                        format="%(asctime)s %(levelname)s %(name)s: %(message)s")
-    sys.stdout.write(run(args.quick, args.library))
-    return 0
+    """Print the section (``--quick``: the short run)."""
+    from benchmarks.run import area_main
+
+    return area_main(run, "CAD-NeRF retrieval benchmark", argv)
 
 
 if __name__ == "__main__":

@@ -24,6 +24,7 @@ import subprocess
 import sys
 import time
 import traceback
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -37,6 +38,20 @@ FULL_ONLY = {"training": "the preview-preset training benchmark (ablations on tw
                          "full method on every mesh) takes about 2 hours on 2 cores; run "
                          "`make bench` (without QUICK) for it"}
 ROOT = Path(__file__).resolve().parents[1]
+
+
+def area_main(run: Callable[[bool, Path], str], description: str,
+              argv: list[str] | None = None) -> int:
+    """The command line of one area's module: ``[--quick] [--library DIR]``, its section on
+    standard output, progress logged."""
+    parser = argparse.ArgumentParser(description=description)
+    parser.add_argument("--quick", action="store_true")
+    parser.add_argument("--library", type=Path, default=ROOT / "library_data" / "build")
+    args = parser.parse_args(argv)
+    logging.basicConfig(level=logging.INFO,
+                        format="%(asctime)s %(levelname)s %(name)s: %(message)s")
+    sys.stdout.write(run(args.quick, args.library))
+    return 0
 
 
 def all_areas() -> list[str]:
