@@ -89,7 +89,8 @@ class RetrievalConfig(_Frozen):
     paper's assumption), "any" (no order: the walk is found from the silhouettes and the
     photos' colours, ``retrieval.ordering``), or "auto": the given order kept when it is a
     plausible walk, else the order found, with a warning that names it. The search costs
-    about 0.3 s a model for 10 photos on 2 CPU cores, 1.5 s a job (five models)."""
+    about 0.2 s a model for 10 photos on 2 CPU cores, under 1 s a job (five models;
+    ``bench_order``)."""
     order_margin: float = Field(default=0.08, ge=0.0, le=10.0)
     """"auto" only: IoU per photo by which the best walk in any order must beat the walk in the
     given order for the photos to be reordered (walks rendered in order lose up to 0.075 to
