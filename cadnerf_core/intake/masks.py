@@ -5,7 +5,8 @@ salient-object network (the small U-2-Net, see ``saliency``) runs on a 320-pixel
 photo, then again on the object's box cut from the full photo; GrabCut refines that map at a
 working size of ``WORK_SIDE`` pixels, seeded from its levels (sure and probable object and
 background). Without the network, GrabCut alone is seeded from a band along the image border.
-Either way the component nearest the centre (weighted by size) is kept, its holes filled, and
+Either way the component nearest the centre (weighted by size) is kept, its holes filled
+(a learned mask keeps open the holes the network calls background: the gap under a spout), and
 the result scaled back to the photo's size. ``mask_checks`` then warns about doubtful masks.
 
 A learned mask also says where it is in doubt: the pixels on which the refined cut and the
@@ -46,6 +47,9 @@ GRABCUT_ITERATIONS = 5
 # Saliency levels seeding GrabCut: below SURE_BACKGROUND sure background, below OBJECT
 # probable background, below SURE_OBJECT probable object, above it sure object.
 SURE_BACKGROUND, OBJECT, SURE_OBJECT = 0.1, 0.5, 0.9
+# The second, closer pass runs only when the object's box (with its margin) covers less than
+# this fraction of the photo: over it the network would see the object under 1.12 times larger.
+ZOOM_MIN_GAIN = 0.8
 MIN_AGREEMENT = 0.75  # IoU with the network's own mask below which GrabCut's cut is dropped
 DOUBT_SIDE = 1024  # the doubt map is kept at about this many pixels on the longer side
 MASK_HINT = "upload a mask for this photo (white = object, black = background)"
@@ -65,19 +69,32 @@ class MaskResult:
     doubt: np.ndarray | None = None
 
 
-def largest_component(mask: np.ndarray, weight: np.ndarray | None = None) -> np.ndarray:
+def largest_component(mask: np.ndarray, weight: np.ndarray | None = None,
+                      sal: np.ndarray | None = None) -> np.ndarray:
     """The largest 8-connected component of ``mask`` with its holes filled. [H, W] bool.
 
     Args:
         mask: [H, W] bool.
         weight: optional [H, W] per-pixel weight; the component of largest total weight wins.
+        sal: optional [H, W] saliency in [0, 1]: a hole stays open where the map calls it
+            background on average (the gap under a spout or between a handle and its body),
+            and is filled where it calls it object.
     """
     labels, count = ndimage.label(mask, structure=np.ones((3, 3), dtype=bool))
     if count == 0:
         return mask.copy()
     pixels = np.ones(mask.shape) if weight is None else weight
     sizes = ndimage.sum(pixels, labels, index=np.arange(1, count + 1))
-    return np.asarray(ndimage.binary_fill_holes(labels == int(np.argmax(sizes)) + 1), dtype=bool)
+    component = labels == int(np.argmax(sizes)) + 1
+    filled = np.asarray(ndimage.binary_fill_holes(component), dtype=bool)
+    if sal is None:
+        return filled
+    holes, n_holes = ndimage.label(filled & ~component)
+    if n_holes == 0:
+        return filled
+    seen = ndimage.mean(sal, holes, index=np.arange(1, n_holes + 1))
+    open_holes = np.flatnonzero(np.asarray(seen) <= OBJECT) + 1
+    return filled & ~np.isin(holes, open_holes)
 
 
 def border_band(shape: tuple[int, int]) -> np.ndarray:
@@ -144,17 +161,18 @@ def refine_saliency(image: np.ndarray, sal: np.ndarray) -> tuple[np.ndarray, np.
     seeds[sal > SURE_OBJECT] = cv2.GC_FGD
     found = _run_grabcut(image, seeds)
     if found is not None:
-        cut = largest_component(found, weight)
+        cut = largest_component(found, weight, sal)
         union = (cut | own).sum()
         if union and (cut & own).sum() / union >= MIN_AGREEMENT:
             return cut, found
-    return largest_component(own, weight), own
+    return largest_component(own, weight, sal), own
 
 
 def _learned(rgb: np.ndarray, session: Any) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The network's object: a first pass on the whole photo finds it; a second on its box
-    (cut from the full photo, about ``WORK_SIDE`` pixels) sees it closer, and GrabCut refines
-    that map. The working resolution is spent on the object, not on the scene.
+    (cut from the full photo, about ``WORK_SIDE`` pixels) sees it closer, unless the box fills
+    most of the photo (``ZOOM_MIN_GAIN``), and GrabCut refines that map. The working
+    resolution is spent on the object, not on the scene.
 
     Returns:
         mask [H, W] bool; the first pass's salient pixels [h, w] bool (the whole photo); and
@@ -174,7 +192,12 @@ def _learned(rgb: np.ndarray, session: Any) -> tuple[np.ndarray, np.ndarray, np.
     bottom = max(top + 1, min(height, round(y1 * sy)))
     right = max(left + 1, min(width, round(x1 * sx)))
     crop = downscaled(rgb[top:bottom, left:right], WORK_SIDE)
-    sal = cv2.resize(saliency.predict(session, crop), (crop.shape[1], crop.shape[0]))
+    if (y1 - y0) * (x1 - x0) >= ZOOM_MIN_GAIN * first.size:
+        # The box fills the photo: a closer look would not see the object any larger.
+        seen = first[y0:y1, x0:x1]
+    else:
+        seen = saliency.predict(session, crop)
+    sal = cv2.resize(seen, (crop.shape[1], crop.shape[0]))
     cut = refine_saliency(crop, sal)[0]
     mask = np.zeros((height, width), bool)
     mask[top:bottom, left:right] = resized_mask(cut, right - left, bottom - top)
