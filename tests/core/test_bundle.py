@@ -12,8 +12,9 @@ import numpy as np
 import pytest
 from PIL import Image
 
-from cadnerf_core.jobfolder import BUNDLE, JobFolder
+from cadnerf_core.jobfolder import BUNDLE, MESH, JobFolder
 from tests.core.test_pipeline import write_job
+from tests.gltf_validator import assert_no_errors_or_warnings, needs_validator
 
 pytestmark = pytest.mark.usefixtures("one_torch_thread")
 
@@ -115,6 +116,11 @@ def test_every_bundle_part_is_an_artifact(job: Path) -> None:
     assert BUNDLE in artifacts
     for name in artifacts:
         assert folder.artifact_path(name) is not None, name
+
+
+@needs_validator
+def test_the_jobs_glb_passes_the_khronos_validator(job: Path) -> None:
+    assert_no_errors_or_warnings(job / MESH)
 
 
 def test_a_rotated_jpeg_becomes_an_upright_png(tmp_path: Path) -> None:
