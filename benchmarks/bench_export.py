@@ -102,13 +102,14 @@ def time_mesh_steps(model: Any) -> dict[str, Any]:
 
 
 def sizes(job_dir: Path) -> dict[str, int]:
-    """Bytes of the new outputs."""
+    """Bytes of the new outputs (``mesh.usdz`` where it was written)."""
     from cadnerf_core.jobfolder import (
         BUNDLE,
         COLMAP_POINTS,
         MESH,
         MESH_OBJ,
         MESH_TEXTURE,
+        MESH_USDZ,
         ORBIT_GIF,
         ORBIT_VIDEO,
         JobFolder,
@@ -116,7 +117,8 @@ def sizes(job_dir: Path) -> dict[str, int]:
 
     folder = JobFolder(job_dir)
     return {name: folder.file(name).stat().st_size for name in
-            (ORBIT_VIDEO, ORBIT_GIF, MESH, MESH_OBJ, MESH_TEXTURE, COLMAP_POINTS, BUNDLE)}
+            (ORBIT_VIDEO, ORBIT_GIF, MESH, MESH_OBJ, MESH_TEXTURE, MESH_USDZ, COLMAP_POINTS,
+             BUNDLE) if folder.file(name).is_file()}
 
 
 def measure(library_dir: Path, model_id: str, work: Path,
@@ -193,7 +195,8 @@ def report(f: dict[str, Any], threads: int) -> str:
     views = _sub(f["views_after_s"], f["views_before_s"])
     baked = (m["decimate_s"][0] + m["bake_s"][0], m["decimate_s"][1] + m["bake_s"][1])
     texture = _sub(baked, m["vertex_colours_s"])
-    total = (orbit[0] + views[0] + texture[0], orbit[1] + views[1] + texture[1])
+    goal = (orbit[0] + texture[0], orbit[1] + texture[1])  # what the goal is set on
+    total = (goal[0] + views[0], goal[1] + views[1])
     mib = {k: v / 2**20 for k, v in f["sizes"].items()}
     return "\n".join([
         "## Export (preview)", "",
@@ -212,7 +215,8 @@ def report(f: dict[str, Any], threads: int) -> str:
         f"| mesh colour: per-vertex query -> decimate ({m['faces_before']} -> {m['faces']} "
         f"faces) + unwrap + {f['texture_size']} px bake | {_pair(m['vertex_colours_s'])} | "
         f"{_pair(baked)} | {_pair(texture)} |",
-        f"| total added (goal: under 30 s) | | | {_pair(total)} |", "",
+        f"| texture bake + larger orbit (goal: under 30 s) | | | {_pair(goal)} |",
+        f"| total added | | | {_pair(total)} |", "",
         "Sizes: " + ", ".join(f"`{k}` {v:.2f} MiB" for k, v in mib.items()) + ".", ""])
 
 

@@ -12,7 +12,8 @@ One job is one folder, written by the app at upload (or the CLI), then by the pi
                               warnings, and the mask and overlay file names
     retrieval.json            model, matches and discarded photos (the retrieval stage)
     poses.json, transforms.json, metrics.json
-    views/NNN.png, orbit.mp4, orbit.gif, mesh.glb, mesh.obj, mesh.mtl, mesh_texture.png
+    views/NNN.png, orbit.mp4, orbit.gif, mesh.glb, mesh.obj, mesh.mtl, mesh_texture.png,
+    mesh.usdz                 the mesh for AR Quick Look (where usd-core is installed)
     images/NNN_<stem>.<ext>   the photos for other tools: the upload itself (linked) when it is
                               an upright JPEG or PNG, else its upright pixels as PNG
     sparse/0/cameras.txt, sparse/0/images.txt, sparse/0/points3D.txt   a COLMAP text model

@@ -29,6 +29,7 @@ MESH = "mesh.glb"
 MESH_OBJ = "mesh.obj"
 MESH_MTL = "mesh.mtl"
 MESH_TEXTURE = "mesh_texture.png"
+MESH_USDZ = "mesh.usdz"
 IMAGES = "images"
 SPARSE = "sparse/0"
 COLMAP_CAMERAS = f"{SPARSE}/cameras.txt"
@@ -43,6 +44,7 @@ PHOTO_SUFFIXES = (".jpg", ".jpeg", ".png", ".webp", ".heic", ".heif", ".hif", ".
 MEDIA_TYPES: dict[str, str] = {
     ORBIT_VIDEO: "video/mp4", ORBIT_GIF: "image/gif", MESH: "model/gltf-binary",
     MESH_OBJ: "model/obj", MESH_MTL: "model/mtl", MESH_TEXTURE: "image/png",
+    MESH_USDZ: "model/vnd.usdz+zip",
     BUNDLE: "application/zip",
     POSES: "application/json", TRANSFORMS: "application/json", METRICS: "application/json",
     RETRIEVAL: "application/json", CONFIG: "application/json", MASK_SOURCES: "application/json",

@@ -103,7 +103,7 @@ def write_bundle(folder: JobFolder) -> list[str]:
     """Write ``results.zip`` of ``JobFolder.bundle_members`` (already-compressed media stored,
     text deflated), paths inside as in the job folder. Returns the members."""
     members = folder.bundle_members()
-    stored = (".png", ".jpg", ".jpeg", ".mp4", ".gif", ".glb")
+    stored = (".png", ".jpg", ".jpeg", ".mp4", ".gif", ".glb", ".usdz")
     with atomic_path(folder.file(BUNDLE)) as tmp, zipfile.ZipFile(tmp, "w") as bundle:
         for name in members:
             method = zipfile.ZIP_STORED if name.endswith(stored) else zipfile.ZIP_DEFLATED

@@ -2,7 +2,8 @@
 
 Written as ``mesh.glb`` (binary glTF 2.0: +Y up as glTF wants, which is our world's up; one
 unit = the radius of the object's bounding sphere, not metres, as ``poses.json`` says) and as
-``mesh.obj`` + ``mesh.mtl`` + ``mesh_texture.png`` for tools without glTF.
+``mesh.obj`` + ``mesh.mtl`` + ``mesh_texture.png`` for tools without glTF, and as
+``mesh.usdz`` for AR Quick Look (``export.usdz``, where Pixar's USD is installed).
 """
 
 from __future__ import annotations
@@ -14,7 +15,16 @@ import numpy as np
 import trimesh
 
 from cadnerf_core.export.texture import TexturedMesh, bake_texture, decimate
-from cadnerf_core.jobfolder import MESH, MESH_MTL, MESH_OBJ, MESH_TEXTURE, JobFolder, atomic_path
+from cadnerf_core.export.usdz import write_usdz
+from cadnerf_core.jobfolder import (
+    MESH,
+    MESH_MTL,
+    MESH_OBJ,
+    MESH_TEXTURE,
+    MESH_USDZ,
+    JobFolder,
+    atomic_path,
+)
 from cadnerf_core.progress import Progress
 
 if TYPE_CHECKING:
@@ -90,7 +100,7 @@ def write_obj(folder: JobFolder, mesh: TexturedMesh) -> None:
 
 def export_mesh(job_dir: Path, model: TrainedModel,
                 progress: Progress | None = None) -> TexturedMesh:
-    """mesh.glb and mesh.obj: marching cubes on the learned occupancy, decimated to
+    """mesh.glb, mesh.obj and mesh.usdz: marching cubes on the learned occupancy, decimated to
     ``export.mesh_faces`` triangles, its colour baked into an ``export.texture_size`` texture.
     Returns the textured mesh."""
     ecfg = model.state.config.export
@@ -110,4 +120,5 @@ def export_mesh(job_dir: Path, model: TrainedModel,
     folder = JobFolder(job_dir)
     write_glb(folder.file(MESH), textured)
     write_obj(folder, textured)
+    write_usdz(folder.file(MESH_USDZ), textured, folder.file(MESH_TEXTURE))
     return textured

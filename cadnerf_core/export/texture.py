@@ -21,6 +21,10 @@ PADDING = 2
 """Texels between charts in the atlas, so bilinear sampling at a seam stays in its chart."""
 
 
+ROUGHNESS = 0.9
+"""Roughness of the exported material (GLB and USDZ): matte, as the baked colour already holds
+the photos' shading."""
+
 SLIVER = 1e-5
 """Triangles smaller than this fraction of the mean area are dropped before unwrapping:
 marching cubes leaves slivers of near-coincident vertices that xatlas cannot chart."""
@@ -41,7 +45,7 @@ class TexturedMesh:
 
         material = trimesh.visual.material.PBRMaterial(
             name="baked", baseColorTexture=Image.fromarray(self.texture, "RGB"),
-            metallicFactor=0.0, roughnessFactor=0.9)
+            metallicFactor=0.0, roughnessFactor=ROUGHNESS)
         visual = trimesh.visual.TextureVisuals(uv=self.uv, material=material)
         return trimesh.Trimesh(vertices=self.vertices, faces=self.faces, visual=visual,
                                process=False)

@@ -1,5 +1,5 @@
-"""The files for other tools over HTTP: results.zip, the COLMAP model, images/, the OBJ mesh are
-listed in the result and served with their types; the stored inputs still are not."""
+"""The files for other tools over HTTP: results.zip, the COLMAP model, images/, the OBJ and USDZ
+meshes are listed in the result and served with their types; the stored inputs still are not."""
 
 from __future__ import annotations
 
@@ -7,7 +7,7 @@ from fastapi.testclient import TestClient
 
 from app.state.settings import Settings
 from cadnerf_core.export.bundle import write_bundle, write_images
-from cadnerf_core.jobfolder import COLMAP_CAMERAS, MESH_MTL, MESH_OBJ, JobFolder
+from cadnerf_core.jobfolder import COLMAP_CAMERAS, MESH_MTL, MESH_OBJ, MESH_USDZ, JobFolder
 from tests.app.test_api_jobs import _submit, _succeed
 
 
@@ -19,12 +19,14 @@ def test_bundle_parts_are_listed_and_served(client: TestClient, settings: Settin
     folder.write_text(COLMAP_CAMERAS, "1 PINHOLE 64 48 50 50 32 24\n")
     folder.write_text(MESH_OBJ, "v 0 0 0\n")
     folder.write_text(MESH_MTL, "newmtl baked\n")
+    folder.file(MESH_USDZ).write_bytes(b"PK\x05\x06" + bytes(18))  # an empty zip
     members = write_bundle(folder)
-    assert images[0] in members and COLMAP_CAMERAS in members
+    assert images[0] in members and COLMAP_CAMERAS in members and MESH_USDZ in members
     result = client.get(f"/v1/jobs/{job['id']}/result").json()
     base = f"/v1/jobs/{job['id']}/artifacts"
     expected = {"results.zip": "application/zip", COLMAP_CAMERAS: "text/plain",
-                MESH_OBJ: "model/obj", MESH_MTL: "model/mtl", images[0]: "image/png"}
+                MESH_OBJ: "model/obj", MESH_MTL: "model/mtl", MESH_USDZ: "model/vnd.usdz+zip",
+                images[0]: "image/png"}
     for name, media_type in expected.items():
         assert result["artifacts"][name] == f"{base}/{name}"
         response = client.get(f"{base}/{name}")

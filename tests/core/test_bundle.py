@@ -12,8 +12,10 @@ import numpy as np
 import pytest
 from PIL import Image
 
-from cadnerf_core.jobfolder import BUNDLE, JobFolder
+from cadnerf_core.export.usdz import usd_available
+from cadnerf_core.jobfolder import BUNDLE, MESH, JobFolder
 from tests.core.test_pipeline import write_job
+from tests.gltf_validator import assert_no_errors_or_warnings, needs_validator
 
 pytestmark = pytest.mark.usefixtures("one_torch_thread")
 
@@ -112,9 +114,15 @@ def test_every_bundle_part_is_an_artifact(job: Path) -> None:
     assert {"sparse/0/cameras.txt", "sparse/0/images.txt", "sparse/0/points3D.txt",
             "transforms.json", "poses.json", "mesh.glb", "mesh.obj", "mesh.mtl",
             "mesh_texture.png"} <= members
+    assert ("mesh.usdz" in members) == usd_available()
     assert BUNDLE in artifacts
     for name in artifacts:
         assert folder.artifact_path(name) is not None, name
+
+
+@needs_validator
+def test_the_jobs_glb_passes_the_khronos_validator(job: Path) -> None:
+    assert_no_errors_or_warnings(job / MESH)
 
 
 def test_a_rotated_jpeg_becomes_an_upright_png(tmp_path: Path) -> None:

@@ -2,9 +2,6 @@
 
 from __future__ import annotations
 
-import json
-import shutil
-import subprocess
 from pathlib import Path
 
 import numpy as np
@@ -14,8 +11,7 @@ import trimesh
 from cadnerf_core.export.mesh import extract_mesh, write_glb, write_obj
 from cadnerf_core.export.texture import TexturedMesh, bake_texture, decimate, rasterize_uv
 from cadnerf_core.jobfolder import MESH, MESH_OBJ, MESH_TEXTURE, JobFolder
-
-VALIDATOR = Path(__file__).resolve().parents[2] / "node_modules" / "gltf-validator"
+from tests.gltf_validator import assert_no_errors_or_warnings, needs_validator
 
 
 def _quadrant_colour(points: np.ndarray, dirs: np.ndarray) -> np.ndarray:
@@ -77,21 +73,10 @@ def test_glb_has_a_textured_non_metallic_material(tmp_path: Path, baked: Texture
     assert len(scene.faces) == len(baked.faces)
 
 
-@pytest.mark.skipif(shutil.which("node") is None, reason="node is not installed (the Khronos "
-                    "glTF validator runs on node)")
-@pytest.mark.skipif(not VALIDATOR.is_dir(), reason="node_modules/gltf-validator absent: "
-                    "run `make setup` (npm ci)")
+@needs_validator
 def test_glb_passes_the_khronos_validator(tmp_path: Path, baked: TexturedMesh) -> None:
     write_glb(tmp_path / MESH, baked)
-    script = ("const v = require(process.argv[1]); const fs = require('fs');"
-              "v.validateBytes(new Uint8Array(fs.readFileSync(process.argv[2])))"
-              ".then(r => console.log(JSON.stringify(r.issues)))"
-              ".catch(e => { console.error(String(e)); process.exit(2); });")
-    run = subprocess.run(["node", "-e", script, str(VALIDATOR), str(tmp_path / MESH)],
-                         capture_output=True, text=True, timeout=120, check=True)
-    issues = json.loads(run.stdout)
-    problems = [m for m in issues["messages"] if m["severity"] <= 1]
-    assert (issues["numErrors"], issues["numWarnings"]) == (0, 0), problems
+    assert_no_errors_or_warnings(tmp_path / MESH)
 
 
 def test_obj_with_material_and_texture_loads_back(tmp_path: Path, baked: TexturedMesh) -> None:
