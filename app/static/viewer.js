@@ -2,7 +2,9 @@
 // - the orbit video becomes drag-to-spin: dragging across it scrubs through the orbit's frames
 //   (the rendered frames look better than the mesh), and it is what remains without the viewer;
 // - the textured mesh.glb in <model-viewer> (@google/model-viewer), installed from npm by
-//   `make setup` into node_modules and served by this server at /vendor/ (never a CDN).
+//   `make setup` into node_modules and served by this server at /vendor/ (never a CDN); with
+//   mesh.usdz as its AR model, a phone offers to place the object in the room (AR Quick Look
+//   on an iPhone, WebXR or Scene Viewer on Android).
 import { artifactUrl } from "./api.js";
 
 const VIEWER_MODULE = "/vendor/model-viewer.js";
@@ -63,7 +65,7 @@ export function enableDragSpin(video) {
 
 // The textured mesh in <model-viewer>, in a figure placed before the orbit's; nothing when the
 // module is not installed on this server or the job has no mesh.
-async function showMesh(meshUrl, orbitFigure) {
+async function showMesh(meshUrl, usdzUrl, orbitFigure) {
   if (!meshUrl || !(await loadViewerModule()) || !customElements.get("model-viewer")) return null;
   document.getElementById("mesh-figure")?.remove();
   const figure = document.createElement("figure");
@@ -77,6 +79,11 @@ async function showMesh(meshUrl, orbitFigure) {
   viewer.setAttribute("exposure", "1");
   viewer.setAttribute("alt", "The reconstructed object's textured mesh: drag to turn it");
   viewer.src = await artifactUrl(meshUrl);
+  if (usdzUrl) {
+    viewer.setAttribute("ar", "");
+    viewer.setAttribute("ar-modes", "webxr scene-viewer quick-look");
+    viewer.setAttribute("ios-src", await artifactUrl(usdzUrl));
+  }
   const caption = document.createElement("figcaption");
   caption.textContent = "Textured mesh: drag to turn it, scroll or pinch to zoom";
   figure.append(viewer, caption);
@@ -96,5 +103,5 @@ export async function attachViewer(artifacts, video) {
     caption.append(" \u2013 drag across it to turn the object");
   }
   if (!figure) return null;
-  return showMesh(artifacts["mesh.glb"], figure);
+  return showMesh(artifacts["mesh.glb"], artifacts["mesh.usdz"], figure);
 }

@@ -39,7 +39,7 @@ def _finished_job(url: str, photos: list[Path]) -> str:
         if state in ("succeeded", "failed", "cancelled"):
             break
         time.sleep(0.5)
-    assert state == "succeeded", state
+    assert state == "succeeded", httpx.get(f"{url}/v1/jobs/{job_id}", timeout=10).text
     return job_id
 
 
@@ -88,6 +88,10 @@ def test_drag_spins_the_orbit_and_the_mesh_turns(live_service, photo_set: list[P
                 return
             page.wait_for_function("() => document.getElementById('mesh-viewer')?.loaded",
                                    timeout=60_000)
+            # The job's mesh.usdz is the viewer's AR model (AR Quick Look on an iPhone).
+            ios_src = page.get_attribute("#mesh-viewer", "ios-src") or ""
+            assert ios_src.endswith("/mesh.usdz")
+            assert page.get_attribute("#mesh-viewer", "ar") is not None
             before = page.evaluate("() => document.getElementById('mesh-viewer')"
                                    ".getCameraOrbit().theta")
             viewer = page.locator("#mesh-viewer").bounding_box()
