@@ -31,6 +31,7 @@ from app.state import (
     scaled,
     stage_work,
 )
+from cadnerf_core.config import PRESETS, resolve_config
 from tests.configs import TINY_PRESET, tiny_config, tiny_request_json
 
 TEST_JOB_S = 2.0 * len(STAGES)  # the fake history: 2 s per stage
@@ -197,16 +198,41 @@ def test_the_api_reports_queue_position_and_eta(client: TestClient, clean_redis:
     assert moved["queue_position"] == 0 and moved["eta_s"] == pytest.approx(tiny_s, abs=0.1)
 
 
+_PREVIEW = PRESETS[TINY_PRESET]
+
+
+@pytest.mark.parametrize(("overrides", "stage", "low", "high"), [
+    # Ten times phase three's steps: its 2 s become 20 s.
+    ({"phase3.steps": 10 * _PREVIEW.phase3.steps}, "phase3", 10.0, 10.0),
+    # Twice the rays a step: phase three costs twice as much.
+    ({"phase3.rays": 2 * _PREVIEW.phase3.rays}, "phase3", 2.0, 2.0),
+    # Twice the orbit's side: four times its pixels; the views' pixels stay. The orbit holds
+    # most of preview's rendered pixels, so the render stage grows by 2 to 4 times.
+    ({"export.orbit_size": 2 * _PREVIEW.export.orbit_size}, "render", 2.0, 4.0),
+    # Twice the working size: the views' pixels quadruple, the orbit's stay.
+    ({"image_size": 2 * _PREVIEW.image_size}, "render", 1.0, 4.0),
+    # Half the working size: fewer pixels to render, a shorter render stage.
+    ({"image_size": _PREVIEW.image_size // 2}, "render", 0.25, 1.0),
+], ids=["phase3.steps x10", "phase3.rays x2", "export.orbit_size x2", "image_size x2",
+        "image_size /2"])
 def test_the_eta_scales_with_the_overrides(client: TestClient, clean_redis: redis.Redis,
-                                           photos: Callable[..., list[Any]]) -> None:
-    """Ten times phase three's steps: its 2 s become 20 s in the queued job's estimate."""
+                                           photos: Callable[..., list[Any]],
+                                           overrides: dict[str, Any], stage: str, low: float,
+                                           high: float) -> None:
+    """A queued job's estimate is the preset's 2 s a stage, the stage its override drives
+    scaled by ``stage_work`` (between ``low`` and ``high`` times), the others as they were."""
     _history(clean_redis)
     Workers(clean_redis).beat("worker-a", 30)
     plain = {"config": json.dumps({"preset": TINY_PRESET})}
-    longer = {"config": json.dumps({"preset": TINY_PRESET, "overrides": {"phase3.steps": 20000}})}
     first = client.post("/v1/jobs", files=photos(), data=plain)
     assert first.status_code == 202 and first.json()["eta_s"] == pytest.approx(TEST_JOB_S)
     client.delete(f"/v1/jobs/{first.json()['id']}")
-    second = client.post("/v1/jobs", files=photos(), data=longer)
+    work = stage_work(resolve_config(TINY_PRESET, overrides))
+    assert low <= work[stage] <= high, work
+    assert all(ratio == 1.0 for name, ratio in work.items() if name != stage), work
+    changed = {"config": json.dumps({"preset": TINY_PRESET, "overrides": overrides})}
+    second = client.post("/v1/jobs", files=photos(), data=changed)
     assert second.status_code == 202, second.text
-    assert second.json()["eta_s"] == pytest.approx(TEST_JOB_S + 9 * 2.0)
+    expected = sum(scaled({name: 2.0 for name in STAGES}, work).values())
+    assert expected == pytest.approx(TEST_JOB_S + 2.0 * (work[stage] - 1))
+    assert second.json()["eta_s"] == pytest.approx(expected, abs=0.1)

@@ -5,10 +5,11 @@ from __future__ import annotations
 
 import json
 import shutil
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
-from tests.configs import TINY_OVERRIDES
+from tests.configs import tiny_request
 
 ROOT = Path(__file__).resolve().parents[2]
 CHROMIUM = shutil.which("chromium") or ("/usr/bin/chromium" if Path("/usr/bin/chromium").exists()
@@ -18,7 +19,7 @@ LAUNCH_ARGS = ["--headless", "--no-sandbox", "--disable-gpu", "--disable-backgro
 AXE = ROOT / "node_modules" / "axe-core" / "axe.min.js"
 # The suite's tiny config is no public preset: the page sends the preset it offers, and this
 # script merges the tiny overrides into the config field it posts, as an API client could.
-TINY_CONFIG_SCRIPT = """
+_CONFIG_SCRIPT = """
 (() => {
   const tiny = TINY_JSON;
   const append = FormData.prototype.append;
@@ -36,7 +37,16 @@ TINY_CONFIG_SCRIPT = """
     return append.call(this, name, value, ...rest);
   };
 })();
-""".replace("TINY_JSON", json.dumps(TINY_OVERRIDES))
+"""
+
+
+def tiny_config_script(**overrides: Any) -> str:
+    """The init script that makes the page send the tiny config, with ``overrides`` merged on
+    top as ``tests.configs.tiny_request`` merges them."""
+    return _CONFIG_SCRIPT.replace("TINY_JSON", json.dumps(tiny_request(**overrides)["overrides"]))
+
+
+TINY_CONFIG_SCRIPT = tiny_config_script()
 
 
 def axe_missing_reason() -> str | None:
@@ -59,8 +69,9 @@ def axe_violations(page: Any) -> list[dict[str, Any]]:
     return list(found)
 
 
-def progress_samples(page: Any) -> list[float]:
-    """Widths (percent) of the progress bar, sampled until the job ends."""
+def progress_samples(page: Any, check: Callable[[], None] | None = None) -> list[float]:
+    """Widths (percent) of the progress bar, sampled until the job ends; ``check`` (if any) runs
+    on every sample taken before the result appears, so it sees the page while the job runs."""
     widths: list[float] = []
     for _ in range(1500):
         width = page.evaluate("() => parseFloat(document.getElementById('bar-fill').style.width)"
@@ -68,6 +79,8 @@ def progress_samples(page: Any) -> list[float]:
         widths.append(float(width))
         if not page.locator("#result").is_hidden() or page.locator("#job-error").is_visible():
             break
+        if check is not None:
+            check()
         page.wait_for_timeout(200)
     assert not page.locator("#job-error").is_visible(), page.inner_text("#job-error")
     return widths

@@ -17,8 +17,10 @@ import redis
 from PIL import Image
 
 from app.embedded import free_port
-from app.state import keys
-from tests.configs import TINY_PRESET, tiny_request
+from app.state import StageHistory, keys, stage_work
+from app.state.eta import expected_job_seconds, preset_history
+from cadnerf_core.config import resolve_config
+from tests.configs import TINY_OVERRIDES, TINY_PRESET, tiny_request
 from tests.e2e.conftest import _start_api
 from tests.reliability.jobs import submit, wait_state
 
@@ -123,3 +125,41 @@ def test_a_job_deleted_while_rendering_stays_deleted(live_service,
     finally:
         server.should_exit = True  # type: ignore[attr-defined]
         thread.join(15)
+
+
+def test_a_queued_job_with_ten_times_the_steps_expects_that_much_longer(
+        live_service, photo_set: list[Path]) -> None:
+    """Against the live worker: one tiny job done (the measured history), one holding the
+    worker, then plain, ten times the steps, plain queued behind it. In one listing, each
+    queued job's ETA exceeds the one before it by that job's own expected seconds; the longer
+    job's own seconds are its preset's measured ones scaled by ``stage_work``, more than the
+    plain one's."""
+    url = live_service.url
+    done = submit(url, photo_set, tiny_request())["id"]
+    assert wait_state(url, done, 240)[0]["state"] == "succeeded", live_service.log_tail()
+    blocker = submit(url, photo_set, tiny_request(phase3={"steps": 20000}))["id"]
+    queued: list[str] = []
+    try:
+        wait_state(url, blocker, 240, until=("running",))
+        steps = {phase: {"steps": 10 * TINY_OVERRIDES[phase]["steps"]}
+                 for phase in ("phase1", "phase2", "phase3")}
+        configs = [tiny_request(), tiny_request(**steps), tiny_request()]
+        queued = [submit(url, photo_set, config)["id"] for config in configs]
+        listed = httpx.get(f"{url}/v1/jobs", params={"limit": 100}, timeout=10).json()["items"]
+        jobs = {item["id"]: item for item in listed}
+        assert [jobs[i]["state"] for i in queued] == ["queued"] * 3, listed
+        assert [jobs[i]["queue_position"] for i in queued] == [0, 1, 2], listed
+        first, longer, last = (float(jobs[i]["eta_s"]) for i in queued)
+        own_plain, own_longer = last - longer, longer - first  # one worker: nothing divided
+        client = redis.Redis.from_url(live_service.settings.redis_url, decode_responses=True)
+        measured = preset_history(StageHistory(client).measured("cpu"), TINY_PRESET)
+        assert measured, "the finished job left no measured stage times"
+        expect = [expected_job_seconds(TINY_PRESET, "cpu", measured,
+                                       stage_work(resolve_config(c["preset"], c["overrides"])))
+                  for c in configs[:2]]
+        assert own_plain == pytest.approx(expect[0], abs=0.25), (own_plain, expect, jobs)
+        assert own_longer == pytest.approx(expect[1], abs=0.25), (own_longer, expect, jobs)
+        assert own_longer > own_plain > 0
+    finally:
+        for job_id in [*queued, blocker]:  # the queued ones first: the worker takes none
+            httpx.delete(f"{url}/v1/jobs/{job_id}", timeout=60)

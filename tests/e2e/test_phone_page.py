@@ -10,6 +10,7 @@ Set CADNERF_SCREENSHOT_DIR to keep the finished page; docs/web_page_phone.png co
 
 from __future__ import annotations
 
+import math
 import os
 import time
 from pathlib import Path
@@ -24,10 +25,10 @@ from tests.e2e.pages import (
     AXE,
     CHROMIUM,
     LAUNCH_ARGS,
-    TINY_CONFIG_SCRIPT,
     axe_missing_reason,
     axe_violations,
     progress_samples,
+    tiny_config_script,
 )
 
 pytestmark = [pytest.mark.slow, pytest.mark.browser,
@@ -39,7 +40,24 @@ PROFILES: dict[str, dict[str, Any]] = {
               "is_mobile": True, "has_touch": True},
     "desktop": {"viewport": {"width": 1280, "height": 900}},
 }
+# Phase three of the tiny job lasts long enough for the page's polls (one a second) to see the
+# bar part way, not only empty and then full (a few seconds on two CPU cores).
+PROGRESS_SCRIPT = tiny_config_script(phase3={"steps": 300})
 LABEL_RULES = {"label", "button-name", "select-name", "input-button-name", "aria-input-field-name"}
+
+
+def _duration(seconds: float) -> str:
+    """The page's ``formatDuration`` (app/static/page.js): whole seconds under 90 s, whole
+    minutes under 90 min, else hours to one decimal; JavaScript's Math.round rounds halves up."""
+    def js_round(x: float) -> float:
+        return math.floor(x + 0.5)
+
+    s = max(0.0, seconds)
+    if s < 90:
+        return f"about {js_round(s):.0f} s"
+    if s < 90 * 60:
+        return f"about {js_round(s / 60):.0f} min"
+    return f"about {js_round(s / 360) / 10:g} h"
 
 
 def _fits(page: Any, step: str) -> None:
@@ -92,9 +110,11 @@ def _check_presets(page: Any, url: str) -> None:
         assert float(seconds) == time_info["seconds"], (name, seconds, time_info)
         if not time_info["measured"]:
             assert time_info["seconds"] == sum(DEFAULT_STAGE_SECONDS["cpu"][name].values())
-        assert text.startswith(f"{name} \u2013 about "), text
+        assert text == f"{name} \u2013 {_duration(time_info['seconds'])}", (text, time_info)
+    preview = info["preset_times"]["preview"]
     shown = page.inner_text("#preset-time")
-    assert shown.startswith("preview: about ") and "without a GPU" in shown, shown
+    assert shown.startswith(f"preview: {_duration(preview['seconds'])} a job"), (shown, preview)
+    assert "without a GPU" in shown, shown
 
 
 def _reorder(page: Any, profile: str, names: list[str]) -> list[str]:
@@ -157,7 +177,7 @@ def test_photos_reorder_submit_and_result(live_service, photo_set: list[Path], t
         browser = playwright.chromium.launch(executable_path=CHROMIUM, args=LAUNCH_ARGS)
         try:
             page = browser.new_context(**PROFILES[profile]).new_page()
-            page.add_init_script(TINY_CONFIG_SCRIPT)
+            page.add_init_script(PROGRESS_SCRIPT)
             page.goto(live_service.url, timeout=30_000)
             page.wait_for_selector("#preset option", state="attached")
             # The mobile viewport meta: laid out at the screen's width, not 980 px shrunk to fit.
@@ -171,9 +191,13 @@ def test_photos_reorder_submit_and_result(live_service, photo_set: list[Path], t
             assert camera.get_attribute("multiple") is None  # one photo a time
             assert {"image/heic", "image/heif"} <= set(page.get_attribute("#photos", "accept")
                                                        .split(","))
-            assert "6 to 8 photos" in page.inner_text("#camera-guide")
+            guide = " ".join(page.inner_text("#camera-guide").split())
+            for words in ("Walk round the object", "6 to 8 photos", "keep all of it in frame",
+                          "the zoom the same"):
+                assert words in guide, (words, guide)
             page.set_input_files("#camera", str(photo_set[0]))
             assert _names(page) == names[:1]
+            _fits(page, "camera photo")
             page.set_input_files("#photos", [str(p) for p in photo_set[1:]])
             assert _names(page) == names
             _fits(page, "photos chosen")
@@ -182,6 +206,7 @@ def test_photos_reorder_submit_and_result(live_service, photo_set: list[Path], t
             page.select_option("#walk", "cw")  # a box looks alike walked either way round
             page.click("details summary")
             page.fill("#focal", "42")  # the renders carry no EXIF (40 degrees across: 42 mm)
+            _fits(page, "options open")
             page.evaluate("() => window.scrollTo(0, 0)")
             _submit_in_view(page)
             if profile == "phone":
@@ -189,10 +214,17 @@ def test_photos_reorder_submit_and_result(live_service, photo_set: list[Path], t
             else:
                 page.click("#submit")
             page.wait_for_selector("#status", state="visible", timeout=30_000)
-            widths = progress_samples(page)
-            _fits(page, "progress")
+            states: list[str] = []
+
+            def fits_while_running() -> None:
+                _fits(page, "progress")
+                states.append(page.inner_text("#status-text").split(" \u00b7 ")[0])
+
+            widths = progress_samples(page, fits_while_running)
             page.wait_for_selector("#result", state="visible", timeout=300_000)
-            assert max(widths) > 0 and widths == sorted(widths)  # the bar moved forward
+            assert "running" in states, states  # the width was checked while the job ran
+            # The bar moved forward, and was seen part way, not only empty and then full.
+            assert widths == sorted(widths) and any(0 < w < 100 for w in widths), widths
             _check_result(page, order)
             _fits(page, "result")
             # The whole page in one picture at the device's width: a screen as tall as the page,

@@ -8,6 +8,7 @@ import signal
 import time
 from pathlib import Path
 
+import psutil
 import pytest
 import redis
 
@@ -26,6 +27,14 @@ def _gone(pids: list[int], timeout_s: float) -> bool:
     return not any(_alive(p) for p in pids)
 
 
+def _running(process: psutil.Process) -> bool:
+    """True while that very process (not a later one given its pid) runs and is no zombie."""
+    try:
+        return process.is_running() and process.status() != psutil.STATUS_ZOMBIE
+    except psutil.NoSuchProcess:
+        return False
+
+
 def test_a_serve_killed_with_9_restarts_clean(tmp_path: Path, tiny_library_dir: Path,
                                               photo_set: list[Path]) -> None:
     first, url, log = _start_serve(tmp_path, tiny_library_dir)
@@ -35,6 +44,10 @@ def test_a_serve_killed_with_9_restarts_clean(tmp_path: Path, tiny_library_dir: 
         redis_pid = int(redis.Redis.from_url(redis_url).info("server")["process_id"])
         jobs = [submit(url, photo_set, tiny_request(phase3={"steps": 40}))["id"]
                 for _ in range(3)]
+        # Every process below the first serve (its worker and whatever that started; the
+        # embedded Redis daemonizes, so it is no descendant and is checked on its own).
+        descendants = psutil.Process(first.pid).children(recursive=True)
+        assert worker_pid in {p.pid for p in descendants}, descendants
         first.send_signal(signal.SIGKILL)
         first.wait(10)
     finally:
@@ -58,3 +71,5 @@ def test_a_serve_killed_with_9_restarts_clean(tmp_path: Path, tiny_library_dir: 
     finally:
         _stop(second, log, signal.SIGTERM)
     assert _gone([new_worker, new_redis, worker_pid, redis_pid], 10)
+    left = [p for p in descendants if _running(p)]
+    assert not left, [(p.pid, p.cmdline()) for p in left]
