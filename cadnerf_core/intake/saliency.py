@@ -7,7 +7,6 @@ nothing, and cannot pick up the unrelated ``rembg`` package, which owns the same
 
 from __future__ import annotations
 
-import functools
 import importlib.metadata
 import os
 from pathlib import Path
@@ -46,23 +45,25 @@ def learned_available() -> bool:
     return bundled_model() is not None
 
 
-@functools.lru_cache(maxsize=4)
 def _session(path: str) -> Any:
-    """One onnxruntime session per model file, reused by every photo (loading takes ~0.1 s)."""
+    """An onnxruntime session for the model file (loading takes about 0.1 s).
+
+    A caller makes one for a job's photos and drops it with them: the memory arena that makes a
+    pass about a quarter faster holds some 450 MB while the session lives, and a session kept
+    for the worker's life would hold it over every later job.
+    """
     import onnxruntime as ort
 
     options = ort.SessionOptions()
     # One process, all its cores on one photo; a second pool would only oversubscribe them.
     options.intra_op_num_threads = max(1, min(4, len(os.sched_getaffinity(0))))
     options.inter_op_num_threads = 1
-    # Without the arena a run's buffers go back after it: the arena kept about 450 MB for the
-    # worker's lifetime, over the photos of every job (docs/reliability.md, "Large photos").
-    options.enable_cpu_mem_arena = False
     return ort.InferenceSession(path, options, providers=["CPUExecutionProvider"])
 
 
 def load_model(model_path: Path | None) -> Any:
-    """The onnxruntime session for ``model_path`` (None: the bundled model).
+    """A new onnxruntime session for ``model_path`` (None: the bundled model), to use for one
+    job's photos and then drop.
 
     Raises:
         InputError: the model file is missing or cannot be read, or onnxruntime is absent.
