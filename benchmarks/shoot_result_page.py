@@ -65,15 +65,18 @@ def _evaluate(page: Any, script: str) -> Any:
 
 def shoot(url: str, job_id: str, out: Path) -> dict[str, Any]:
     """Open the job's page, turn the mesh by a drag, screenshot ``#result`` to ``out``; what
-    the page reported (the viewer's turn in radians, console errors)."""
+    the page reported (the viewer's turn in radians, failed requests, console errors)."""
     from playwright.sync_api import sync_playwright
 
     errors: list[str] = []
+    failed: list[str] = []
     with sync_playwright() as playwright:
         browser = playwright.chromium.launch(executable_path=CHROMIUM, args=WEBGL_LAUNCH_ARGS)
         try:
             page = browser.new_page(viewport={"width": VIEWPORT_WIDTH, "height": VIEWPORT_HEIGHT})
             page.on("console", lambda m: errors.append(m.text) if m.type == "error" else None)
+            page.on("response", lambda r: failed.append(f"{r.status} {r.url}")
+                    if r.status >= 400 else None)
             page.goto(f"{url}/?job={job_id}", timeout=60_000)
             page.wait_for_selector("#result", state="visible", timeout=60_000)
             page.wait_for_function("() => document.getElementById('orbit').duration > 0",
@@ -98,7 +101,8 @@ def shoot(url: str, job_id: str, out: Path) -> dict[str, Any]:
             page.locator("#result").screenshot(path=str(out))
         finally:
             browser.close()
-    return {"turned_rad": round(turned, 2), "console_errors": errors}
+    return {"turned_rad": round(turned, 2), "failed_requests": failed,
+            "console_errors": [e for e in errors if not e.startswith("Failed to load resource")]}
 
 
 def main() -> None:
@@ -125,6 +129,8 @@ def main() -> None:
         finally:
             _stop(serve, log, signal.SIGTERM)
     print(f"mesh turned {report['turned_rad']} rad by the drag; screenshot: {args.out}")
+    for request in report["failed_requests"]:
+        print(f"page request failed: {request}")
     for error in report["console_errors"]:
         print(f"page console error: {error}")
 
