@@ -1,5 +1,6 @@
-"""What the browser tests share: where Chromium is, how it starts, the script that makes the
-page send the suite's tiny config, the progress bar's samples, and the axe-core scan."""
+"""What the browser tests share: where Chromium is, how it starts (with WebGL or without), the
+script that makes the page send the suite's tiny config, the progress bar's samples, and the
+axe-core scan."""
 
 from __future__ import annotations
 
@@ -16,6 +17,10 @@ CHROMIUM = shutil.which("chromium") or ("/usr/bin/chromium" if Path("/usr/bin/ch
                                          else None)
 LAUNCH_ARGS = ["--headless", "--no-sandbox", "--disable-gpu", "--disable-background-networking",
                "--disable-component-update", "--disable-sync"]
+# WebGL without a GPU (the 3D viewer): Chromium's software rasteriser, allowed explicitly.
+WEBGL_LAUNCH_ARGS = ["--headless", "--no-sandbox", "--use-angle=swiftshader",
+                     "--enable-unsafe-swiftshader", "--disable-background-networking",
+                     "--disable-component-update", "--disable-sync"]
 AXE = ROOT / "node_modules" / "axe-core" / "axe.min.js"
 # The suite's tiny config is no public preset: the page sends the preset it offers, and this
 # script merges the tiny overrides into the config field it posts, as an API client could.

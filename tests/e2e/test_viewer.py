@@ -10,14 +10,9 @@ import httpx
 import pytest
 
 from tests.configs import tiny_request_json
-from tests.e2e.pages import CHROMIUM
+from tests.e2e.pages import CHROMIUM, WEBGL_LAUNCH_ARGS
 
 pytestmark = [pytest.mark.slow, pytest.mark.browser]
-
-# WebGL without a GPU: Chromium's software rasteriser, allowed explicitly.
-LAUNCH_ARGS = ["--headless", "--no-sandbox", "--use-angle=swiftshader",
-               "--enable-unsafe-swiftshader", "--disable-background-networking",
-               "--disable-component-update", "--disable-sync"]
 
 
 def _viewer_installed(service) -> bool:  # type: ignore[no-untyped-def]
@@ -61,7 +56,7 @@ def test_drag_spins_the_orbit_and_the_mesh_turns(live_service, photo_set: list[P
 
     job_id = _finished_job(live_service.url, photo_set)
     with sync_playwright() as playwright:
-        browser = playwright.chromium.launch(executable_path=CHROMIUM, args=LAUNCH_ARGS)
+        browser = playwright.chromium.launch(executable_path=CHROMIUM, args=WEBGL_LAUNCH_ARGS)
         try:
             page = browser.new_page(viewport={"width": 1100, "height": 1400})
             page.goto(f"{live_service.url}/?job={job_id}", timeout=30_000)
