@@ -98,6 +98,17 @@ def test_the_page_and_its_assets_are_served(client: TestClient) -> None:
     assert client.get("/static/../schemas.py").status_code == 404
 
 
+def test_every_resource_the_page_names_is_served_or_inline(client: TestClient) -> None:
+    # A browser asks for /favicon.ico unless the page declares its icon; the server serves no
+    # such file, so an undeclared icon is a 404 on every visit.
+    page = client.get("/").text
+    assert re.search(r'<link rel="icon" href="data:image/svg\+xml,', page)
+    for url in re.findall(r'(?:href|src)="([^"]+)"', page):
+        if url.startswith(("data:", "#")):
+            continue
+        assert client.get(url).status_code == 200, url
+
+
 def test_openapi_describes_the_multipart_upload(client: TestClient) -> None:
     spec = client.get("/openapi.json").json()
     assert spec["info"]["version"] == "1"

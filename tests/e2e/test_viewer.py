@@ -59,6 +59,12 @@ def test_drag_spins_the_orbit_and_the_mesh_turns(live_service, photo_set: list[P
         browser = playwright.chromium.launch(executable_path=CHROMIUM, args=WEBGL_LAUNCH_ARGS)
         try:
             page = browser.new_page(viewport={"width": 1100, "height": 1400})
+            # Every request the page makes must be answered, the browser's own included (the
+            # tab icon: Playwright reports it only as a console error, with its address).
+            missing: list[str] = []
+            page.on("console", lambda m: missing.append(m.location.get("url", m.text))
+                    if m.type == "error" and m.text.startswith("Failed to load resource")
+                    else None)
             page.goto(f"{live_service.url}/?job={job_id}", timeout=30_000)
             page.wait_for_selector("#result", state="visible", timeout=60_000)
             page.wait_for_function("() => document.getElementById('orbit').duration > 0",
@@ -78,6 +84,7 @@ def test_drag_spins_the_orbit_and_the_mesh_turns(live_service, photo_set: list[P
             # A quarter width to the left: a quarter turn forward.
             assert time_after == pytest.approx(0.25 * duration, abs=0.05 * duration)
             assert "drag across it" in page.inner_text("#orbit + figcaption")
+            assert not missing, missing
             if not _viewer_installed(live_service):
                 assert page.locator("model-viewer").count() == 0  # the fallback alone
                 return
@@ -103,5 +110,6 @@ def test_drag_spins_the_orbit_and_the_mesh_turns(live_service, photo_set: list[P
             shot = tmp_path / "result_viewer.png"
             page.locator("#result").screenshot(path=str(shot))
             assert shot.stat().st_size > 0
+            assert not missing, missing
         finally:
             browser.close()
