@@ -23,7 +23,7 @@ from typing import Any
 from app.client import JobClient
 from app.routes.pages import VENDOR
 from cadnerf_cli.service_cmd import _StatusPrinter
-from tests.e2e.pages import CHROMIUM, WEBGL_LAUNCH_ARGS
+from tests.e2e.pages import CHROMIUM, WEBGL_LAUNCH_ARGS, drag_across
 from tests.e2e.test_serve import _ready_workers, _start_serve, _stop
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -91,13 +91,7 @@ def shoot(url: str, job_id: str, out: Path) -> dict[str, Any]:
                                    timeout=120_000)
             page.locator("#mesh-viewer").scroll_into_view_if_needed()
             before = _evaluate(page, "return v.getCameraOrbit().theta;")
-            box = page.locator("#mesh-viewer").bounding_box()
-            assert box is not None
-            y = box["y"] + box["height"] / 2
-            page.mouse.move(box["x"] + box["width"] * 0.7, y)
-            page.mouse.down()
-            page.mouse.move(box["x"] + box["width"] * 0.45, y, steps=8)
-            page.mouse.up()
+            drag_across(page, "#mesh-viewer", 0.7, 0.45)
             page.wait_for_timeout(1500)  # the viewer eases to its new orbit
             turned = float(_evaluate(page, "return v.getCameraOrbit().theta;") - before)
             out.parent.mkdir(parents=True, exist_ok=True)

@@ -89,3 +89,15 @@ def progress_samples(page: Any, check: Callable[[], None] | None = None) -> list
         page.wait_for_timeout(200)
     assert not page.locator("#job-error").is_visible(), page.inner_text("#job-error")
     return widths
+
+
+def drag_across(page: Any, selector: str, start: float, end: float) -> None:
+    """Drag the mouse across the middle of an element, from ``start`` to ``end`` of its width
+    (fractions), in eight moves, as a user turning a 3D view does."""
+    box = page.locator(selector).bounding_box()
+    assert box is not None, f"{selector} is not on the page"
+    y = box["y"] + box["height"] / 2
+    page.mouse.move(box["x"] + box["width"] * start, y)
+    page.mouse.down()
+    page.mouse.move(box["x"] + box["width"] * end, y, steps=8)
+    page.mouse.up()

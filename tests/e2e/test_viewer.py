@@ -10,7 +10,7 @@ import httpx
 import pytest
 
 from tests.configs import tiny_request_json
-from tests.e2e.pages import CHROMIUM, WEBGL_LAUNCH_ARGS
+from tests.e2e.pages import CHROMIUM, WEBGL_LAUNCH_ARGS, drag_across
 
 pytestmark = [pytest.mark.slow, pytest.mark.browser]
 
@@ -96,13 +96,7 @@ def test_drag_spins_the_orbit_and_the_mesh_turns(live_service, photo_set: list[P
             assert page.get_attribute("#mesh-viewer", "ar") is not None
             before = page.evaluate("() => document.getElementById('mesh-viewer')"
                                    ".getCameraOrbit().theta")
-            viewer = page.locator("#mesh-viewer").bounding_box()
-            assert viewer is not None
-            cy = viewer["y"] + viewer["height"] / 2
-            page.mouse.move(viewer["x"] + viewer["width"] * 0.7, cy)
-            page.mouse.down()
-            page.mouse.move(viewer["x"] + viewer["width"] * 0.3, cy, steps=8)
-            page.mouse.up()
+            drag_across(page, "#mesh-viewer", 0.7, 0.3)
             page.wait_for_timeout(800)
             after = page.evaluate("() => document.getElementById('mesh-viewer')"
                                   ".getCameraOrbit().theta")
