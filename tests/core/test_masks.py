@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from pathlib import Path
+from typing import Any
 
 import cv2
 import numpy as np
@@ -11,6 +12,7 @@ import pytest
 from cadnerf_core.errors import InputError
 from cadnerf_core.intake.mask_checks import mask_warnings
 from cadnerf_core.intake.masks import (
+    found_mask,
     largest_component,
     mask_overlay,
     photo_masks,
@@ -99,6 +101,44 @@ def test_largest_component_fills_holes_and_drops_specks() -> None:
     weight = np.zeros((40, 40))
     weight[36, 36] = 1.0
     assert largest_component(mask, weight)[36, 36] and not largest_component(mask, weight)[6, 6]
+
+
+def test_a_hole_the_network_calls_background_stays_open() -> None:
+    # A ring round two holes: the map says background in one (a gap under a spout), object in
+    # the other (a dark print the cut dropped); only the second is filled.
+    mask = np.zeros((40, 60), bool)
+    mask[5:35, 5:55] = True
+    mask[10:30, 10:25] = False
+    mask[10:30, 35:50] = False
+    sal = np.where(mask, 0.95, 0.05).astype(np.float32)
+    sal[10:30, 35:50] = 0.7
+    kept = largest_component(mask, sal=sal)
+    assert not kept[10:30, 10:25].any() and kept[10:30, 35:50].all()
+    assert largest_component(mask)[10:30, 10:25].all()  # without a map every hole is filled
+
+
+class _CountingNet:
+    """A stand-in saliency model: the brightness of its input as the map, counting its runs."""
+
+    def __init__(self) -> None:
+        self.runs = 0
+
+    def get_inputs(self) -> list[Any]:
+        return [type("Input", (), {"name": "x", "shape": [1, 3, 320, 320]})()]
+
+    def run(self, _: Any, feed: dict[str, np.ndarray]) -> list[np.ndarray]:
+        self.runs += 1
+        return [feed["x"].mean(axis=1, keepdims=True)]
+
+
+@pytest.mark.parametrize(("side", "passes"), [(80, 2), (280, 1)])
+def test_the_closer_pass_runs_only_when_the_object_leaves_room(side: int, passes: int) -> None:
+    rgb = np.zeros((300, 300, 3), np.float32)
+    start = (300 - side) // 2
+    rgb[start:start + side, start:start + side] = 1.0
+    net = _CountingNet()
+    found_mask(Photo("square.png", rgb), "learned", net)
+    assert net.runs == passes
 
 
 needs_learned = pytest.mark.skipif(not learned_available(),
