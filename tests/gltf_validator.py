@@ -19,7 +19,6 @@ _SCRIPT = ("const v = require(process.argv[1]); const fs = require('fs');"
            ".catch(e => { console.error(String(e)); process.exit(2); });")
 
 
-
 def _why_not() -> str | None:
     """Why the validator cannot run here, or None."""
     if shutil.which("node") is None:

@@ -24,14 +24,14 @@ import numpy as np
 import trimesh
 
 from cadnerf_core.export.texture import ROUGHNESS, TexturedMesh
-from cadnerf_core.jobfolder import atomic_path
+from cadnerf_core.jobfolder import MESH_TEXTURE, atomic_path
 
 log = logging.getLogger(__name__)
 
 ROOT = "/mesh"
 """The default prim (an Xform, kind component) holding the geometry and its material."""
-TEXTURE_NAME = "mesh_texture.png"
-"""The texture's name inside the package, relative to its root layer."""
+TEXTURE_NAME = MESH_TEXTURE
+"""The texture's name inside the package, relative to its root layer: the job folder's."""
 
 
 def usd_available() -> bool:
