@@ -31,7 +31,7 @@ ROOT = Path(__file__).resolve().parents[1]
 LIBRARY_DIR = ROOT / "library_data" / "build"
 PHOTO_SIZE = 512
 MANY_VIEWS = 10
-WEIGHT = 0.01
+WEIGHT = 0.01  # the default of ``phase2.lambda_matches`` and ``phase3.lambda_matches``
 QUICK = ("CesiumMilkTruck", "fuze")
 
 

@@ -150,39 +150,3 @@ def epipolar_loss(c2w: torch.Tensor, K: torch.Tensor, terms: MatchTerms) -> torc
     penalty = HUBER_PX**2 * (torch.sqrt(1.0 + (distance / HUBER_PX) ** 2) - 1.0)
     return (terms.weight * penalty).sum() / c2w.shape[0]
 
-
-def rays_through(c2w: torch.Tensor, K: torch.Tensor,
-                 uv: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-    """World rays through continuous pixel coordinates (centres at +0.5).
-
-    Args:
-        c2w: [M, 4, 4]; K: [M, 3, 3]; uv: [M, 2].
-    Returns:
-        origins [M, 3], unit directions [M, 3].
-    """
-    d_cam = torch.stack([(uv[:, 0] - K[:, 0, 2]) / K[:, 0, 0],
-                         (uv[:, 1] - K[:, 1, 2]) / K[:, 1, 1], torch.ones_like(uv[:, 0])], -1)
-    d_world = (c2w[:, :3, :3] @ d_cam[..., None])[..., 0]
-    return c2w[:, :3, 3], d_world / d_world.norm(dim=-1, keepdim=True)
-
-
-def reprojection_px(c2w_a: torch.Tensor, c2w_b: torch.Tensor, K_a: torch.Tensor,
-                    K_b: torch.Tensor, x_a: torch.Tensor, x_b: torch.Tensor,
-                    depth_a: torch.Tensor) -> torch.Tensor:
-    """How far (pixels) each match's point in photo a, lifted to the surface at ``depth_a``
-    along its ray, lands from its match in photo b (SPARF's multi-view correspondence loss).
-
-    Args:
-        c2w_a, c2w_b: [M, 4, 4]; K_a, K_b: [M, 3, 3]; x_a, x_b: [M, 2];
-        depth_a: [M] distance along the ray through x_a (rendered, held fixed).
-    Returns:
-        [M] distances in pixels of photo b (large where the point falls behind camera b).
-    """
-    origin, direction = rays_through(c2w_a, K_a, x_a)
-    point = origin + depth_a[:, None] * direction
-    R_b = c2w_b[:, :3, :3]
-    cam = (R_b.transpose(1, 2) @ (point - c2w_b[:, :3, 3])[..., None])[..., 0]
-    z = cam[:, 2].clamp(min=1e-3)
-    uv = torch.stack([K_b[:, 0, 0] * cam[:, 0] / z + K_b[:, 0, 2],
-                      K_b[:, 1, 1] * cam[:, 1] / z + K_b[:, 1, 2]], -1)
-    return (uv - x_b).norm(dim=-1)

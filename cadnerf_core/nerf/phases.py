@@ -22,8 +22,8 @@ import torch
 import torch.nn.functional as F
 
 from cadnerf_core.config import Phase2Config, Phase3Config
+from cadnerf_core.nerf.epipolar import epipolar_loss
 from cadnerf_core.nerf.fields import FieldOutputs
-from cadnerf_core.nerf.match_loss import MatchLoss
 from cadnerf_core.nerf.poses import in_window
 from cadnerf_core.nerf.rays import pixel_rays
 from cadnerf_core.nerf.state import TrainData, TrainState
@@ -263,11 +263,19 @@ def _pass_loss(state: TrainState, loss: torch.Tensor, out: RenderOutput,
     return loss
 
 
+def matches_loss(state: TrainState, data: TrainData, weight: float) -> torch.Tensor | None:
+    """``weight`` times the epipolar loss of the photos' matches at the current poses and
+    focal length (``nerf.epipolar``); None without matches or weight."""
+    if data.matches is None or weight <= 0:
+        return None
+    return weight * epipolar_loss(state.poses(), state.poses.intrinsics(data.K), data.matches)
+
+
 def phase2_step(state: TrainState, data: TrainData, optimizer: torch.optim.Optimizer | None,
                 pose_optimizer: torch.optim.Optimizer | None, step: int,
-                prior: CadPrior | None = None, matches: MatchLoss | None = None) -> float:
+                prior: CadPrior | None = None) -> float:
     """One silhouette step: G (or D) and, inside the window, the poses (with the photos'
-    ``matches``, where given). Returns the loss."""
+    matches, ``phase2.lambda_matches``). Returns the loss."""
     cfg = state.config.phase2
     state.fields.set_anneal((step / max(cfg.steps, 1) - cfg.anneal[0])
                             / max(cfg.anneal[1] - cfg.anneal[0], 1e-6))
@@ -280,7 +288,8 @@ def phase2_step(state: TrainState, data: TrainData, optimizer: torch.optim.Optim
             weight = pixel_weights(data, img[part], x[part], y[part])
             loss = weighted_mse(out.acc, data.masks[img[part], y[part], x[part]], weight)
             yield _pass_loss(state, loss, out, cfg, share, prior if i == 0 else None)
-        shared = None if matches is None or pose_optimizer is None else matches(state, data)
+        shared = None if pose_optimizer is None else matches_loss(state, data,
+                                                                  cfg.lambda_matches)
         if shared is not None:
             yield shared
 
@@ -306,7 +315,6 @@ def run_phase2(state: TrainState, data: TrainData, progress: Progress | None = N
     prior = make_prior(state, sampler, cfg.prior_weight)
     shape = _phase2_params(state)
     optimizer = adam(shape, cfg.lr, state.device) if shape else None
-    matches = MatchLoss(data, cfg.lambda_matches, cfg.matches_loss)
     pose_optimizer = adam(state.poses.optimizer_groups(cfg.pose_lr, state.config.phase2.focal_lr),
                           cfg.pose_lr, state.device)
     # Without phase2.train_density, D stays the CAD prior while G deforms it: no parameter
@@ -320,7 +328,7 @@ def run_phase2(state: TrainState, data: TrainData, progress: Progress | None = N
             _report(progress, "phase2", step, cfg.steps)
             continue
         loss = phase2_step(state, data, optimizer, pose_optimizer if active else None, step,
-                           prior, matches)
+                           prior)
         state.log("phase2/loss", loss)
         _maybe_update_grid(state, step)
         _report(progress, "phase2", step, cfg.steps)
@@ -358,10 +366,10 @@ def blur_images(images: torch.Tensor, sigma: float) -> torch.Tensor:
 
 def phase3_step(state: TrainState, data: TrainData, optimizer: torch.optim.Optimizer,
                 pose_optimizer: torch.optim.Optimizer | None = None, scene: bool = False,
-                targets: torch.Tensor | None = None, prior: CadPrior | None = None,
-                matches: MatchLoss | None = None) -> float:
+                targets: torch.Tensor | None = None, prior: CadPrior | None = None) -> float:
     """One colour step (D, G and colour; the background too in scene mode; the poses inside
-    phase three's window, with the photos' ``matches`` where given). Returns the loss."""
+    phase three's window, with the photos' matches, ``phase3.lambda_matches``). Returns the
+    loss."""
     cfg = state.config.phase3
     img, x, y = sample_pixels(data, cfg.rays)
     target = data.scene_images if scene and data.scene_images is not None else data.images
@@ -381,7 +389,8 @@ def phase3_step(state: TrainState, data: TrainData, optimizer: torch.optim.Optim
                 loss = loss + cfg.mask_weight * weighted_mse(out.acc, data.masks[pimg, py, px],
                                                              weight)
             yield _pass_loss(state, loss, out, cfg, share, prior if i == 0 else None)
-        shared = None if matches is None or pose_optimizer is None else matches(state, data)
+        shared = None if pose_optimizer is None else matches_loss(state, data,
+                                                                  cfg.lambda_matches)
         if shared is not None:
             yield shared
 
@@ -406,7 +415,6 @@ def run_phase3(state: TrainState, data: TrainData, progress: Progress | None = N
     pose_optimizer = adam(state.poses.optimizer_groups(cfg.pose_lr, state.config.phase2.focal_lr),
                           cfg.pose_lr, state.device)
     blurred: dict[float, torch.Tensor] = {}
-    matches = MatchLoss(data, cfg.lambda_matches, state.config.phase2.matches_loss)
     for step in range(cfg.steps):
         active = state.config.optimise_poses and in_window(step, cfg.steps, cfg.pose_window)
         sigma = target_blur(step, cfg.steps, cfg.pose_window, cfg.pose_blur) * data.width
@@ -415,8 +423,7 @@ def run_phase3(state: TrainState, data: TrainData, progress: Progress | None = N
         targets = blurred[sigma] if active and sigma > 0 else None
         state.log("phase3/loss", phase3_step(state, data, optimizer,
                                              pose_optimizer if active else None,
-                                             targets=targets, prior=prior,
-                                             matches=matches))
+                                             targets=targets, prior=prior))
         _maybe_update_grid(state, step)
         _report(progress, "phase3", step, total)
     if scene_steps and background is not None:
