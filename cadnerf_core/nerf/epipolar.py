@@ -29,6 +29,11 @@ from cadnerf_core.retrieval.matches import PairMatch
 
 HUBER_PX = 1.0
 """Scale of the pseudo-Huber penalty in training-crop pixels: quadratic below, linear above."""
+PRIOR_DEG = 30.0
+"""Most a pair's relative rotation (from its essential matrix) may differ from that of the
+cameras training starts from. A pair further off is mostly a whole set of consistent wrong
+matches (the mirrored side of a symmetric object, a repeated print), which a robust loss
+cannot reject, since its matches agree with each other."""
 
 
 @dataclass(frozen=True)
@@ -52,8 +57,8 @@ class MatchTerms:
 
 
 def match_terms(pairs: Sequence[PairMatch], photo_index: Sequence[int],
-                boxes: Sequence[CropBox], min_inliers: int,
-                device: torch.device) -> MatchTerms | None:
+                boxes: Sequence[CropBox], min_inliers: int, device: torch.device,
+                c2w: np.ndarray | None = None) -> MatchTerms | None:
     """The matches of the training photos as ``MatchTerms``, or None when no pair has enough.
 
     Args:
@@ -62,6 +67,8 @@ def match_terms(pairs: Sequence[PairMatch], photo_index: Sequence[int],
         boxes: N crop boxes, photo pixels -> each training crop's pixels.
         min_inliers: fewest inliers a pair needs to count.
         device: where the tensors live.
+        c2w: [N, 4, 4] the cameras training starts from: a pair whose relative rotation
+            differs from theirs by over ``PRIOR_DEG`` is left out (None: none is).
     """
     camera = {photo: k for k, photo in enumerate(photo_index)}
     a, b, x_a, x_b, weight = [], [], [], [], []
@@ -69,6 +76,8 @@ def match_terms(pairs: Sequence[PairMatch], photo_index: Sequence[int],
         if pair.i not in camera or pair.j not in camera or pair.inliers < min_inliers:
             continue
         i, j = camera[pair.i], camera[pair.j]
+        if c2w is not None and disagreement_deg(pair, c2w[i], c2w[j]) > PRIOR_DEG:
+            continue
         points = np.asarray(pair.points, dtype=np.float64)
         count = len(points)
         a.append(np.full(count, i))
@@ -84,6 +93,16 @@ def match_terms(pairs: Sequence[PairMatch], photo_index: Sequence[int],
 
     return MatchTerms(tensor(a, torch.long), tensor(b, torch.long), tensor(x_a, torch.float32),
                       tensor(x_b, torch.float32), tensor(weight, torch.float32))
+
+
+def disagreement_deg(pair: PairMatch, c2w_i: np.ndarray, c2w_j: np.ndarray) -> float:
+    """Angle (degrees) between a pair's measured relative rotation (camera i to camera j) and
+    that of two camera poses; 180 when the pair has none."""
+    if pair.rotation is None:
+        return 180.0
+    posed = np.asarray(c2w_j)[:3, :3].T @ np.asarray(c2w_i)[:3, :3]
+    cosine = (np.trace(np.asarray(pair.rotation).T @ posed) - 1.0) / 2.0
+    return float(np.degrees(np.arccos(np.clip(cosine, -1.0, 1.0))))
 
 
 def _to_crop(points: np.ndarray, box: CropBox) -> np.ndarray:
