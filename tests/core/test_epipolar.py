@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import pytest
 import torch
@@ -10,6 +12,8 @@ from cadnerf_core.cameras import intrinsics_from_fov, orbit_pose, project, se3_e
 from cadnerf_core.intake.crop import CropBox
 from cadnerf_core.nerf.epipolar import (
     HUBER_PX,
+    PRIOR_DEG,
+    disagreement_deg,
     epipolar_loss,
     fundamental,
     match_terms,
@@ -103,3 +107,27 @@ def test_the_loss_turns_a_wrong_camera_back() -> None:
     assert float(loss.detach()) < 0.1 * first
     assert float(angle) < 2.0
 
+
+
+def test_a_pair_turning_against_the_starting_cameras_is_left_out() -> None:
+    """A pair whose matches agree with each other but not with the cameras (the mirrored side
+    of a symmetric object) is dropped; one that agrees within ``PRIOR_DEG`` is kept."""
+    X = _points(40)
+    photos = [project(X, K, c2w) - 0.5 for c2w in POSES]
+    box = CropBox(0.0, 0.0, float(SIZE), SIZE)
+
+    def with_rotation(pair: PairMatch, R: np.ndarray) -> PairMatch:
+        return dataclasses.replace(pair, rotation=R)
+
+    true_01 = POSES[1][:3, :3].T @ POSES[0][:3, :3]
+    mirrored = true_01.T  # the opposite turn
+    kept = with_rotation(_pair(0, 1, photos[0], photos[1], 40), true_01)
+    flipped = with_rotation(_pair(1, 2, photos[1], photos[2], 40), mirrored)
+    assert disagreement_deg(kept, POSES[0], POSES[1]) < 1e-6
+    assert disagreement_deg(flipped, POSES[1], POSES[2]) > PRIOR_DEG
+    terms = match_terms([kept, flipped], [0, 1, 2], [box] * 3, 20, torch.device("cpu"),
+                        np.stack(POSES))
+    assert terms is not None and terms.n_matches == 40
+    assert set(zip(terms.a.tolist(), terms.b.tolist(), strict=True)) == {(0, 1)}
+    unposed = match_terms([kept, flipped], [0, 1, 2], [box] * 3, 20, torch.device("cpu"))
+    assert unposed is not None and unposed.n_matches == 80
