@@ -74,6 +74,7 @@ def run_mesh(name: str, views: int, library: Any, work: Path) -> dict[float, dic
 def run(quick: bool, library_dir: Path = LIBRARY_DIR) -> str:
     """Run the benchmark. Returns its markdown section."""
     from cadnerf_core.library.format import load_library
+    from cadnerf_core.nerf.epipolar import PRIOR_DEG
 
     head = ["## Training with the matches (epipolar loss)", "",
             f"Command: `python -m benchmarks.bench_epipolar{' --quick' if quick else ''}`", ""]
@@ -85,7 +86,9 @@ def run(quick: bool, library_dir: Path = LIBRARY_DIR) -> str:
              "crops), look-alikes left out; loss weight "
              f"{WEIGHT:g} in phases two and three (`phase*.lambda_matches`) against 0. "
              "Matches: SIFT inliers between the training photos the job used (pairs of at "
-             "least `retrieval.matches.min_inliers`). Rotation error: median over the "
+             "least `retrieval.matches.min_inliers` whose turn agrees with the starting "
+             f"cameras within {PRIOR_DEG:g} degrees, `nerf.epipolar.PRIOR_DEG`); with none, "
+             "the job is the same computation as off. Rotation error: median over the "
              "photos after similarity alignment (degrees).", "",
              "| mesh | views | matches used | test PSNR, off | on | rot. error refined, off "
              "| on | job s, off | on |", "|---|---|---|---|---|---|---|---|---|"]
