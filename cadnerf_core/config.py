@@ -134,6 +134,10 @@ class Phase2Config(_Frozen):
     estimate, which assumes the library's 40-degree camera)."""
     focal_lr: float = Field(default=1e-2, gt=0.0, le=MAX_LR)
     """Adam learning rate of the focal factor's logit (``focal_bound``), in either phase."""
+    lambda_matches: float = Field(default=0.01, ge=0.0, le=MAX_WEIGHT)
+    """Weight of the epipolar loss of the photos' SIFT matches on the poses in phase two's pose
+    window (``nerf.epipolar``: robust Sampson distance in crop pixels, per camera; 0: off).
+    Nothing changes for an object with too few matches (a texture-less one)."""
 
     @model_validator(mode="after")
     def _check_windows(self) -> Phase2Config:
@@ -170,6 +174,9 @@ class Phase3Config(_Frozen):
     pose_blur: float = Field(default=0.0625, ge=0.0, le=0.5)
     """Blur (Gaussian sigma, a fraction of the image side) of the colour targets in the pose
     window, halved each third of it (0: never): it widens the loss's basin in pose."""
+    lambda_matches: float = Field(default=0.01, ge=0.0, le=MAX_WEIGHT)
+    """Weight of the epipolar loss of the photos' matches in phase three's pose window (as
+    ``Phase2Config.lambda_matches``; 0: off)."""
     scene_steps: int = Field(default=0, ge=0, le=MAX_STEPS)
     """Scene mode only: steps after the object's, training object and background together."""
 
@@ -273,10 +280,10 @@ PRESETS: dict[str, PipelineConfig] = {
         render={"samples_per_ray": 128, "grid_resolution": 64, "grid_dilation": 3},
         phase1={"steps": 2000, "batch_points": 16384, "lr": 5e-4},
         phase2={"steps": 10000, "rays": 2048, "pose_window": (0.75, 1.0), "anneal": (0.0, 0.5),
-                "train_density": False},
+                "train_density": False, "lambda_matches": 0.0},
         phase3={"steps": 20000, "rays": 2048, "mask_weight": 0.0, "scene_steps": 5000,
                 "lambda_offset": 10.0, "lambda_correction": 0.1, "pose_window": (0.0, 0.0),
-                "pose_blur": 0.0},
+                "pose_blur": 0.0, "lambda_matches": 0.0},
         export={"orbit_size": 512, "mesh_resolution": 160}),
     # The default: best quality in about a minute on a GPU at 256 px. Few large steps: on a
     # GPU a step of these small networks costs about the same whatever its batch.

@@ -101,6 +101,7 @@ def training_data(intake: Intake, config: PipelineConfig, margin: float,
     """Canonical crops (on white), masks, crop intrinsics and loss weights of the kept photos
     (``intake.photos.doubt_weights``: pixels where a learned mask is in doubt weigh 0)."""
     from cadnerf_core.intake.photos import canonical_views, doubt_weights
+    from cadnerf_core.nerf.epipolar import match_terms
     from cadnerf_core.nerf.state import TrainData
 
     kept = intake.retrieval.kept
@@ -114,7 +115,12 @@ def training_data(intake: Intake, config: PipelineConfig, margin: float,
         scene = np.stack([np.clip(apply_crop(p.rgb.astype(np.float32), m.box, fill=1.0), 0, 1)
                           for p, m in zip(photos, kept, strict=True)])
     K = np.stack([m.K_canon for m in kept])
-    return TrainData.from_numpy(rgb, crops, K, device, scene, weights)
+    terms = match_terms(intake.retrieval.pairs, [m.index for m in kept], boxes,
+                        config.retrieval.matches.min_inliers, device,
+                        np.stack([m.c2w for m in kept]))
+    if terms is not None:
+        log.info("epipolar loss: %d matches between the training photos", terms.n_matches)
+    return TrainData.from_numpy(rgb, crops, K, device, scene, weights, terms)
 
 
 def _peak_memory_mb(device: torch.device) -> dict[str, float]:

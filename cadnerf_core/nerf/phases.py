@@ -22,6 +22,7 @@ import torch
 import torch.nn.functional as F
 
 from cadnerf_core.config import Phase2Config, Phase3Config
+from cadnerf_core.nerf.epipolar import epipolar_loss
 from cadnerf_core.nerf.fields import FieldOutputs
 from cadnerf_core.nerf.poses import in_window
 from cadnerf_core.nerf.rays import pixel_rays
@@ -262,10 +263,19 @@ def _pass_loss(state: TrainState, loss: torch.Tensor, out: RenderOutput,
     return loss
 
 
+def matches_loss(state: TrainState, data: TrainData, weight: float) -> torch.Tensor | None:
+    """``weight`` times the epipolar loss of the photos' matches at the current poses and
+    focal length (``nerf.epipolar``); None without matches or weight."""
+    if data.matches is None or weight <= 0:
+        return None
+    return weight * epipolar_loss(state.poses(), state.poses.intrinsics(data.K), data.matches)
+
+
 def phase2_step(state: TrainState, data: TrainData, optimizer: torch.optim.Optimizer | None,
                 pose_optimizer: torch.optim.Optimizer | None, step: int,
                 prior: CadPrior | None = None) -> float:
-    """One silhouette step: G (or D) and, inside the window, the poses. Returns the loss."""
+    """One silhouette step: G (or D) and, inside the window, the poses (with the photos'
+    matches, ``phase2.lambda_matches``). Returns the loss."""
     cfg = state.config.phase2
     state.fields.set_anneal((step / max(cfg.steps, 1) - cfg.anneal[0])
                             / max(cfg.anneal[1] - cfg.anneal[0], 1e-6))
@@ -278,6 +288,10 @@ def phase2_step(state: TrainState, data: TrainData, optimizer: torch.optim.Optim
             weight = pixel_weights(data, img[part], x[part], y[part])
             loss = weighted_mse(out.acc, data.masks[img[part], y[part], x[part]], weight)
             yield _pass_loss(state, loss, out, cfg, share, prior if i == 0 else None)
+        shared = None if pose_optimizer is None else matches_loss(state, data,
+                                                                  cfg.lambda_matches)
+        if shared is not None:
+            yield shared
 
     return _apply_step(losses(), optimizer, pose_optimizer)
 
@@ -354,7 +368,8 @@ def phase3_step(state: TrainState, data: TrainData, optimizer: torch.optim.Optim
                 pose_optimizer: torch.optim.Optimizer | None = None, scene: bool = False,
                 targets: torch.Tensor | None = None, prior: CadPrior | None = None) -> float:
     """One colour step (D, G and colour; the background too in scene mode; the poses inside
-    phase three's window). Returns the loss."""
+    phase three's window, with the photos' matches, ``phase3.lambda_matches``). Returns the
+    loss."""
     cfg = state.config.phase3
     img, x, y = sample_pixels(data, cfg.rays)
     target = data.scene_images if scene and data.scene_images is not None else data.images
@@ -374,6 +389,10 @@ def phase3_step(state: TrainState, data: TrainData, optimizer: torch.optim.Optim
                 loss = loss + cfg.mask_weight * weighted_mse(out.acc, data.masks[pimg, py, px],
                                                              weight)
             yield _pass_loss(state, loss, out, cfg, share, prior if i == 0 else None)
+        shared = None if pose_optimizer is None else matches_loss(state, data,
+                                                                  cfg.lambda_matches)
+        if shared is not None:
+            yield shared
 
     return _apply_step(losses(), optimizer, pose_optimizer)
 

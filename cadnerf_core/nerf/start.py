@@ -99,6 +99,15 @@ def fit_hypothesis(hypothesis: RetrievalResult, photos: Sequence[Any],
     return float(np.mean(ious)) - penalty
 
 
+def _against_texture(hypothesis: RetrievalResult, threshold: float) -> bool:
+    """Whether ``hypothesis`` walks against the direction the photos' texture (their matched
+    points' turns and how their colours move) says with at least ``threshold`` of evidence:
+    a short silhouette fit, blind to a mirrored walk, must not choose it by a few
+    thousandths of IoU (0: never)."""
+    evidence = hypothesis.direction_evidence
+    return threshold > 0 and abs(evidence) >= threshold and evidence * hypothesis.direction < 0
+
+
 def _key(model_id: str, direction: int, perspective: str) -> tuple[str, int, str]:
     return model_id, int(direction), perspective
 
@@ -115,7 +124,8 @@ def choose_start(retrieval: RetrievalResult, photos: Sequence[Any], masks: Seque
     """
     import dataclasses
 
-    candidates = [retrieval, *[h for h in retrieval.alternatives if len(h.kept) >= 2]]
+    candidates = [retrieval, *[h for h in retrieval.alternatives if len(h.kept) >= 2
+                               and not _against_texture(h, config.retrieval.start_evidence)]]
     if len(candidates) < 2:
         return retrieval
     keys = [_key(h.model_id, h.direction, h.perspective) for h in candidates]

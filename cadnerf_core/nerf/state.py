@@ -8,6 +8,7 @@ import numpy as np
 import torch
 
 from cadnerf_core.config import PipelineConfig
+from cadnerf_core.nerf.epipolar import MatchTerms
 from cadnerf_core.nerf.fields import CadNerfFields
 from cadnerf_core.nerf.grid import SkipGrid
 from cadnerf_core.nerf.poses import PoseCorrection
@@ -24,19 +25,23 @@ class TrainData:
     # [N, H, W] float in [0, 1]: each pixel's weight in the silhouette losses (0 where its
     # mask is in doubt); None: every pixel weighs 1.
     weights: torch.Tensor | None = None
+    # The photos' SIFT matches in crop pixels, for the epipolar loss on the poses; None: too
+    # few (a texture-less object) or matching off.
+    matches: MatchTerms | None = None
 
     @classmethod
     def from_numpy(cls, images: np.ndarray, masks: np.ndarray, K: np.ndarray,
                    device: torch.device, scene_images: np.ndarray | None = None,
-                   weights: np.ndarray | None = None) -> TrainData:
+                   weights: np.ndarray | None = None,
+                   matches: MatchTerms | None = None) -> TrainData:
         """Move numpy arrays (images [N,H,W,3] f32, masks [N,H,W] bool, K [N,3,3], optional
-        weights [N,H,W] f32) to ``device``."""
+        weights [N,H,W] f32) to ``device``; ``matches`` already lives there."""
         def tensor(array: np.ndarray) -> torch.Tensor:
             return torch.from_numpy(np.ascontiguousarray(array, dtype=np.float32)).to(device)
 
         return cls(tensor(images), tensor(masks), tensor(K),
                    None if scene_images is None else tensor(scene_images),
-                   None if weights is None else tensor(weights))
+                   None if weights is None else tensor(weights), matches)
 
     @property
     def n_images(self) -> int:

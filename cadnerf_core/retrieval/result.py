@@ -3,11 +3,14 @@
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from cadnerf_core.intake.crop import CropBox
+
+if TYPE_CHECKING:
+    from cadnerf_core.retrieval.matches import PairMatch
 
 
 @dataclass
@@ -77,10 +80,17 @@ class RetrievalResult:
     hypotheses: list[dict[str, Any]] = field(default_factory=list)
     """The hypotheses a short silhouette fit compared (model, direction, retrieval score, fit
     score), in retrieval's order, when there were several; this result is the best fit's."""
-    photo_pairs: list[dict[str, Any]] = field(default_factory=list)
-    """The SIFT matches between every pair of photos (``matches.PairMatch.to_json``: photos
-    i and j, mutual matches, inliers, inlier ratio, median Sampson error in pixels, turn about
-    the vertical axis); empty when matching was off or had no photos."""
+    pairs: list[PairMatch] = field(default_factory=list)
+    """The SIFT matches between every pair of photos, the photos numbered as given, with their
+    inliers' pixels (training's epipolar loss reads them); written to ``retrieval.json`` as
+    ``photo_pairs`` (``matches.PairMatch.to_json``: photos i and j, mutual matches, inliers,
+    inlier ratio, median Sampson error in pixels, turn about the vertical axis); empty when
+    matching was off or had no photos."""
+
+    @property
+    def photo_pairs(self) -> list[dict[str, Any]]:
+        """``pairs`` as JSON summaries (no points)."""
+        return [p.to_json() for p in self.pairs]
 
     @property
     def kept(self) -> list[PhotoMatch]:

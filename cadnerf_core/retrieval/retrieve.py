@@ -12,7 +12,7 @@ import dataclasses
 import logging
 from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, Any, TypeVar
+from typing import TYPE_CHECKING, TypeVar
 
 import numpy as np
 
@@ -189,7 +189,7 @@ def retrieve(masks: Sequence[np.ndarray], names: Sequence[str], library: Library
         if choice.reordered and config.order == "auto":
             log.warning("%s", reorder_warning([names[i] for i in choice.order]))
         return _in_given_order(found, choice.order, config.order, choice.reordered,
-                               [p.to_json() for p in seen.pairs])
+                               seen.pairs)
     return _retrieve(seen, names, library, allowed, config, progress, focals, crop_size)
 
 
@@ -250,7 +250,7 @@ def _retrieve(seen: _Seen, names: Sequence[str], library: Library, allowed: np.n
             evidence += turns
     photos = _Photos(names, seen.sizes, seen.crops, seen.boxes, evidence, focals,
                      crop_size or library.spec.silhouette_size, allowed,
-                     [p.to_json() for p in seen.pairs], steps)
+                     seen.pairs, steps)
 
     near = library.near
     known = [f for f in focals or [] if f is not None]
@@ -313,7 +313,7 @@ def _order(seen: _Seen, library: Library, allowed: np.ndarray, config: Retrieval
 
 
 def _in_given_order(result: RetrievalResult, order: Sequence[int], mode: str,
-                    reordered: bool, pairs: list[dict[str, Any]]) -> RetrievalResult:
+                    reordered: bool, pairs: list[PairMatch]) -> RetrievalResult:
     """A result found on photos taken in ``order`` with every match indexed as given and in
     the given order again (its alternatives likewise), and the photos' ``pairs`` as matched
     in the given order; it records the walking order."""
@@ -321,7 +321,7 @@ def _in_given_order(result: RetrievalResult, order: Sequence[int], mode: str,
                      key=lambda m: m.index)
     others = [_in_given_order(a, order, mode, reordered, pairs) for a in result.alternatives]
     return dataclasses.replace(result, matches=matches, alternatives=others, order=list(order),
-                               order_mode=mode, reordered=reordered, photo_pairs=pairs)
+                               order_mode=mode, reordered=reordered, pairs=pairs)
 
 
 def allowed_models(library: Library, exclude: Sequence[str]) -> np.ndarray:
@@ -357,7 +357,7 @@ class _Photos:
     focals: Sequence[float | None] | None
     crop_size: int  # side of the crop that K_canon and box refer to
     allowed: np.ndarray  # [M'] library indices of the models that may be chosen
-    pairs: list[dict[str, Any]]  # the SIFT matches between photo pairs, summarised
+    pairs: list[PairMatch]  # the SIFT matches between photo pairs
     steps: np.ndarray | None  # [P] measured turn (degrees) from photo p - 1 to p, or NaN
 
 
@@ -400,13 +400,13 @@ def _retrieve_from(photos: _Photos, library: Library, config: RetrievalConfig,
     others = [RetrievalResult(models[o].id, models[o].category, top,
                               _matches(photos, library, iou, o, walk, config), config.solver,
                               walk.direction, walk.score, evidence, perspective=perspective,
-                              photo_pairs=photos.pairs)
+                              pairs=photos.pairs)
               for o, walk in _alternatives(iou, ranking, az_index, spec.n_azimuths, config,
                                            evidence, photos.steps, (m, found.direction))]
     return RetrievalResult(models[m].id, models[m].category, top, matches, config.solver,
                            found.direction, found.score, evidence, found.direction_lead,
                            perspective=perspective, direction_ambiguous=ambiguous,
-                           alternatives=others, photo_pairs=photos.pairs)
+                           alternatives=others, pairs=photos.pairs)
 
 
 def _matches(photos: _Photos, library: Library, iou: np.ndarray, m: int,
