@@ -23,24 +23,26 @@ DEVICES = ("cpu", "cuda")  # the kinds of device the tables and the history dist
 FALLBACK_PRESET = "standard"  # the table of a job whose preset has none (the default preset's)
 MEASURED_WEIGHT = 0.5  # exponential moving average of measured stage durations
 
-# CPU: two cores (`preview` is `make run`'s demo), rounded up for slower cores. CUDA: `standard`
-# as in docs/bench_training_gpu.md (about 70 s a job on one H100); the others scaled by their
-# step counts, since a GPU step costs about the same whatever its size.
+# CPU: two cores (`preview` is `make run`'s demo), rounded up for slower cores; "retrieval"
+# includes the start's three short hypothesis fits (about 9 s in all on 2 cores, retrieval and
+# matching 1 to 2 s). CUDA: `standard` as in docs/bench_training_gpu.md (about 70 s a job on one
+# H100); the others scaled by their step counts, since a GPU step costs about the same whatever
+# its size.
 DEFAULT_STAGE_SECONDS: dict[str, dict[str, dict[str, float]]] = {
     "cpu": {
-        "preview": {"masks": 3, "retrieval": 3, "phase1": 6, "phase2": 20, "phase3": 150,
+        "preview": {"masks": 3, "retrieval": 10, "phase1": 6, "phase2": 20, "phase3": 150,
                     "render": 10, "export": 10},
-        "standard": {"masks": 4, "retrieval": 4, "phase1": 250, "phase2": 1500, "phase3": 4000,
+        "standard": {"masks": 4, "retrieval": 10, "phase1": 250, "phase2": 1500, "phase3": 4000,
                      "render": 120, "export": 90},
-        "paper": {"masks": 3, "retrieval": 3, "phase1": 300, "phase2": 5000, "phase3": 15000,
+        "paper": {"masks": 3, "retrieval": 10, "phase1": 300, "phase2": 5000, "phase3": 15000,
                   "render": 200, "export": 200},
     },
     "cuda": {
-        "preview": {"masks": 3, "retrieval": 3, "phase1": 4, "phase2": 8, "phase3": 40,
+        "preview": {"masks": 3, "retrieval": 5, "phase1": 4, "phase2": 8, "phase3": 40,
                     "render": 6, "export": 6},
-        "standard": {"masks": 3, "retrieval": 3, "phase1": 5, "phase2": 10, "phase3": 25,
+        "standard": {"masks": 3, "retrieval": 5, "phase1": 5, "phase2": 10, "phase3": 25,
                      "render": 12, "export": 12},
-        "paper": {"masks": 3, "retrieval": 3, "phase1": 45, "phase2": 220, "phase3": 480,
+        "paper": {"masks": 3, "retrieval": 5, "phase1": 45, "phase2": 220, "phase3": 480,
                   "render": 20, "export": 25},
     },
 }
