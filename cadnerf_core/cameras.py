@@ -158,7 +158,7 @@ def from_transforms_json(data: dict[str, Any], width: int,
     return np.stack(poses), np.stack(Ks)
 
 
-def _skew(v: torch.Tensor) -> torch.Tensor:
+def skew(v: torch.Tensor) -> torch.Tensor:
     """Cross-product matrices. v [..., 3] -> [..., 3, 3]."""
     import torch
 
@@ -180,7 +180,7 @@ def axis_angle_to_matrix(rotvec: torch.Tensor) -> torch.Tensor:
     # Taylor expansions near zero keep gradients finite.
     a = torch.where(small, 1 - theta2 / 6, torch.sin(theta) / theta)
     b = torch.where(small, 0.5 - theta2 / 24, (1 - torch.cos(theta)) / (theta2 + 1e-12))
-    K = _skew(rotvec)
+    K = skew(rotvec)
     eye = torch.eye(3, dtype=rotvec.dtype, device=rotvec.device).expand_as(K)
     return eye + a * K + b * (K @ K)
 

@@ -285,8 +285,8 @@ PRESETS: dict[str, PipelineConfig] = {
                 "lambda_offset": 10.0, "lambda_correction": 0.1, "pose_window": (0.0, 0.0),
                 "pose_blur": 0.0, "lambda_matches": 0.0},
         export={"orbit_size": 512, "mesh_resolution": 160}),
-    # The default: best quality on a GPU at 256 px (training 21 s on an H200). Few large steps: on a
-    # GPU a step of these small networks costs about the same whatever its batch.
+    # The default: best quality on a GPU at 256 px (training 21 s on an H200). Few large
+    # steps: on a GPU a step of these small networks costs about the same whatever its batch.
     "standard": _preset(
         "standard", image_size=256,
         field={"hidden": 128, "pos_freqs": 8, "deform_hidden": 64, "color_hidden": 96},

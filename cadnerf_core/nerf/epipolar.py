@@ -24,6 +24,7 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 
+from cadnerf_core.cameras import rotation_angle_deg, skew
 from cadnerf_core.intake.crop import CropBox
 from cadnerf_core.retrieval.matches import PairMatch
 
@@ -41,8 +42,8 @@ class MatchTerms:
     """The matches between the training photos, in their crops' pixels.
 
     ``a``, ``b`` [M] long: the training cameras of each match; ``x_a``, ``x_b`` [M, 2]: the
-    pixel in each crop; ``weight`` [M]: the match's share of the loss (they sum to the number
-    of pairs, each pair weighted by its inliers)."""
+    pixel in each crop; ``weight`` [M]: the match's share of the loss (a pair's matches share
+    its weight, ``min(1, inliers / (2 * min_inliers))``, equally)."""
 
     a: torch.Tensor
     b: torch.Tensor
@@ -101,22 +102,13 @@ def disagreement_deg(pair: PairMatch, c2w_i: np.ndarray, c2w_j: np.ndarray) -> f
     if pair.rotation is None:
         return 180.0
     posed = np.asarray(c2w_j)[:3, :3].T @ np.asarray(c2w_i)[:3, :3]
-    cosine = (np.trace(np.asarray(pair.rotation).T @ posed) - 1.0) / 2.0
-    return float(np.degrees(np.arccos(np.clip(cosine, -1.0, 1.0))))
+    return float(rotation_angle_deg(np.asarray(pair.rotation).T @ posed))
 
 
 def _to_crop(points: np.ndarray, box: CropBox) -> np.ndarray:
     """Photo pixels [K, 2] (SIFT's: pixel centres at integers) -> crop coordinates [K, 2] in
     the intrinsics' convention (pixel centres at +0.5, ``rays.pixel_rays``)."""
     return (points + 0.5 - np.array([box.x0, box.y0])) * box.scale
-
-
-def _skew(v: torch.Tensor) -> torch.Tensor:
-    """[M, 3] -> [M, 3, 3] cross-product matrices."""
-    zero = torch.zeros_like(v[:, 0])
-    return torch.stack([torch.stack([zero, -v[:, 2], v[:, 1]], -1),
-                        torch.stack([v[:, 2], zero, -v[:, 0]], -1),
-                        torch.stack([-v[:, 1], v[:, 0], zero], -1)], 1)
 
 
 def fundamental(c2w_a: torch.Tensor, c2w_b: torch.Tensor, K_a: torch.Tensor,
@@ -132,7 +124,7 @@ def fundamental(c2w_a: torch.Tensor, c2w_b: torch.Tensor, K_a: torch.Tensor,
     # Camera a's frame to camera b's: x_b = R x_a + t.
     R = R_b.transpose(1, 2) @ R_a
     t = (R_b.transpose(1, 2) @ (c2w_a[:, :3, 3] - c2w_b[:, :3, 3])[..., None])[..., 0]
-    E = _skew(t) @ R
+    E = skew(t) @ R
     return torch.linalg.inv(K_b).transpose(1, 2) @ E @ torch.linalg.inv(K_a)
 
 

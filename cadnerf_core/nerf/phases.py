@@ -271,6 +271,15 @@ def matches_loss(state: TrainState, data: TrainData, weight: float) -> torch.Ten
     return weight * epipolar_loss(state.poses(), state.poses.intrinsics(data.K), data.matches)
 
 
+def _matches_pass(state: TrainState, data: TrainData, weight: float,
+                  posing: bool) -> Iterator[torch.Tensor]:
+    """The step's pass of the matches' loss: one while the poses learn (``posing``) and the
+    photos have matches, else none."""
+    loss = matches_loss(state, data, weight) if posing else None
+    if loss is not None:
+        yield loss
+
+
 def phase2_step(state: TrainState, data: TrainData, optimizer: torch.optim.Optimizer | None,
                 pose_optimizer: torch.optim.Optimizer | None, step: int,
                 prior: CadPrior | None = None) -> float:
@@ -288,10 +297,7 @@ def phase2_step(state: TrainState, data: TrainData, optimizer: torch.optim.Optim
             weight = pixel_weights(data, img[part], x[part], y[part])
             loss = weighted_mse(out.acc, data.masks[img[part], y[part], x[part]], weight)
             yield _pass_loss(state, loss, out, cfg, share, prior if i == 0 else None)
-        shared = None if pose_optimizer is None else matches_loss(state, data,
-                                                                  cfg.lambda_matches)
-        if shared is not None:
-            yield shared
+        yield from _matches_pass(state, data, cfg.lambda_matches, pose_optimizer is not None)
 
     return _apply_step(losses(), optimizer, pose_optimizer)
 
@@ -389,10 +395,7 @@ def phase3_step(state: TrainState, data: TrainData, optimizer: torch.optim.Optim
                 loss = loss + cfg.mask_weight * weighted_mse(out.acc, data.masks[pimg, py, px],
                                                              weight)
             yield _pass_loss(state, loss, out, cfg, share, prior if i == 0 else None)
-        shared = None if pose_optimizer is None else matches_loss(state, data,
-                                                                  cfg.lambda_matches)
-        if shared is not None:
-            yield shared
+        yield from _matches_pass(state, data, cfg.lambda_matches, pose_optimizer is not None)
 
     return _apply_step(losses(), optimizer, pose_optimizer)
 
