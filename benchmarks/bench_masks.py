@@ -2,12 +2,13 @@
 
 - Quality: on each real set of ``../shared/eval/photos``, the IoU of the built-in masks against
   the shipped ones, per photo, for the methods ``learned``, ``grabcut`` and ``auto``.
-- Retrieval: the model chosen with the learned masks and with the shipped masks, per set.
+- Retrieval: the model chosen with the learned masks and with the shipped masks, per set,
+  with the set's look-alikes left out (the headline) and with them in.
 - Speed: masks for ten 12 MP JPEGs (the real photos upscaled to 4000x3000), read by intake
   as a job reads them and masked by the learned method, on this machine's CPU; peak memory as
   the growth of the process's peak resident size (``ru_maxrss``) meanwhile.
 - Training (not with ``--quick``): a ``preview`` job's training PSNR per set with the built-in
-  masks and with the shipped masks (a few minutes a job).
+  masks and with the shipped masks, look-alikes left out (a few minutes a job).
 
 Usage: ``python -m benchmarks.bench_masks [--quick] [--library DIR]`` prints the section.
 """
@@ -25,6 +26,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from benchmarks.lookalikes import PROTOCOLS, exclude_overrides, excluded
 from benchmarks.retrieval_real import real_set_photos
 from benchmarks.retrieval_walks import EVAL_ROOT
 
@@ -88,18 +90,24 @@ def quality(name: str, shipped: list[Any]) -> tuple[list[str], dict[str, list[np
 
 
 def retrieval(name: str, shipped: list[Any], learned: list[np.ndarray], library: Any) -> str:
-    """One line: the model retrieved with the shipped and with the learned masks."""
+    """One line: the model retrieved with the shipped and with the learned masks, under the
+    leave-out protocol (the headline: the set's look-alikes excluded) and with them in."""
+    from cadnerf_core.config_retrieval import RetrievalConfig
     from cadnerf_core.retrieval.retrieve import retrieve
 
     names = [p.name for p in shipped]
     images = [p.rgb for p in shipped]
     focals = [p.focal_pixels for p in shipped]
-    with_shipped = retrieve([p.mask for p in shipped], names, library, images=images,
-                            focals=focals)
-    with_learned = retrieve(learned, names, library, images=images, focals=focals)
-    same = "same model" if with_shipped.model_id == with_learned.model_id else "DIFFERENT"
-    return (f"- {name}: shipped masks **{with_shipped.model_id}**, learned masks "
-            f"**{with_learned.model_id}** ({same})")
+    parts = []
+    for protocol in PROTOCOLS:
+        config = RetrievalConfig(exclude_models=list(excluded(name, protocol)))
+        picked = [retrieve(masks, names, library, config=config, images=images,
+                           focals=focals).model_id
+                  for masks in ([p.mask for p in shipped], learned)]
+        same = "same model" if picked[0] == picked[1] else "DIFFERENT"
+        parts.append(f"{protocol}: shipped masks **{picked[0]}**, learned masks "
+                     f"**{picked[1]}** ({same})")
+    return f"- {name}: " + "; ".join(parts)
 
 
 def _big_photos(photos: list[Any], folder: Path) -> list[Path]:
@@ -152,7 +160,8 @@ def speed(photos: list[Any]) -> list[str]:
 
 
 def training(name: str, paths: list[Path], mask_paths: list[Path], library: Any) -> str:
-    """One line: a preview job's training PSNR with the built-in and the shipped masks."""
+    """One line: a preview job's training PSNR with the built-in and the shipped masks (the
+    set's look-alikes left out of the library)."""
     from cadnerf_cli.reconstruct_cmd import stage_inputs
     from cadnerf_core.config import resolve_config
     from cadnerf_core.jobfolder import JobFolder
@@ -163,7 +172,7 @@ def training(name: str, paths: list[Path], mask_paths: list[Path], library: Any)
         job = Path(tempfile.mkdtemp(prefix="bench_masks_job_"))
         try:
             stage_inputs(paths, masks, job)
-            JobFolder(job).write_config(resolve_config("preview"))
+            JobFolder(job).write_config(resolve_config("preview", exclude_overrides(name)))
             summary = run_job(job, library)
             psnr[label] = float((JobFolder(job).read_metrics() or {})["mean_psnr"])
             model[label] = summary["model_id"]
