@@ -65,6 +65,8 @@ LEVERS: dict[str, tuple[str, dict[str, Any], dict[str, Any]]] = {
               {"phase2.focal_bound": 1.6}),
     "hypotheses": ("three start hypotheses, each a short silhouette fit",
                    {"retrieval.hypotheses": 1}, {"retrieval.hypotheses": 3}),
+    "seeds": ("each hypothesis fitted from three seeds, the scores averaged",
+              {"retrieval.hypothesis_seeds": 1}, {"retrieval.hypothesis_seeds": 3}),
 }
 
 

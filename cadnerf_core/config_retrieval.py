@@ -89,6 +89,10 @@ class RetrievalConfig(_Frozen):
     """Phase-two steps of each hypothesis's coarse fit (phase one gets half as many)."""
     hypothesis_size: int = Field(default=32, ge=16, le=256)
     """Side in pixels of the crops a hypothesis is fitted and scored on."""
+    hypothesis_seeds: int = Field(default=1, ge=1, le=8)
+    """Coarse fits of each hypothesis, each from its own seed, their scores averaged: one fit's
+    score scatters by 0.01-0.02 IoU between seeds, as much as hypotheses often differ. Each
+    extra seed costs as much as the fits themselves."""
     order: Literal["walk", "any", "auto"] = "auto"
     """The photos' order: "walk" (they were taken walking round the object, in this order: the
     paper's assumption), "any" (no order: the walk is found from the silhouettes and the

@@ -20,6 +20,7 @@ import numpy as np
 import torch
 
 from cadnerf_core.config import PipelineConfig
+from cadnerf_core.config_bounds import MAX_SEED
 from cadnerf_core.progress import Progress
 
 if TYPE_CHECKING:
@@ -27,6 +28,8 @@ if TYPE_CHECKING:
     from cadnerf_core.retrieval.result import RetrievalResult
 
 log = logging.getLogger(__name__)
+
+SEED_STEP = 101  # between the seeds of a hypothesis's fits (each phase adds 1 to 3 to its own)
 
 
 def coarse_config(config: PipelineConfig) -> PipelineConfig:
@@ -52,13 +55,28 @@ def silhouette_iou(opacity: np.ndarray, mask: np.ndarray) -> float:
 def fit_hypothesis(hypothesis: RetrievalResult, photos: Sequence[Any],
                    masks: Sequence[np.ndarray], library: Library, config: PipelineConfig,
                    device: torch.device, learn_focal: bool) -> float:
-    """One hypothesis's coarse fit (``coarse_config``) and its score: the mean silhouette IoU
-    over its kept photos at their refined poses, less ``discard_penalty`` per discarded photo
+    """One hypothesis's score: the mean over ``hypothesis_seeds`` coarse fits
+    (``coarse_fit``), each from its own seed, less ``discard_penalty`` per discarded photo
     (shared over all photos), as retrieval's own objective counts a discard.
 
     Args:
         photos, masks: every photo of the job (``intake.photos.Photo``) and its mask.
     """
+    seeds = config.retrieval.hypothesis_seeds
+    fits = [coarse_fit(hypothesis, photos, masks, library,
+                       config.model_copy(update={"seed": (config.seed + SEED_STEP * k)
+                                                 % (MAX_SEED + 1)}), device, learn_focal)
+            for k in range(seeds)]
+    discarded = len(hypothesis.matches) - len(hypothesis.kept)
+    penalty = config.retrieval.discard_penalty * discarded / len(hypothesis.matches)
+    return float(np.mean(fits)) - penalty
+
+
+def coarse_fit(hypothesis: RetrievalResult, photos: Sequence[Any],
+               masks: Sequence[np.ndarray], library: Library, config: PipelineConfig,
+               device: torch.device, learn_focal: bool) -> float:
+    """One coarse fit of a hypothesis (``coarse_config``, seeded by ``config.seed``): the mean
+    silhouette IoU over its kept photos at their refined poses."""
     from cadnerf_core.intake.photos import canonical_views
     from cadnerf_core.library.occupancy import sample_occupancy
     from cadnerf_core.nerf import phases
@@ -94,9 +112,7 @@ def fit_hypothesis(hypothesis: RetrievalResult, photos: Sequence[Any],
         K_fit = state.poses.intrinsics(data.K).cpu().numpy()
     ious = [silhouette_iou(model.render_image(c2w, K_fit[i], size, size)[1], crops[i])
             for i, c2w in enumerate(model.c2w)]
-    discarded = len(hypothesis.matches) - len(kept)
-    penalty = config.retrieval.discard_penalty * discarded / len(hypothesis.matches)
-    return float(np.mean(ious)) - penalty
+    return float(np.mean(ious))
 
 
 def _against_texture(hypothesis: RetrievalResult, threshold: float) -> bool:

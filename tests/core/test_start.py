@@ -43,3 +43,25 @@ def test_a_walk_against_strong_texture_evidence_is_not_fitted(
     assert len(chosen.hypotheses) == fitted
     expected = mirrored.direction if fitted == 3 else retrieved.direction
     assert chosen.direction == expected
+
+
+def test_a_hypothesis_is_scored_by_the_mean_of_its_seeds_fits(
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    """With ``hypothesis_seeds`` 3 the score is the mean of three fits from three different
+    seeds, less the discard penalty; the job's own seed comes first."""
+    seeds: list[int] = []
+
+    def fit(hypothesis: RetrievalResult, photos: Any, masks: Any, library: Any,
+            config: PipelineConfig, *args: Any) -> float:
+        seeds.append(config.seed)
+        return {7: 0.60, 7 + start.SEED_STEP: 0.66, 7 + 2 * start.SEED_STEP: 0.69}[config.seed]
+
+    monkeypatch.setattr(start, "coarse_fit", fit)
+    walk = _walk(1, 0.0)
+    walk.matches[2] = dataclasses.replace(walk.matches[2], discarded=True)
+    config = PipelineConfig.model_validate({"seed": 7, "retrieval": {"hypothesis_seeds": 3}})
+    score = start.fit_hypothesis(walk, [], [], None,  # type: ignore[arg-type]
+                                 config, torch.device("cpu"), False)
+    assert seeds == [7, 7 + start.SEED_STEP, 7 + 2 * start.SEED_STEP]
+    penalty = config.retrieval.discard_penalty / 3
+    assert score == pytest.approx(0.65 - penalty)
