@@ -149,13 +149,15 @@ def _order(retrieval: dict[str, Any], count: int) -> list[int]:
 
 def _warnings(retrieval: dict[str, Any], photos: list[PhotoResult],
               order: list[str]) -> list[str]:
-    """The result's warnings: each photo's mask warnings, photos reordered although given as a
-    walk, then an undecided walking direction."""
+    """The result's warnings: each photo's mask warnings, a walking order that is a guess or
+    photos reordered although given as a walk, then an undecided walking direction."""
     from cadnerf_core.config import AMBIGUOUS_HINT  # torch-free by contract
-    from cadnerf_core.config_retrieval import reorder_warning
+    from cadnerf_core.config_retrieval import order_guess_warning, reorder_warning
 
     warnings = [w for photo in photos for w in photo.mask_warnings]
-    if retrieval.get("reordered") and retrieval.get("order_mode") == "auto":
+    if retrieval.get("order_ambiguous"):
+        warnings.append(order_guess_warning(order))
+    elif retrieval.get("reordered") and retrieval.get("order_mode") == "auto":
         warnings.append(reorder_warning(order))
     if retrieval.get("direction_ambiguous"):
         warnings.append(f"{AMBIGUOUS_HINT}: resubmit with the config field "

@@ -116,10 +116,15 @@ def reconstruct(
         for warning in record.warnings:
             typer.echo(f"warning: {warning}")
     retrieval = JobFolder(out).read_retrieval() or {}
-    if retrieval.get("reordered") and retrieval.get("order_mode") == "auto":
+    names = [m["name"] for m in retrieval.get("matches", [])]
+    if retrieval.get("order_ambiguous"):
+        from cadnerf_core.config_retrieval import order_guess_warning
+
+        typer.echo("warning: "
+                   f"{order_guess_warning([names[i] for i in retrieval['order']])} (--order walk)")
+    elif retrieval.get("reordered") and retrieval.get("order_mode") == "auto":
         from cadnerf_core.config_retrieval import reorder_warning
 
-        names = [m["name"] for m in retrieval["matches"]]
         typer.echo(f"warning: {reorder_warning([names[i] for i in retrieval['order']])}")
     if retrieval.get("direction_ambiguous"):
         from cadnerf_core.config import AMBIGUOUS_HINT

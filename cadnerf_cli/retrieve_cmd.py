@@ -158,6 +158,11 @@ def summary_lines(result: RetrievalResult) -> list[str]:
     if result.order and result.order != sorted(result.order):
         walked = ", ".join(result.matches[i].name for i in result.order)
         lines.insert(1, f"walking order{' (reordered)' if result.reordered else ''}: {walked}")
+    if result.order_ambiguous:
+        from cadnerf_core.config_retrieval import order_guess_warning
+
+        lines.insert(1, "warning: "
+                     f"{order_guess_warning([result.matches[i].name for i in result.order])}")
     lines += [f"  {t['model_id']:<24} {t['category']:<12} votes {t['votes']}  "
               f"summed IoU {t['score']:.2f}" for t in result.top_models]
     lines.append("photos:")

@@ -26,6 +26,15 @@ def reorder_warning(names: list[str]) -> str:
             "given, resubmit with the config field retrieval.order set to \"walk\"")
 
 
+def order_guess_warning(names: list[str]) -> str:
+    """What a user is told when ``RetrievalResult.order_ambiguous``: the order the photos were
+    walked in, by name, and how to give the right one."""
+    return ("the walking order is a guess: another order of these photos fits their "
+            "silhouettes almost as well, so the poses may be those of the wrong walk (walked in "
+            f"this order: {', '.join(names)}); put the photos in the order you took them and "
+            "resubmit with the config field retrieval.order set to \"walk\"")
+
+
 class RetrievalConfig(_Frozen):
     """How the CAD model and the photos' poses are retrieved (``retrieval.retrieve.retrieve``)."""
 
@@ -97,13 +106,18 @@ class RetrievalConfig(_Frozen):
     """The photos' order: "walk" (they were taken walking round the object, in this order: the
     paper's assumption), "any" (no order: the walk is found from the silhouettes and the
     photos' colours, ``retrieval.ordering``), or "auto": the given order kept when it is a
-    plausible walk, else the order found, with a warning that names it. The search costs
-    about 0.2 s a model for 10 photos on 2 CPU cores, under 1 s a job (five models;
-    ``bench_order``)."""
+    plausible walk, else the order found, with a warning that names it. For 10 photos on 2
+    CPU cores the search costs about 0.1 s a model, 1.5 s a job (five models), and the check
+    whether the order found is a guess about 1 s more (``bench_order``)."""
     order_margin: float = Field(default=0.08, ge=0.0, le=10.0)
     """"auto" only: IoU per photo by which the best walk in any order must beat the walk in the
     given order for the photos to be reordered (walks rendered in order lose up to 0.075 to
     it: silhouettes of a side and of its mirror side look alike; ``bench_order``)."""
+    order_ambiguity_margin: float = Field(default=0.003, ge=0.0, le=1.0)
+    """"any", and "auto" when it reordered: IoU per photo by which the order found must beat
+    the best walk of any other order, else the result says the order is a guess
+    (``order_ambiguous``, with a warning). On the order benchmark's shuffled walks 0.003 flags
+    13 of the 17 walks whose order is not found and 2 of the 9 found (``bench_order``)."""
     similarity_weight: float = Field(default=0.1, ge=0.0, le=10.0)
     """"any" and "auto": IoU a walk gains per neighbouring pair per unit of the pair's
     standardised likeness (colours and outlines, ``retrieval.ordering``) in the order search."""

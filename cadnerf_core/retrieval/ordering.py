@@ -123,6 +123,35 @@ def any_order(iou: np.ndarray, az_index: np.ndarray, n_az: int, spread_weight: f
     return OrderSearch(order, views, score)
 
 
+def runner_up(iou: np.ndarray, az_index: np.ndarray, n_az: int, spread_weight: float,
+              found: Sequence[int], similarity: np.ndarray | None = None,
+              similarity_weight: float = 0.0,
+              check: Callable[[], None] | None = None) -> float:
+    """The objective of the best walk whose cycle differs from ``found``'s.
+
+    Exact: a different cycle lacks at least one of ``found``'s neighbouring pairs, so the best
+    one is the best of the walks that each forbid one of its pairs (``any_order`` with that
+    pair's likeness impossible), ``P`` searches for ``P`` photos.
+
+    Returns:
+        That objective (the found walk's lead over it says how sure the order is); -inf for
+        three photos or fewer, which make a single cycle.
+    """
+    n_photos = len(found)
+    if n_photos <= 3:
+        return float("-inf")
+    base = np.zeros((n_photos, n_photos)) if similarity is None or not similarity_weight \
+        else similarity_weight * np.asarray(similarity, dtype=np.float64)
+    best = float("-inf")
+    for a, b in zip(found, [*found[1:], found[0]], strict=True):
+        forbidden = base.copy()
+        forbidden[a, b] = forbidden[b, a] = NEG
+        other = any_order(iou, az_index, n_az, spread_weight, forbidden, 1.0, check)
+        if other.score > NEG / 2:  # a walk that needs the forbidden pair is none
+            best = max(best, other.score)
+    return best
+
+
 def _steps(values: np.ndarray, gap: np.ndarray) -> np.ndarray:
     """``out[..., j] = max over d >= 0 of values[..., j - d] + gap[d]`` (a walk's next photo at
     bin j after one at bin j - d), by one shifted maximum per step size."""
@@ -231,6 +260,15 @@ class OrderChoice:
     model: int
     found_score: float
     given_score: float
+    runner_up: float | None = None  # ``runner_up`` of the order found (None: not searched)
+
+    @property
+    def lead(self) -> float | None:
+        """How far the order used leads the best walk in any other order (None: the given
+        order was kept, so none was needed)."""
+        if self.runner_up is None:
+            return None
+        return self.found_score - self.runner_up
 
 
 def choose_order(iou: np.ndarray, candidates: Sequence[int], az_index: np.ndarray, n_az: int,
@@ -238,7 +276,8 @@ def choose_order(iou: np.ndarray, candidates: Sequence[int], az_index: np.ndarra
                  similarity: np.ndarray | None = None, similarity_weight: float = 0.0,
                  check: Callable[[], None] | None = None) -> OrderChoice:
     """The walking order of photos given in any order (``mode`` "any") or perhaps in walking
-    order ("auto": kept unless the best walk beats it by more than ``margin`` IoU a photo).
+    order ("auto": kept unless the best walk beats it by more than ``margin`` IoU a photo),
+    with the best walk in any other order (``runner_up``) where the order was searched for.
 
     Args:
         iou: [P, M, V] IoU of each photo with each view of each model.
@@ -262,4 +301,8 @@ def choose_order(iou: np.ndarray, candidates: Sequence[int], az_index: np.ndarra
                              similarity, similarity_weight)
     keep = same_cycle(order, given) or (mode == "auto"
                                          and score - given_score <= margin * n_photos)
-    return OrderChoice(given if keep else order, not keep, model, score, given_score)
+    second = None
+    if mode == "any" or not keep:
+        second = runner_up(iou[:, model, :], az_index, n_az, spread_weight, order, similarity,
+                           similarity_weight, check)
+    return OrderChoice(given if keep else order, not keep, model, score, given_score, second)

@@ -77,6 +77,12 @@ class RetrievalResult:
     reordered: bool = False
     """The photos did not look like a walk in the order given (``RetrievalConfig.order``
     "auto") or came in no order ("any"), and ``order`` differs from it as a cycle."""
+    order_lead: float | None = None
+    """The order search's objective of the order used less that of the best walk in any other
+    order (summed IoU; None when no order was searched or the given one was kept)."""
+    order_ambiguous: bool = False
+    """The order was searched and no order led the others by ``order_ambiguity_margin`` a
+    photo: the walking order, and with it the poses, may be wrong."""
     hypotheses: list[dict[str, Any]] = field(default_factory=list)
     """The hypotheses a short silhouette fit compared (model, direction, retrieval score, fit
     score), in retrieval's order, when there were several; this result is the best fit's."""
@@ -108,6 +114,7 @@ class RetrievalResult:
                 "perspective": self.perspective,
                 "order": self.order or [m.index for m in self.matches],
                 "order_mode": self.order_mode, "reordered": self.reordered,
+                "order_lead": self.order_lead, "order_ambiguous": self.order_ambiguous,
                 "discarded": [m.index for m in self.matches if m.discarded],
                 "matches": [m.to_json() for m in self.matches],
                 **({"hypotheses": self.hypotheses} if self.hypotheses else {}),

@@ -17,7 +17,7 @@ from typing import TYPE_CHECKING, TypeVar
 import numpy as np
 
 from cadnerf_core.config import AMBIGUOUS_HINT, RetrievalConfig
-from cadnerf_core.config_retrieval import reorder_warning
+from cadnerf_core.config_retrieval import order_guess_warning, reorder_warning
 from cadnerf_core.errors import InputError
 from cadnerf_core.intake.crop import CropBox, apply_crop
 from cadnerf_core.intake.photos import canonical_masks
@@ -188,8 +188,13 @@ def retrieve(masks: Sequence[np.ndarray], names: Sequence[str], library: Library
                           crop_size)
         if choice.reordered and config.order == "auto":
             log.warning("%s", reorder_warning([names[i] for i in choice.order]))
+        lead = choice.lead
+        guess = lead is not None and lead < config.order_ambiguity_margin * len(masks)
+        if guess:
+            log.warning("%s (lead %.3f IoU)",
+                        order_guess_warning([names[i] for i in choice.order]), lead)
         return _in_given_order(found, choice.order, config.order, choice.reordered,
-                               seen.pairs)
+                               seen.pairs, lead, guess)
     return _retrieve(seen, names, library, allowed, config, progress, focals, crop_size)
 
 
@@ -313,15 +318,19 @@ def _order(seen: _Seen, library: Library, allowed: np.ndarray, config: Retrieval
 
 
 def _in_given_order(result: RetrievalResult, order: Sequence[int], mode: str,
-                    reordered: bool, pairs: list[PairMatch]) -> RetrievalResult:
+                    reordered: bool, pairs: list[PairMatch], lead: float | None = None,
+                    guess: bool = False) -> RetrievalResult:
     """A result found on photos taken in ``order`` with every match indexed as given and in
     the given order again (its alternatives likewise), and the photos' ``pairs`` as matched
-    in the given order; it records the walking order."""
+    in the given order; it records the walking order, its lead over any other order and
+    whether it is a guess."""
     matches = sorted((dataclasses.replace(m, index=order[m.index]) for m in result.matches),
                      key=lambda m: m.index)
-    others = [_in_given_order(a, order, mode, reordered, pairs) for a in result.alternatives]
+    others = [_in_given_order(a, order, mode, reordered, pairs, lead, guess)
+              for a in result.alternatives]
     return dataclasses.replace(result, matches=matches, alternatives=others, order=list(order),
-                               order_mode=mode, reordered=reordered, pairs=pairs)
+                               order_mode=mode, reordered=reordered, pairs=pairs,
+                               order_lead=lead, order_ambiguous=guess)
 
 
 def allowed_models(library: Library, exclude: Sequence[str]) -> np.ndarray:

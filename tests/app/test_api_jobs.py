@@ -168,6 +168,12 @@ def test_result_is_409_until_succeeded_then_complete(client: TestClient, setting
     # Asked for ("any"): reported, not warned; an unusable order falls back to the given one.
     folder.write_retrieval({**(folder.read_retrieval() or {}), "order_mode": "any"})
     assert len(client.get(f"/v1/jobs/{job['id']}/result").json()["warnings"]) == 1
+    # An order no better than another: the warning says it is a guess and how to give it.
+    folder.write_retrieval({**(folder.read_retrieval() or {}), "order_ambiguous": True})
+    last = client.get(f"/v1/jobs/{job['id']}/result").json()["warnings"][-1]
+    assert "walking order is a guess" in last and "photo_2.png, photo_0.png" in last
+    assert 'retrieval.order set to "walk"' in last
+    folder.write_retrieval({**(folder.read_retrieval() or {}), "order_ambiguous": False})
     folder.write_retrieval({**(folder.read_retrieval() or {}), "order": [0, 0, 7]})
     result = client.get(f"/v1/jobs/{job['id']}/result").json()
     assert result["order"] == ["photo_0.png", "photo_1.png", "photo_2.png"]

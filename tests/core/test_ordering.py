@@ -14,6 +14,7 @@ from cadnerf_core.retrieval.ordering import (
     any_order,
     choose_order,
     neighbour_similarity,
+    runner_up,
     same_cycle,
     walk_score,
 )
@@ -40,6 +41,26 @@ def test_the_order_search_is_the_best_walk_over_every_order(n_photos: int) -> No
     # Along the walk, the photos' azimuth bins never turn back (one way round, from photo 0).
     relative = (az[found.views[found.order]] - az[found.views[0]]) % n_az
     assert (np.diff(relative) >= 0).all()
+
+
+@pytest.mark.parametrize("n_photos", [4, 5, 6])
+def test_the_runner_up_is_the_best_walk_of_another_cycle(n_photos: int) -> None:
+    """Against brute force: the best walk score over every order whose cycle differs from the
+    found walk's; three photos make one cycle and have none."""
+    rng = np.random.default_rng(10 + n_photos)
+    n_az = 12
+    iou = rng.random((n_photos, n_az * 3))
+    az = np.repeat(np.arange(n_az), 3)
+    similarity = rng.random((n_photos, n_photos))
+    similarity = (similarity + similarity.T) / 2
+    found = any_order(iou, az, n_az, 10.0, similarity, 0.3)
+    others = [walk_score(iou, az, n_az, [0, *rest], 10.0, similarity, 0.3)
+              for rest in itertools.permutations(range(1, n_photos))
+              if not same_cycle([0, *rest], found.order)]
+    second = runner_up(iou, az, n_az, 10.0, found.order, similarity, 0.3)
+    assert second == pytest.approx(max(others), abs=1e-4)
+    assert second <= found.score + 1e-4
+    assert runner_up(iou[:3], az, n_az, 10.0, [0, 1, 2]) == float("-inf")
 
 
 def test_same_cycle_reads_a_walk_either_way_from_any_start() -> None:
@@ -75,6 +96,19 @@ def test_any_finds_a_shuffled_walk_and_auto_keeps_a_walk_given_in_order() -> Non
     # A margin above what the shuffled order loses keeps it as given.
     loss = (found.found_score - found.given_score) / 6
     assert not choose_order(table, [0], az, 36, "auto", loss + 0.01, 10.0).reordered
+    # The order found leads every other order clearly; kept as given, none was needed.
+    assert found.lead is not None and found.lead > 0.1  # one photo at its mirror bin: -0.2
+    assert kept.lead is None
+
+
+def test_an_order_the_silhouettes_cannot_tell_has_no_lead() -> None:
+    """Each photo matches its own bin and the mirrored one equally well (a symmetric object
+    without texture): another order fits as well as the one found."""
+    walk = [3, 0, 5, 1, 4, 2]
+    iou, az = _clear_walk(walk)
+    iou = np.maximum(iou, iou[:, (36 // 2 - np.arange(36)) % 36])  # the mirror bin as good
+    choice = choose_order(iou[:, None, :], [0], az, 36, "any", 0.08, 10.0)
+    assert choice.lead is not None and choice.lead < 0.003 * 6
 
 
 def test_neighbour_similarity_is_standardised_and_silent_without_a_cue() -> None:
@@ -108,6 +142,8 @@ def test_a_shuffled_walk_is_retrieved_in_any_order(tiny_library: Any) -> None:
     assert same_cycle([shuffle[i] for i in result.order], [0, 1, 2, 3]) and result.reordered
     data = result.to_json()
     assert data["order"] == result.order and data["order_mode"] == "any" and data["reordered"]
+    assert data["order_lead"] == result.order_lead and result.order_lead is not None
+    assert data["order_ambiguous"] == (result.order_lead < 0.003 * 4)
     walked = retrieve(masks, names, tiny_library, RetrievalConfig(order="walk"))
     assert walked.to_json()["order"] == [0, 1, 2, 3] and not walked.reordered
     auto = retrieve(masks, names, tiny_library, RetrievalConfig())  # "auto", given in order

@@ -231,6 +231,15 @@ def test_cli_retrieve_warns_of_a_guessed_direction_unless_given(tmp_path: Path,
     data = json.loads(anyhow.stdout)
     assert data["order_mode"] == "any" and sorted(data["order"]) == [0, 1, 2, 3]
     assert [m["name"] for m in data["matches"]] == [Path(p).name for p in shuffled]
+    assert data["order_ambiguous"] is False and data["order_lead"] > 0.003 * 4
+    # Five photos of the mug: another order fits its silhouettes as well; said so.
+    write_job(tmp_path / "mug", tiny_library, model_id="mug", n=5)
+    mug = sorted(str(p) for p in (tmp_path / "mug" / "inputs").iterdir())
+    mug_any = ["retrieve", *[mug[i] for i in (2, 0, 3, 1, 4)], "--library",
+               str(tiny_library_dir), "--order", "any"]
+    data = json.loads(CliRunner().invoke(app, [*mug_any, "--json"]).stdout)
+    assert data["order_ambiguous"] is True and data["order_lead"] < 0.003 * 5
+    assert "warning: the walking order is a guess" in CliRunner().invoke(app, mug_any).output
     bad = CliRunner().invoke(app, [*common, "--order", "sideways"])
     assert bad.exit_code == 2 and "--order" in bad.output
     unknown = CliRunner().invoke(app, [*common, "--exclude-models", "mug,no_such_model"])
