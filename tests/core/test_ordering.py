@@ -22,15 +22,21 @@ from cadnerf_core.retrieval.retrieve import retrieve
 from tests.core.test_retrieval import _walk
 
 
+def _random_tables(seed: int, n_photos: int,
+                   n_az: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Random IoU [P, 3 * n_az] (three elevations a bin), the views' azimuth bins and a
+    symmetric likeness [P, P]."""
+    rng = np.random.default_rng(seed)
+    iou = rng.random((n_photos, n_az * 3))
+    similarity = rng.random((n_photos, n_photos))
+    return iou, np.repeat(np.arange(n_az), 3), (similarity + similarity.T) / 2
+
+
 @pytest.mark.parametrize("n_photos", [3, 4, 5, 6])
 def test_the_order_search_is_the_best_walk_over_every_order(n_photos: int) -> None:
     """Against brute force: every order of the photos walked by the ordinary walk solver."""
-    rng = np.random.default_rng(n_photos)
     n_az = 12
-    iou = rng.random((n_photos, n_az * 3))
-    az = np.repeat(np.arange(n_az), 3)
-    similarity = rng.random((n_photos, n_photos))
-    similarity = (similarity + similarity.T) / 2
+    iou, az, similarity = _random_tables(n_photos, n_photos, n_az)
     found = any_order(iou, az, n_az, 10.0, similarity, 0.3)
     brute = max(walk_score(iou, az, n_az, [0, *rest], 10.0, similarity, 0.3)
                 for rest in itertools.permutations(range(1, n_photos)))
@@ -47,12 +53,8 @@ def test_the_order_search_is_the_best_walk_over_every_order(n_photos: int) -> No
 def test_the_runner_up_is_the_best_walk_of_another_cycle(n_photos: int) -> None:
     """Against brute force: the best walk score over every order whose cycle differs from the
     found walk's; three photos make one cycle and have none."""
-    rng = np.random.default_rng(10 + n_photos)
     n_az = 12
-    iou = rng.random((n_photos, n_az * 3))
-    az = np.repeat(np.arange(n_az), 3)
-    similarity = rng.random((n_photos, n_photos))
-    similarity = (similarity + similarity.T) / 2
+    iou, az, similarity = _random_tables(10 + n_photos, n_photos, n_az)
     found = any_order(iou, az, n_az, 10.0, similarity, 0.3)
     others = [walk_score(iou, az, n_az, [0, *rest], 10.0, similarity, 0.3)
               for rest in itertools.permutations(range(1, n_photos))
