@@ -22,7 +22,7 @@ def _walk(direction: int, evidence: float, model_id: str = "bottle") -> Retrieva
     return RetrievalResult(model_id, "bottle", [], matches, "dp", direction, 2.4, evidence)
 
 
-@pytest.mark.parametrize(("evidence", "fitted"), [(5.0, 2), (1.0, 3), (-5.0, 2)])
+@pytest.mark.parametrize(("evidence", "fitted"), [(5.0, 2), (1.0, 2), (0.5, 3), (-5.0, 2)])
 def test_a_walk_against_strong_texture_evidence_is_not_fitted(
         evidence: float, fitted: int, monkeypatch: pytest.MonkeyPatch) -> None:
     """The mirrored walk fits the silhouettes a little better (as it can on a bottle), but
