@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import dataclasses
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any
 
@@ -92,6 +94,21 @@ class RetrievalResult:
     ``photo_pairs`` (``matches.PairMatch.to_json``: photos i and j, mutual matches, inliers,
     inlier ratio, median Sampson error in pixels, turn about the vertical axis); empty when
     matching was off or had no photos."""
+
+    def in_given_order(self, order: Sequence[int], mode: str, reordered: bool,
+                       pairs: list[PairMatch], lead: float | None = None,
+                       guess: bool = False) -> RetrievalResult:
+        """This result, found on photos taken in ``order``, with every match indexed as given
+        and in the given order again (its alternatives likewise) and the photos' ``pairs`` as
+        matched in the given order; it records the walking order, its lead over any other
+        order and whether it is a guess."""
+        matches = sorted((dataclasses.replace(m, index=order[m.index]) for m in self.matches),
+                         key=lambda m: m.index)
+        others = [a.in_given_order(order, mode, reordered, pairs, lead, guess)
+                  for a in self.alternatives]
+        return dataclasses.replace(self, matches=matches, alternatives=others,
+                                   order=list(order), order_mode=mode, reordered=reordered,
+                                   pairs=pairs, order_lead=lead, order_ambiguous=guess)
 
     @property
     def photo_pairs(self) -> list[dict[str, Any]]:

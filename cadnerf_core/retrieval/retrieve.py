@@ -193,8 +193,8 @@ def retrieve(masks: Sequence[np.ndarray], names: Sequence[str], library: Library
         if guess:
             log.warning("%s (lead %.3f IoU)",
                         order_guess_warning([names[i] for i in choice.order]), lead)
-        return _in_given_order(found, choice.order, config.order, choice.reordered,
-                               seen.pairs, lead, guess)
+        return found.in_given_order(choice.order, config.order, choice.reordered, seen.pairs,
+                                    lead, guess)
     return _retrieve(seen, names, library, allowed, config, progress, focals, crop_size)
 
 
@@ -315,22 +315,6 @@ def _order(seen: _Seen, library: Library, allowed: np.ndarray, config: Retrieval
     return choose_order(iou, candidates, az_index, views.spec.n_azimuths, config.order,
                         config.order_margin, config.spread_weight, similarity,
                         config.similarity_weight, progress.check if progress else None)
-
-
-def _in_given_order(result: RetrievalResult, order: Sequence[int], mode: str,
-                    reordered: bool, pairs: list[PairMatch], lead: float | None = None,
-                    guess: bool = False) -> RetrievalResult:
-    """A result found on photos taken in ``order`` with every match indexed as given and in
-    the given order again (its alternatives likewise), and the photos' ``pairs`` as matched
-    in the given order; it records the walking order, its lead over any other order and
-    whether it is a guess."""
-    matches = sorted((dataclasses.replace(m, index=order[m.index]) for m in result.matches),
-                     key=lambda m: m.index)
-    others = [_in_given_order(a, order, mode, reordered, pairs, lead, guess)
-              for a in result.alternatives]
-    return dataclasses.replace(result, matches=matches, alternatives=others, order=list(order),
-                               order_mode=mode, reordered=reordered, pairs=pairs,
-                               order_lead=lead, order_ambiguous=guess)
 
 
 def allowed_models(library: Library, exclude: Sequence[str]) -> np.ndarray:
