@@ -82,6 +82,7 @@ from benchmarks.training_plan import (
     mesh_files,
     results_table,
     run_plan,
+    stages_table,
     summaries,
 )
 from benchmarks.training_scoring import score_report, true_cameras
@@ -240,6 +241,8 @@ def run(quick: bool, threads: int | None = None, names: list[str] | None = None,
              "frame, true intrinsics), poses fixed; its retrieval column reads 0 since the "
              "true cameras are written back as the job's.", "",
              *results_table(rows), *summaries(rows, quick or names is not None), "",
+             "Seconds per stage of each job (`metrics.json`, `timings_s`):", "",
+             *stages_table(rows), "",
              orbit_note, ""]
     return "\n".join(lines)
 

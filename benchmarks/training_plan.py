@@ -85,6 +85,24 @@ def results_table(rows: list[tuple[str, str, dict[str, Any]]]) -> list[str]:
     return lines
 
 
+STAGES = ["intake", "start", "phase1", "phase2", "phase3", "views", "orbit", "mesh", "bundle"]
+
+
+def stages_table(rows: list[tuple[str, str, dict[str, Any]]]) -> list[str]:
+    """Where each job's time went (``metrics.json``'s ``timings_s``): intake (photos, masks,
+    retrieval), start (the hypotheses' silhouette fits), the three phases, and the export's
+    parts; "other" is the job s column less these (loading, the frame fit, writing)."""
+    lines = ["| mesh | run | seed | " + " | ".join(STAGES) + " | other |",
+             "|---|---|---|" + "---:|" * (len(STAGES) + 1)]
+    for mesh, name, r in rows:
+        stages = r.get("stages", {})
+        known = [stages.get(s) for s in STAGES]
+        other = r["seconds"] - sum(v for v in known if v is not None)
+        cells = " | ".join("" if v is None else f"{v:.1f}" for v in known)
+        lines.append(f"| {mesh} | {name} | {r['seed']} | {cells} | {other:.1f} |")
+    return lines
+
+
 def _summary(rows: list[tuple[str, str, dict[str, Any]]]) -> list[str]:
     """Means over meshes and seeds; the per-seed means show how far a seed moves them."""
     lines = ["", "| run | mean test PSNR | per seed | (centres mapping) | (+ test-time pose) | "

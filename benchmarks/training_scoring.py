@@ -142,6 +142,8 @@ def score_report(report: EvalReport, tta: bool, device: str = DEVICE) -> dict[st
             "rot_after": float(np.median(report.pose_refined.rotation_deg_per_view)),
             "kept": len(report.kept), "model_id": report.model_id,
             "train_psnr": metrics["mean_psnr"],
+            "stages": {k.removesuffix("_s"): float(v)
+                       for k, v in (metrics.get("timings_s") or {}).items()},
             # evaluate_dataset's wall time less the held-out renders: the whole job (writing
             # its photos, retrieval, training, exports), loading its model and the frame fit.
             "seconds": report.seconds - report.render_seconds}

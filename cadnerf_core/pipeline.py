@@ -258,10 +258,11 @@ def run_job(job_dir: Path, library: Library, progress: Progress | None = None,
         learn_focal = all(p.focal_pixels is None for p in intake.photos)
         intake = robust_start(job_dir, intake, library, config, dev, learn_focal, progress,
                               recorded)
+        start_s = time.perf_counter() - start - intake_s
         data = training_data(intake, config, library.spec.margin, dev)
         state, extra = train(job_dir, library, intake.retrieval, data, config, dev, progress,
                              learn_focal)
-        extra["timings"]["intake_s"] = intake_s
+        extra["timings"].update(intake_s=intake_s, start_s=start_s)
         model = TrainedModel(state, extra)
         retrieval, data = with_focal_scale(intake.retrieval, data, state.focal_scale())
         return export_job(job_dir, model, retrieval, intake.photos, data, progress)

@@ -39,3 +39,12 @@ def test_without_cuda_the_recorded_run_is_reported_not_measured(
     assert "Not measured in this run: no CUDA device here" in section
     assert "### Training" in section and "| full | 22.36 |" in section
     assert "docs/gpu.md" in section
+
+
+def test_each_preset_keeps_its_own_section() -> None:
+    record = bench_gpu.with_latest("# GPU\n", "## standard\n\n86 s")
+    record = bench_gpu.with_latest(record, "## preview\n\n69 s", "preview")
+    record = bench_gpu.with_latest(record, "## standard\n\n80 s")
+    assert bench_gpu.latest(record) == "## standard\n\n80 s"
+    assert bench_gpu.latest(record, "preview") == "## preview\n\n69 s"
+    assert "86 s" not in record

@@ -160,6 +160,15 @@ def test_phase_three_fits_colour_and_a_seed_repeats_a_run() -> None:
     second, mse_second = run()
     assert first.history == second.history
     assert mse_second == pytest.approx(mse_first, rel=1e-6)
+    # The display chunk is a memory setting: 64-ray chunks render the same image as the
+    # automatic size (one chunk for this small image).
+    whole = TrainedModel(first).render_image(c2w[0], data.K[0].numpy(), SIZE, SIZE)
+    render = first.config.render.model_copy(update={"chunk_rays": 64})
+    first.config = first.config.model_copy(update={"render": render})
+    chunked = TrainedModel(first).render_image(c2w[0], data.K[0].numpy(), SIZE, SIZE)
+    assert SIZE * SIZE > 64
+    for a, b in zip(whole, chunked, strict=True):
+        np.testing.assert_allclose(a, b, atol=1e-5)
 
 
 def test_scene_mode_learns_the_background() -> None:
