@@ -20,6 +20,11 @@ from cadnerf_core.nerf.volrend import march_rays
 # 2.7 s on an H100 (the standard job's 60 frames: 164 s); on the CPU larger chunks only cost
 # memory.
 GPU_CHUNK_RAYS, CPU_CHUNK_RAYS = 65_536, 4096
+# Samples marched between two checks for opaque rays (``volrend.march_rays``). On the CPU every
+# sample costs arithmetic, so checking every 4 rather than 8 evaluates fewer behind the surface:
+# a 256-px frame of a preview job's mug in 1.64 s against 2.01 s (2 cores, median of 5 rounds),
+# within 0.00075 a pixel. On a GPU each check is launches and a host sync: 8, as measured there.
+GPU_BLOCK, CPU_BLOCK = 8, 4
 
 
 def resolve_device(device: str = "auto") -> torch.device:
@@ -72,13 +77,14 @@ class TrainedModel:
         def fn(p: torch.Tensor, d: torch.Tensor) -> FieldOutputs:
             return st.fields.query(p, d)
 
-        chunk = rcfg.chunk_rays or (GPU_CHUNK_RAYS if st.device.type == "cuda"
-                                    else CPU_CHUNK_RAYS)
+        gpu = st.device.type == "cuda"
+        chunk = rcfg.chunk_rays or (GPU_CHUNK_RAYS if gpu else CPU_CHUNK_RAYS)
         rgbs, accs = [], []
         for i in range(0, rays_o.shape[0], chunk):
             rgb, acc = march_rays(fn, rays_o[i:i + chunk], rays_d[i:i + chunk],
                                   rcfg.samples_per_ray,
-                                  rcfg.bound, st.grid if rcfg.use_grid else None, bg)
+                                  rcfg.bound, st.grid if rcfg.use_grid else None, bg,
+                                  block=GPU_BLOCK if gpu else CPU_BLOCK)
             rgbs.append(rgb.float())
             accs.append(acc.float())
         return torch.cat(rgbs), torch.cat(accs)
