@@ -311,11 +311,16 @@ def test_runner_records_missing_and_failing_areas(monkeypatch: pytest.MonkeyPatc
     text, _ = runner.run_area("nonexistent_area", True)
     assert "does not exist yet" in text
     sections = [runner.Section("fine", runner.run_area("fine", False)[0], 1.5, "full",
-                               "abc1234", "2026-01-01 00:00 UTC", "python -m benchmarks.run")]
+                               "abc1234", "2026-01-01 00:00 UTC", "python -m benchmarks.run",
+                               runner.cpu_summary()),
+                runner.Section("old", "## old\n", 2.0, "full", "abc1234",
+                               "2026-01-01 00:00 UTC", "python -m benchmarks.run")]
     doc = runner.build_document(sections)
     assert "quick=False" in doc and "| fine | 1.5 | full | abc1234 |" in doc
+    assert f"| {runner.cpu_summary()} |" in doc and "cores" in runner.cpu_summary()
+    assert "| not recorded |" in doc  # a section measured before rows named their CPU
     assert "- CPU: " in doc and "torch " in doc
-    assert runner.read_sections(doc) == {"fine": sections[0]}
+    assert runner.read_sections(doc) == {"fine": sections[0], "old": sections[1]}
 
 
 def test_runner_only_replaces_the_areas_it_runs(tmp_path: Path,
