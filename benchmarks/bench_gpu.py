@@ -22,8 +22,6 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
 RECORD = ROOT / "docs" / "bench_training_gpu.md"
-BEGIN = "<!-- LATEST: written by benchmarks.bench_gpu -->"
-END = "<!-- /LATEST -->"
 RUNS = ["full"]
 PRESETS = {"preview": 128, "standard": 256}  # each preset at its own photo size
 
