@@ -74,7 +74,10 @@ def test_run_job_writes_every_artifact(tmp_path: Path, tiny_library: Any) -> Non
     kept = [p for p in poses if not p["discarded"]]
     assert len(transforms["frames"]) == len(kept)
     metrics = json.loads((tmp_path / "metrics.json").read_text())
-    assert {"phase1_s", "phase2_s", "phase3_s"} <= set(metrics["timings_s"])
+    stages = {"intake_s", "start_s", "phase1_s", "phase2_s", "phase3_s", "views_s", "orbit_s",
+              "mesh_s", "bundle_s", "export_s"}
+    assert stages <= set(metrics["timings_s"])
+    assert all(metrics["timings_s"][k] >= 0 for k in stages)
     assert metrics["peak_memory_mb"]["phase3"]["rss_peak_mb"] > 0
     assert all(np.isfinite(p["psnr"]) and -1 <= p["ssim"] <= 1 for p in metrics["photos"])
     assert (tmp_path / "config.json").read_bytes() == written  # read, never rewritten
