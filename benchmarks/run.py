@@ -63,9 +63,9 @@ def all_areas() -> list[str]:
 
 
 def _cpu_model() -> str:
-    """The processor's name and its widest vector extension: machines sold under one name
-    differ by up to twice in these benchmarks' times (a 2-core EPYC with AVX2 only took 587 s
-    for a job that took 311 s on one with AVX-512)."""
+    """The processor's name and its widest vector extension: machines under one name differ
+    by up to twice in these benchmarks' times (a 2-core "AMD EPYC" listing AVX2 but no AVX-512
+    took 587 s for a job that took 311 s on another 2-core "AMD EPYC")."""
     name, flags = "", set[str]()
     try:
         for line in Path("/proc/cpuinfo").read_text().splitlines():
