@@ -99,7 +99,8 @@ def run_intake(job_dir: Path, library: Library, config: PipelineConfig,
 def training_data(intake: Intake, config: PipelineConfig, margin: float,
                   device: torch.device) -> TrainData:
     """Canonical crops (on white), masks, crop intrinsics and loss weights of the kept photos
-    (``intake.photos.doubt_weights``: pixels where a learned mask is in doubt weigh 0)."""
+    (``intake.photos.doubt_weights``: pixels where a learned mask is in doubt weigh
+    ``masks.doubt_weight``)."""
     from cadnerf_core.intake.photos import canonical_views, doubt_weights
     from cadnerf_core.nerf.epipolar import match_terms
     from cadnerf_core.nerf.state import TrainData
@@ -109,7 +110,8 @@ def training_data(intake: Intake, config: PipelineConfig, margin: float,
     masks = [intake.masks[m.index] for m in kept]
     rgb, crops, boxes = canonical_views(photos, masks, config.image_size, margin)
     doubts = [None if intake.doubts is None else intake.doubts[m.index] for m in kept]
-    weights = doubt_weights(doubts, [mask.shape for mask in masks], boxes)
+    weights = doubt_weights(doubts, [mask.shape for mask in masks], boxes,
+                            config.masks.doubt_weight)
     scene = None
     if config.scene_mode:
         scene = np.stack([np.clip(apply_crop(p.rgb.astype(np.float32), m.box, fill=1.0), 0, 1)

@@ -11,9 +11,9 @@ the result scaled back to the photo's size. ``mask_checks`` then warns about dou
 
 A learned mask also says where it is in doubt: the pixels on which the refined cut and the
 network's first look at the whole photo disagree (background seen through a gap that the close
-look took for object, or parts the cut dropped). Training leaves them out of its silhouette
-losses (``TrainData.weights``), so the other views decide the shape there; the colour loss
-still counts them.
+look took for object, or parts the cut dropped). Training can weigh them less in its
+silhouette losses (``MasksConfig.doubt_weight``, ``TrainData.weights``), so that the other
+views decide the shape there; by default they count in full, as measured.
 """
 
 from __future__ import annotations

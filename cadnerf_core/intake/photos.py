@@ -342,19 +342,20 @@ def canonical_views(photos: Sequence[Photo], masks: Sequence[np.ndarray], size: 
 
 
 def doubt_weights(doubts: Sequence[np.ndarray | None], shapes: Sequence[tuple[int, ...]],
-                  boxes: Sequence[CropBox]) -> np.ndarray | None:
-    """Per-pixel loss weights of canonical crops: 0 where a mask is in doubt, else 1.
+                  boxes: Sequence[CropBox], level: float = 0.0) -> np.ndarray | None:
+    """Per-pixel loss weights of canonical crops: ``level`` where a mask is in doubt, else 1.
 
     Args:
         doubts: N maps [h_i, w_i] bool over whole photos at any size of the photo's aspect
             ratio (``MaskResult.doubt``), or None where a mask is not in doubt anywhere.
         shapes: the N photos' (H_i, W_i, ...) shapes, the pixels ``boxes`` refer to.
         boxes: the N canonical crop boxes.
+        level: a doubtful pixel's weight (``MasksConfig.doubt_weight``).
     Returns:
         [N, S, S] float32 in [0, 1] (partly doubtful pixels weigh in between), or None when
-        no photo has a doubt map.
+        no photo has a doubt map or a doubtful pixel weighs as much as any.
     """
-    if all(doubt is None for doubt in doubts):
+    if level >= 1.0 or all(doubt is None for doubt in doubts):
         return None
     size = boxes[0].size
     out = np.ones((len(boxes), size, size), np.float32)
@@ -363,5 +364,5 @@ def doubt_weights(doubts: Sequence[np.ndarray | None], shapes: Sequence[tuple[in
             continue
         scale = doubt.shape[1] / shape[1]  # doubt-map pixels per photo pixel
         small = CropBox(box.x0 * scale, box.y0 * scale, box.side * scale, size)
-        out[i] -= apply_crop(doubt.astype(np.float32), small)
+        out[i] -= (1.0 - level) * apply_crop(doubt.astype(np.float32), small)
     return np.clip(out, 0.0, 1.0)

@@ -1,4 +1,4 @@
-"""Where a learned mask is in doubt, and how training leaves those pixels out of its losses."""
+"""Where a learned mask is in doubt, and how training can weigh those pixels less in its losses."""
 
 from __future__ import annotations
 
@@ -6,11 +6,14 @@ import numpy as np
 import pytest
 import torch
 
+from cadnerf_core.config import resolve_config
 from cadnerf_core.intake.crop import canonical_box
 from cadnerf_core.intake.masks import doubt_map, photo_masks
 from cadnerf_core.intake.photos import Photo, doubt_weights
 from cadnerf_core.nerf import phases
 from cadnerf_core.nerf.state import TrainData
+from cadnerf_core.pipeline import Intake, training_data
+from cadnerf_core.retrieval.result import PhotoMatch, RetrievalResult
 from tests.core.test_masks import _object_scene, needs_learned
 
 
@@ -40,6 +43,44 @@ def test_doubt_weights_are_zero_where_in_doubt_in_the_canonical_crop() -> None:
     assert weights[0, 18:30, :].min() > 1 - 1e-6 and weights[0, :, :2].min() > 1 - 1e-6
     assert weights[1].min() == 1.0  # a photo without doubts
     assert doubt_weights([None, None], [mask.shape] * 2, [box, box]) is None
+    # A doubtful pixel weighing a share of a sure one; weighing as much: no weights at all.
+    half = doubt_weights([doubt, None], [mask.shape, mask.shape], [box, box], 0.25)
+    assert half is not None
+    assert half[0, 5:14, 5:27] == pytest.approx(np.full((9, 22), 0.25), abs=1e-6)
+    assert half[0, 18:30, :].min() > 1 - 1e-6
+    assert doubt_weights([doubt, None], [mask.shape, mask.shape], [box, box], 1.0) is None
+
+
+def _intake_with_doubts() -> Intake:
+    """A two-photo intake whose first learned mask is in doubt over its object's top half."""
+    rng = np.random.default_rng(0)
+    mask = np.zeros((80, 120), bool)
+    mask[20:60, 40:80] = True
+    doubt = np.zeros((80, 120), bool)
+    doubt[20:40, 40:80] = True
+    photos = [Photo(f"p{i}.png", rng.random((80, 120, 3), dtype=np.float32)) for i in range(2)]
+    box = canonical_box(mask, 16, 0.1)
+    K = np.array([[20.0, 0, 8], [0, 20.0, 8], [0, 0, 1]])
+    matches = [PhotoMatch(i, p.name, 0, 0.0, 0.0, 0.9, False, np.eye(4), K, box, K)
+               for i, p in enumerate(photos)]
+    retrieval = RetrievalResult("m", "c", [], matches, "dp", 1, 1.0)
+    return Intake([p.name for p in photos], photos, [mask, mask], retrieval, [doubt, None])
+
+
+def test_a_jobs_doubt_weight_decides_the_weights_training_gets() -> None:
+    intake = _intake_with_doubts()
+    cpu = torch.device("cpu")
+    counted = training_data(intake, resolve_config("preview"), 0.1, cpu)
+    assert counted.weights is None  # the default: doubtful pixels count as any other
+    left_out = training_data(intake, resolve_config("preview", {"masks.doubt_weight": 0}), 0.1,
+                             cpu)
+    assert left_out.weights is not None
+    half = left_out.height // 2  # the object fills the crop but for its margin
+    assert left_out.weights[0, half // 2:half - 2, half // 2:-half // 2].max().item() == 0.0
+    assert left_out.weights[0, half + 2:].min().item() == 1.0  # its sure bottom half
+    assert left_out.weights[1].min().item() == 1.0  # the second photo has no doubt map
+    with pytest.raises(ValueError):
+        resolve_config("preview", {"masks.doubt_weight": 1.5})
 
 
 def test_weighted_mse_counts_each_ray_by_its_weight() -> None:
