@@ -11,10 +11,16 @@
   masks and with the shipped masks, look-alikes left out (a few minutes a job).
 
 Usage: ``python -m benchmarks.bench_masks [--quick] [--library DIR]`` prints the section.
+``python -m benchmarks.bench_masks --training [--sets NAME ...] [--overrides JSON]`` prints only
+the training lines, with configuration values set in both jobs of each set (a lever's effect:
+``'{"masks.doubt_weight": 0, "retrieval.perspective": "near", "seed": 1}'``).
 """
 
 from __future__ import annotations
 
+import argparse
+import json
+import logging
 import os
 import resource
 import shutil
@@ -159,9 +165,10 @@ def speed(photos: list[Any]) -> list[str]:
             f"{os.cpu_count()} cores."]
 
 
-def training(name: str, paths: list[Path], mask_paths: list[Path], library: Any) -> str:
+def training(name: str, paths: list[Path], mask_paths: list[Path], library: Any,
+             overrides: dict[str, Any] | None = None) -> str:
     """One line: a preview job's training PSNR with the built-in and the shipped masks (the
-    set's look-alikes left out of the library)."""
+    set's look-alikes left out of the library; ``overrides`` set in both jobs)."""
     from cadnerf_cli.reconstruct_cmd import stage_inputs
     from cadnerf_core.config import resolve_config
     from cadnerf_core.jobfolder import JobFolder
@@ -172,7 +179,8 @@ def training(name: str, paths: list[Path], mask_paths: list[Path], library: Any)
         job = Path(tempfile.mkdtemp(prefix="bench_masks_job_"))
         try:
             stage_inputs(paths, masks, job)
-            JobFolder(job).write_config(resolve_config("preview", exclude_overrides(name)))
+            JobFolder(job).write_config(resolve_config("preview", {**exclude_overrides(name),
+                                                                   **(overrides or {})}))
             summary = run_job(job, library)
             psnr[label] = float((JobFolder(job).read_metrics() or {})["mean_psnr"])
             model[label] = summary["model_id"]
@@ -217,10 +225,32 @@ def run(quick: bool, library_dir: Path = LIBRARY_DIR) -> str:
     return "\n".join(lines)
 
 
+def training_only(argv: list[str]) -> int:
+    """``--training``: the training lines alone, for the sets named (default: every set)."""
+    parser = argparse.ArgumentParser(description="CAD-NeRF mask benchmark, training only")
+    parser.add_argument("--training", action="store_true")
+    parser.add_argument("--sets", nargs="+", choices=SETS, default=list(SETS))
+    parser.add_argument("--overrides", type=json.loads, default=None)
+    parser.add_argument("--library", type=Path, default=LIBRARY_DIR)
+    args = parser.parse_args(argv)
+    logging.basicConfig(level=logging.INFO,
+                        format="%(asctime)s %(levelname)s %(name)s: %(message)s")
+    from cadnerf_core.library.format import load_library
+
+    library = load_library(args.library)
+    for name in args.sets:
+        paths, mask_paths, _ = real_set_photos(name)
+        print(training(name, paths, mask_paths, library, args.overrides), flush=True)
+    return 0
+
+
 def main(argv: list[str] | None = None) -> int:
-    """Print the section (``--quick``: the short run)."""
+    """Print the section (``--quick``: the short run; ``--training``: ``training_only``)."""
     from benchmarks.run import area_main
 
+    argv = sys.argv[1:] if argv is None else argv
+    if "--training" in argv:
+        return training_only(argv)
     return area_main(run, "CAD-NeRF mask benchmark", argv)
 
 

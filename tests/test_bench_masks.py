@@ -1,0 +1,54 @@
+"""The mask benchmark's training comparison: both jobs get the values a lever sets."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pytest
+from PIL import Image
+
+from benchmarks import bench_masks
+from benchmarks.lookalikes import excluded
+from cadnerf_core import pipeline
+from cadnerf_core.jobfolder import JobFolder
+
+
+def _photos(folder: Path, count: int) -> tuple[list[Path], list[Path]]:
+    """``count`` small photos of a grey square and their masks."""
+    paths, masks = [], []
+    for i in range(count):
+        rgb = np.full((48, 64, 3), 250, np.uint8)
+        rgb[12:36, 20:44] = 90
+        mask = np.zeros((48, 64), np.uint8)
+        mask[12:36, 20:44] = 255
+        paths.append(folder / f"p{i}.png")
+        masks.append(folder / f"p{i}_mask.png")
+        Image.fromarray(rgb).save(paths[-1])
+        Image.fromarray(mask).save(masks[-1])
+    return paths, masks
+
+
+def test_training_sets_the_overrides_in_both_jobs(tmp_path: Path,
+                                                  monkeypatch: pytest.MonkeyPatch) -> None:
+    seen: list[dict[str, Any]] = []
+
+    def fake_job(job: Path, library: Any) -> dict[str, Any]:
+        folder = JobFolder(job)
+        config = folder.read_config()
+        seen.append({"doubt": config.masks.doubt_weight, "seed": config.seed,
+                     "exclude": list(config.retrieval.exclude_models)})
+        folder.write_metrics({"mean_psnr": 20.0 + len(seen)})
+        return {"model_id": f"model{len(seen)}"}
+
+    monkeypatch.setattr(pipeline, "run_job", fake_job)
+    paths, masks = _photos(tmp_path, 3)
+    line = bench_masks.training("ners_espresso", paths, masks, None,
+                                {"masks.doubt_weight": 0, "seed": 3})
+    assert [s["doubt"] for s in seen] == [0.0, 0.0] and [s["seed"] for s in seen] == [3, 3]
+    # The set's look-alike (the espresso machine) left out of both jobs' libraries.
+    assert seen[0]["exclude"] == seen[1]["exclude"] == list(excluded("ners_espresso"))
+    assert seen[0]["exclude"]
+    assert "built-in masks 21.00 dB (model1), shipped masks 22.00 dB (model2)" in line
+    assert "difference -1.00 dB" in line
