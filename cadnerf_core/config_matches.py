@@ -22,6 +22,13 @@ class MatchesConfig(Frozen):
     size: int = Field(default=640, ge=64, le=MAX_MATCH_SIZE)
     """Long side in pixels of the object's bounding-box crop features are found in (photos are
     only shrunk): about 0.3 s a photo at 640 on a CPU core, whatever the photo's size."""
+    context: float = Field(default=0.5, ge=0.0, le=2.0)
+    """Share of the object's box (its width and height) added on each side in which features
+    are looked for too: what stands still round the object while you walk round it (a
+    table, a placemat, the floor) shares points between photos where the object's own
+    surface (polished metal, glass, plain paint) does not. Those features have their own
+    share, so the object keeps all of its own. 0: the object alone (a turntable, or a
+    background that moves with the object)."""
     min_inliers: int = Field(default=20, ge=8, le=1000)
     """Fewest inliers of the essential matrix for a pair's relative rotation to be used."""
     threshold_px: float = Field(default=1.0, ge=0.1, le=10.0)

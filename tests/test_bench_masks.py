@@ -52,3 +52,26 @@ def test_training_sets_the_overrides_in_both_jobs(tmp_path: Path,
     assert seen[0]["exclude"]
     assert "built-in masks 21.00 dB (model1), shipped masks 22.00 dB (model2)" in line
     assert "difference -1.00 dB" in line
+
+
+def test_training_runs_both_jobs_for_each_seed_and_reports_the_mean(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    seeds: list[int] = []
+    psnr = {0: (24.0, 26.0), 1: (25.0, 25.5)}  # seed: (built-in, shipped)
+
+    def fake_job(job: Path, library: Any) -> dict[str, Any]:
+        folder = JobFolder(job)
+        seed = folder.read_config().seed
+        shipped = len(seeds) % 2  # each seed: the built-in masks' job, then the shipped one's
+        seeds.append(seed)
+        folder.write_metrics({"mean_psnr": psnr[seed][shipped]})
+        return {"model_id": "m"}
+
+    monkeypatch.setattr(pipeline, "run_job", fake_job)
+    paths, masks = _photos(tmp_path, 3)
+    line = bench_masks.training("raydiffusion_robot", paths, masks, None, seeds=(0, 1))
+    assert seeds == [0, 0, 1, 1]
+    assert "built-in masks **24.50** dB, shipped masks **25.75** dB" in line
+    assert "difference **-1.25 dB**" in line
+    assert "seed 0: built-in masks 24.00 dB (m), shipped masks 26.00 dB (m), " \
+           "difference -2.00 dB" in line

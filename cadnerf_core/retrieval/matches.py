@@ -4,7 +4,10 @@ Silhouettes cannot tell which way round a walk went on an object that looks alik
 mirrored sides (a bottle, a mug, a lamp), but its texture can: a label, a print, wood grain.
 Each photo's SIFT features (OpenCV, no learned weights) are found inside its mask (dilated a
 little, so features on the outline count), on a crop of the object's bounding box downscaled
-to ``MatchesConfig.size`` pixels on its long side, so ten 12-megapixel photos cost seconds.
+to ``MatchesConfig.size`` pixels on its long side, so ten 12-megapixel photos cost seconds;
+and, with their own share, round it (``MatchesConfig.context``): the table, placemat or floor
+the object stands on stays put while the camera walks round, and shares points between photos
+where a polished or plain object has none of its own.
 Every pair is matched by nearest descriptors (Lowe's ratio test, kept only when mutual) and
 the matches are checked by RANSAC on the essential matrix with a focal-length estimate; the
 surviving inliers give the pair's relative rotation (``cv2.recoverPose``).
@@ -118,9 +121,10 @@ def _tilted(gray: np.ndarray, inside: np.ndarray, tilt: float,
     return (points + 0.5) / factor - 0.5, descriptors
 
 
-def detect(image: np.ndarray, mask: np.ndarray, size: int) -> Features:
+def detect(image: np.ndarray, mask: np.ndarray, size: int, context: float = 0.0) -> Features:
     """SIFT features of one photo inside its (slightly grown) mask, from the photo and from
-    its copies shrunk horizontally and vertically by each of ``TILTS``.
+    its copies shrunk horizontally and vertically by each of ``TILTS``; with ``context``, also
+    those round the object.
 
     Walking round an object foreshortens its surfaces across the photo (and a change of
     height, along it): a surface facing one photo is seen obliquely from the next, and
@@ -132,10 +136,37 @@ def detect(image: np.ndarray, mask: np.ndarray, size: int) -> Features:
         image: [H, W, 3] float in [0, 1] (or uint8).
         mask: [H, W] bool, non-empty.
         size: long side in pixels of the object's bounding-box crop searched (never enlarged).
+        context: share of the box's width and height added on each side, in which features
+            outside the mask are found too (``MatchesConfig.context``): on a crop of that
+            larger box, also ``size`` pixels on its long side, with their own share of
+            ``MAX_FEATURES``, so the object keeps all of its own. 0: the object alone.
     Returns:
-        The features, their points in the photo's own pixels.
+        The features, their points in the photo's own pixels; ``scale`` is the object's.
     """
-    x0, y0, x1, y1 = mask_bbox(mask)
+    box = mask_bbox(mask)
+    x0, y0, x1, y1 = box
+    side = max(x1 - x0, y1 - y0)
+    points, descriptors, scale = _features_in(image, mask, box, size, side, outside=False)
+    if context > 0:
+        height, width = mask.shape
+        grow_x, grow_y = round(context * (x1 - x0)), round(context * (y1 - y0))
+        grown = (max(0, x0 - grow_x), max(0, y0 - grow_y), min(width, x1 + grow_x),
+                 min(height, y1 + grow_y))
+        around, described, _ = _features_in(image, mask, grown, size, side, outside=True)
+        points = np.concatenate([points, around])
+        descriptors = np.concatenate([descriptors, described])
+    return Features(points, descriptors, scale)
+
+
+def _features_in(image: np.ndarray, mask: np.ndarray, box: tuple[int, int, int, int],
+                 size: int, object_side: int,
+                 outside: bool) -> tuple[np.ndarray, np.ndarray, float]:
+    """SIFT features (``_sift`` and ``_tilted``) on the crop ``box`` (x0, y0, x1, y1) of the
+    photo shrunk to ``size`` pixels on its long side: inside the mask grown by
+    ``MASK_DILATION`` of the object's long side (``object_side``, photo pixels), or
+    (``outside``) everywhere else in the crop. Returns points [N, 2]
+    in photo pixels, descriptors [N, 128] float32, and the crop's scale."""
+    x0, y0, x1, y1 = box
     scale = min(1.0, size / max(x1 - x0, y1 - y0))
     crop = np.ascontiguousarray(image[y0:y1, x0:x1, :3])
     if crop.dtype != np.uint8:  # grey and shrunk before the conversion: a 12 MP crop is slow
@@ -148,14 +179,16 @@ def detect(image: np.ndarray, mask: np.ndarray, size: int) -> Features:
         inside = cv2.resize(inside, shape, interpolation=cv2.INTER_NEAREST)
     if gray.dtype != np.uint8:
         gray = (np.clip(gray, 0.0, 1.0) * 255.0 + 0.5).astype(np.uint8)
-    grow = max(1, round(MASK_DILATION * max(shape)))
+    grow = max(1, round(MASK_DILATION * scale * object_side))
     inside = cv2.dilate(inside, np.ones((2 * grow + 1, 2 * grow + 1), np.uint8))
+    if outside:
+        inside = cv2.bitwise_not(inside)
     found = [_sift(gray, inside)] + [_tilted(gray, inside, tilt, axis)
                                      for tilt in TILTS for axis in (0, 1)]
     points = np.concatenate([p for p, _ in found])
     # Pixel centres: crop pixel c covers photo pixels [c / s, (c + 1) / s).
     points = (points + 0.5) / scale - 0.5 + np.array([x0, y0], dtype=np.float64)
-    return Features(points, np.concatenate([d for _, d in found]).astype(np.float32), scale)
+    return points, np.concatenate([d for _, d in found]).astype(np.float32), scale
 
 
 def _two_nearest(d2: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -261,7 +294,8 @@ def match_photos(images: Sequence[np.ndarray], masks: Sequence[np.ndarray],
     Returns:
         P * (P - 1) / 2 pairs, (0, 1), (0, 2), ... (an empty mask gives a photo no features).
     """
-    features = [detect(image, mask, config.size) if mask.any() else NO_FEATURES
+    features = [detect(image, mask, config.size, config.context) if mask.any()
+                else NO_FEATURES
                 for image, mask in zip(images, masks, strict=True)]
     return [verify_pair(i, j, features[i], features[j], intrinsics[i], intrinsics[j], config)
             for i in range(len(features)) for j in range(i + 1, len(features))]

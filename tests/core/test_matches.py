@@ -14,6 +14,7 @@ from cadnerf_core.config import MatchesConfig, RetrievalConfig
 from cadnerf_core.mesh.renderer import MeshRenderer
 from cadnerf_core.retrieval.matches import (
     PairMatch,
+    detect,
     match_photos,
     mutual_matches,
     sampson_errors,
@@ -75,6 +76,48 @@ def test_a_plain_object_gives_no_turn_and_no_evidence() -> None:
     pairs = match_photos(images, masks, _intrinsics(3), MatchesConfig())
     assert all(p.turn_deg is None and p.rotation is None for p in pairs)
     assert walk_evidence(pairs, 12, MatchesConfig()) == 0.0
+
+
+def _blob(centre: tuple[float, float, float], radius: float, seed: int) -> trimesh.Trimesh:
+    """A small sphere with coarse blotches of grey (fewer vertices: blotches SIFT can see)."""
+    mesh = trimesh.creation.icosphere(subdivisions=3, radius=radius)
+    grey = np.random.default_rng(seed).integers(30, 230, len(mesh.vertices))
+    colours = np.stack([grey, grey, grey, np.full_like(grey, 255)], axis=1).astype(np.uint8)
+    mesh.visual = trimesh.visual.ColorVisuals(mesh, vertex_colors=colours)
+    mesh.apply_translation(centre)
+    return mesh
+
+
+def _among_things(turn: float) -> tuple[list[np.ndarray], list[np.ndarray]]:
+    """An object without features of its own (a white ball, radius 0.4) among blotchy things
+    standing still round it, seen from two azimuths ``turn`` apart; the masks are the ball's."""
+    things = [_blob((0.65, -0.2, 0.2), 0.2, 0), _blob((-0.6, 0.15, -0.1), 0.2, 1),
+              _blob((0.2, -0.55, 0.5), 0.18, 2), _blob((-0.25, 0.5, -0.5), 0.18, 3)]
+    azimuths = [40.0, 40.0 + turn]
+    images, _ = _photos(trimesh.util.concatenate(things), azimuths, 25.0)
+    _, masks = _photos(trimesh.creation.icosphere(subdivisions=3, radius=0.4), azimuths, 25.0)
+    for image, mask in zip(images, masks, strict=True):
+        image[mask] = 1.0
+    return images, masks
+
+
+@pytest.mark.parametrize("turn", [25.0, -25.0])
+def test_what_stands_round_a_plain_object_gives_the_turn(turn: float) -> None:
+    images, masks = _among_things(turn)
+    (alone,) = match_photos(images, masks, _intrinsics(2), MatchesConfig(context=0.0))
+    assert alone.turn_deg is None
+    (pair,) = match_photos(images, masks, _intrinsics(2), MatchesConfig(context=0.5))
+    assert pair.inliers >= MatchesConfig().min_inliers
+    assert pair.turn_deg is not None and abs(pair.turn_deg - turn) < 5.0
+
+
+def test_the_object_keeps_its_own_features_with_context() -> None:
+    images, masks = _photos(_ball(True), [40.0])
+    alone = detect(images[0], masks[0], 640, 0.0)
+    around = detect(images[0], masks[0], 640, 0.5)
+    # On white round the object nothing more is found, and the object's own are the same.
+    np.testing.assert_allclose(around.points[:len(alone.points)], alone.points)
+    assert around.scale == alone.scale
 
 
 def test_vertical_turn_of_orbiting_cameras_follows_the_azimuth() -> None:
