@@ -95,29 +95,44 @@ class PairMatch:
                 "turn_deg": None if self.turn_deg is None else round(self.turn_deg, 2)}
 
 
-def _sift(gray: np.ndarray, inside: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """SIFT points [N, 2] (pixel centres at integers) and descriptors [N, 128] of one image."""
+def _sift(gray: np.ndarray, inside: np.ndarray,
+          clear_of: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """SIFT points [N, 2] (pixel centres at integers) and descriptors [N, 128] of one image,
+    found where ``inside`` (uint8, 255) is set. ``clear_of`` (uint8, 255 = the object): only
+    features whose patch stays off the object are kept (distance to it at least the
+    keypoint's size), so an outline seen against a plain background, which moves with the
+    view, gives none."""
     share = MAX_FEATURES // (1 + 2 * len(TILTS))
     sift = cv2.SIFT_create(nfeatures=share)  # type: ignore[attr-defined]
     keypoints, descriptors = sift.detectAndCompute(gray, inside)
     if descriptors is None or not keypoints:
         return np.zeros((0, 2)), np.zeros((0, 128), np.float32)
-    return np.array([k.pt for k in keypoints], dtype=np.float64), descriptors
+    points = np.array([k.pt for k in keypoints], dtype=np.float64)
+    if clear_of is not None:
+        distance = cv2.distanceTransform(cv2.bitwise_not(clear_of), cv2.DIST_L2, 3)
+        rows = np.clip(np.round(points[:, 1]).astype(int), 0, gray.shape[0] - 1)
+        cols = np.clip(np.round(points[:, 0]).astype(int), 0, gray.shape[1] - 1)
+        keep = distance[rows, cols] >= np.array([k.size for k in keypoints])
+        points, descriptors = points[keep], descriptors[keep]
+    return points, descriptors
 
 
-def _tilted(gray: np.ndarray, inside: np.ndarray, tilt: float,
-            axis: int) -> tuple[np.ndarray, np.ndarray]:
+def _tilted(gray: np.ndarray, inside: np.ndarray, tilt: float, axis: int,
+            clear_of: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
     """SIFT features of the image shrunk by ``tilt`` along ``axis`` (0: x, 1: y), as an
     oblique view would show it (ASIFT's simulated tilt, anti-aliased first); points in the
-    unshrunk image's pixels."""
+    unshrunk image's pixels. ``clear_of``: as for ``_sift``."""
     sigma = [0.01, 0.01]
     sigma[axis] = 0.8 * math.sqrt(tilt * tilt - 1.0)
     blurred = cv2.GaussianBlur(gray, (0, 0), sigmaX=sigma[0], sigmaY=sigma[1])
     factor = np.ones(2)
     factor[axis] = 1.0 / tilt
     shape = (max(1, round(gray.shape[1] * factor[0])), max(1, round(gray.shape[0] * factor[1])))
+    shrunk = None if clear_of is None else cv2.resize(clear_of, shape,
+                                                      interpolation=cv2.INTER_NEAREST)
     points, descriptors = _sift(cv2.resize(blurred, shape, interpolation=cv2.INTER_LINEAR),
-                                cv2.resize(inside, shape, interpolation=cv2.INTER_NEAREST))
+                                cv2.resize(inside, shape, interpolation=cv2.INTER_NEAREST),
+                                shrunk)
     return (points + 0.5) / factor - 0.5, descriptors
 
 
@@ -180,11 +195,12 @@ def _features_in(image: np.ndarray, mask: np.ndarray, box: tuple[int, int, int, 
     if gray.dtype != np.uint8:
         gray = (np.clip(gray, 0.0, 1.0) * 255.0 + 0.5).astype(np.uint8)
     grow = max(1, round(MASK_DILATION * scale * object_side))
+    clear_of = inside if outside else None
     inside = cv2.dilate(inside, np.ones((2 * grow + 1, 2 * grow + 1), np.uint8))
     if outside:
         inside = cv2.bitwise_not(inside)
-    found = [_sift(gray, inside)] + [_tilted(gray, inside, tilt, axis)
-                                     for tilt in TILTS for axis in (0, 1)]
+    found = [_sift(gray, inside, clear_of)] + [_tilted(gray, inside, tilt, axis, clear_of)
+                                               for tilt in TILTS for axis in (0, 1)]
     points = np.concatenate([p for p, _ in found])
     # Pixel centres: crop pixel c covers photo pixels [c / s, (c + 1) / s).
     points = (points + 0.5) / scale - 0.5 + np.array([x0, y0], dtype=np.float64)
