@@ -44,6 +44,7 @@ TEXTURED = ("CesiumMilkTruck", "Duck", "spot", "fuze", "YcbMustardBottle", "YcbP
             "armchair")
 MIRRORED = ("ycb_mug", "fsu_kerolamp")  # walks the silhouettes alone could come out mirrored
 QUICK = ("CesiumMilkTruck", "fuze", "ycb_mug")
+CONTEXT = 0.5  # ``MatchesConfig.context`` measured against the object alone on the real photos
 PAINTED = ("CesiumMilkTruck", "Duck", "spot", "fuze", "armchair")  # meshes with a texture
 LEVEL_VIEWS = 10
 LEVEL_ELEVATIONS = (15.0, 25.0)
@@ -137,8 +138,8 @@ def espresso_lines(library: Any) -> list[str]:
     assert gt is not None
     variants = (("off", MatchesConfig(enabled=False)),
                 ("on, the object's own points", MatchesConfig(context=0.0)),
-                (f"on, with what stands round it (context {MatchesConfig().context})",
-                 MatchesConfig()))
+                (f"on, with what stands round it (context {CONTEXT})",
+                 MatchesConfig(context=CONTEXT)))
     for protocol, exclude in (("leave-out", excluded("ners_espresso")), ("with look-alike", ())):
         said = []
         for label, matches in variants:
@@ -153,7 +154,8 @@ def espresso_lines(library: Any) -> list[str]:
     usable = MatchesConfig().min_inliers
     lines.append(f"- pairs with {usable} inliers or more: "
                  f"{sum(p.inliers >= usable for p in alone)} on the object's own points")
-    pairs = photo_pairs(images, masks, focals, RetrievalConfig())
+    pairs = photo_pairs(images, masks, focals,
+                        RetrievalConfig(matches=MatchesConfig(context=CONTEXT)))
     lines[-1] += f", {sum(p.inliers >= usable for p in pairs)} with what stands round it."
     lines.append("- pairs (i-j: inliers/mutual matches, median Sampson error px, turn deg): "
                  + ", ".join(f"{p.i}-{p.j}: {p.inliers}/{p.matched}"
