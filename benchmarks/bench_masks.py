@@ -11,9 +11,10 @@
   masks and with the shipped masks, look-alikes left out (a few minutes a job).
 
 Usage: ``python -m benchmarks.bench_masks [--quick] [--library DIR]`` prints the section.
-``python -m benchmarks.bench_masks --training [--sets NAME ...] [--overrides JSON]`` prints only
-the training lines, with configuration values set in both jobs of each set (a lever's effect:
-``'{"masks.doubt_weight": 0, "retrieval.perspective": "near", "seed": 1}'``).
+``python -m benchmarks.bench_masks --training [--sets NAME ...] [--seeds N ...] [--overrides JSON]``
+prints only the training lines (seeds 0, 1, 2 by default, and their mean), with configuration
+values set in both jobs of each set (a lever's effect:
+``'{"masks.doubt_weight": 0, "retrieval.perspective": "near"}'``).
 """
 
 from __future__ import annotations
