@@ -19,10 +19,14 @@ views decide the shape there; by default they count in full, as measured.
 from __future__ import annotations
 
 import logging
-from collections.abc import Sequence
+from collections import deque
+from collections.abc import Callable, Generator, Sequence
+from concurrent.futures import Future, ThreadPoolExecutor
+from contextlib import closing
 from dataclasses import dataclass, field
+from itertools import islice
 from pathlib import Path
-from typing import Any, Literal
+from typing import Any, Literal, TypeVar
 
 import cv2
 import numpy as np
@@ -38,6 +42,8 @@ from cadnerf_core.jobfolder import MaskSource
 from cadnerf_core.progress import Progress
 
 log = logging.getLogger(__name__)
+_S = TypeVar("_S")
+_T = TypeVar("_T")
 
 GRABCUT_SIDE = 320  # border-seeded GrabCut runs on a copy about this many pixels on a side
 WORK_SIDE = 512  # the learned map is refined at about this many pixels on the longer side
@@ -55,6 +61,10 @@ SURE_BACKGROUND, OBJECT, SURE_OBJECT = 0.1, 0.5, 0.9
 ZOOM_MIN_GAIN = 0.8
 MIN_AGREEMENT = 0.75  # IoU with the network's own mask below which GrabCut's cut is dropped
 DOUBT_SIDE = 1024  # the doubt map is kept at about this many pixels on the longer side
+# Photos masked at once, each pass of the network on its share of the cores: the single-threaded
+# parts of one photo (decoding its crop, GrabCut, the masks' clean-up) overlap the network's
+# pass on the other, where one photo at a time would leave a core idle meanwhile.
+PHOTOS_AT_ONCE = 2
 MASK_HINT = "upload a mask for this photo (white = object, black = background)"
 
 MaskMethod = Literal["auto", "learned", "grabcut"]
@@ -312,6 +322,44 @@ def resolve_method(method: MaskMethod, model_path: Path | None) -> Literal["lear
     return method
 
 
+def _one_mask(photo: Photo, chosen: Literal["learned", "grabcut"], session: Any
+              ) -> tuple[np.ndarray, np.ndarray, np.ndarray | None, MaskSource]:
+    """One photo's mask, what the method kept, its doubt map and its source: the photo's own
+    mask (checked) where it has one, else a found one (``found_mask``)."""
+    if photo.mask is not None:
+        if photo.mask_source in (None, "uploaded"):
+            check_uploaded(photo.mask, photo.name)
+        else:
+            check_cover(photo.mask, photo.name, automatic=False)
+        return photo.mask, photo.mask, None, photo.mask_source or "uploaded"
+    mask, raw, doubt = found_mask(photo, chosen, session)
+    log.debug("%s: background removed (%s), %.1f%% kept", photo.name, chosen, 100 * mask.mean())
+    return mask, raw, doubt, chosen
+
+
+def in_order(work: Callable[[_S], _T], items: Sequence[_S], workers: int
+             ) -> Generator[_T, None, None]:
+    """``work`` on each item (a photo), yielded in the items' order, with up to ``workers``
+    in hand at once. An item's error is raised when its turn comes, so the first bad photo in
+    the given order is the one named; when the caller stops early (a cancelled job), the
+    items not started are dropped and those running are waited for."""
+    if workers <= 1:
+        yield from map(work, items)
+        return
+    pool = ThreadPoolExecutor(workers, thread_name_prefix="masks")
+    waiting = iter(items)
+    running: deque[Future[_T]] = deque(pool.submit(work, p) for p in islice(waiting, workers))
+    try:
+        while running:
+            done = running.popleft().result()
+            running.extend(pool.submit(work, item) for item in islice(waiting, 1))  # the next
+            yield done
+    finally:
+        for future in running:
+            future.cancel()
+        pool.shutdown(wait=True)
+
+
 def photo_masks(photos: Sequence[Photo], method: MaskMethod = "auto",
                 model_path: Path | None = None,
                 progress: Progress | None = None) -> list[MaskResult]:
@@ -332,31 +380,22 @@ def photo_masks(photos: Sequence[Photo], method: MaskMethod = "auto",
     """
     chosen = resolve_method(method, model_path)
     needs_model = chosen == "learned" and any(p.mask is None for p in photos)
-    session = saliency.load_model(model_path) if needs_model else None
+    workers = min(PHOTOS_AT_ONCE, len(photos))
+    session = saliency.load_model(model_path, saliency.pass_threads(workers)) \
+        if needs_model else None
     masks: list[np.ndarray] = []
     kept: list[np.ndarray] = []
     doubts: list[np.ndarray | None] = []
     sources: list[MaskSource] = []
-    for i, photo in enumerate(photos):
-        if photo.mask is not None:
-            if photo.mask_source in (None, "uploaded"):
-                check_uploaded(photo.mask, photo.name)
-            else:
-                check_cover(photo.mask, photo.name, automatic=False)
-            masks.append(photo.mask)
-            kept.append(photo.mask)
-            doubts.append(None)
-            sources.append(photo.mask_source or "uploaded")
-        else:
-            mask, raw, doubt = found_mask(photo, chosen, session)
+    with closing(in_order(lambda photo: _one_mask(photo, chosen, session), photos,
+                           workers)) as found:
+        for i, (mask, raw, doubt, source) in enumerate(found):
             masks.append(mask)
             kept.append(raw)
             doubts.append(doubt)
-            sources.append(chosen)
-            log.debug("%s: background removed (%s), %.1f%% kept", photo.name, chosen,
-                      100 * mask.mean())
-        if progress is not None:
-            progress.step("masks", i + 1, len(photos))
+            sources.append(source)
+            if progress is not None:
+                progress.step("masks", i + 1, len(photos))
     median = median_cover(masks)
     return [MaskResult(mask, source, mask_warnings(photo.name, mask, raw, median), doubt)
             for photo, mask, raw, source, doubt in zip(photos, masks, kept, sources, doubts,

@@ -45,8 +45,9 @@ def learned_available() -> bool:
     return bundled_model() is not None
 
 
-def _session(path: str) -> Any:
-    """An onnxruntime session for the model file (loading takes about 0.1 s).
+def _session(path: str, threads: int) -> Any:
+    """An onnxruntime session for the model file (loading takes about 0.1 s), running each
+    pass on ``threads`` threads.
 
     A caller makes one for a job's photos and drops it with them: the memory arena that makes a
     pass about a quarter faster holds some 450 MB while the session lives, and a session kept
@@ -55,15 +56,21 @@ def _session(path: str) -> Any:
     import onnxruntime as ort
 
     options = ort.SessionOptions()
-    # One process, all its cores on one photo; a second pool would only oversubscribe them.
-    options.intra_op_num_threads = max(1, min(4, len(os.sched_getaffinity(0))))
+    options.intra_op_num_threads = threads
     options.inter_op_num_threads = 1
     return ort.InferenceSession(path, options, providers=["CPUExecutionProvider"])
 
 
-def load_model(model_path: Path | None) -> Any:
+def pass_threads(concurrent: int) -> int:
+    """Threads for each pass when ``concurrent`` passes run at once: the process's cores (at
+    most four) shared between them."""
+    return max(1, min(4, len(os.sched_getaffinity(0))) // max(1, concurrent))
+
+
+def load_model(model_path: Path | None, threads: int | None = None) -> Any:
     """A new onnxruntime session for ``model_path`` (None: the bundled model), to use for one
-    job's photos and then drop.
+    job's photos and then drop; each pass on ``threads`` threads (None: ``pass_threads(1)``,
+    all the cores for one pass at a time). ``session.run`` may be called from several threads.
 
     Raises:
         InputError: the model file is missing or cannot be read, or onnxruntime is absent.
@@ -82,7 +89,7 @@ def load_model(model_path: Path | None) -> Any:
     if not Path(path).is_file():
         raise InputError(f"no mask model file at {path}", item="masks", hint=MODEL_HINT)
     try:
-        return _session(str(Path(path).resolve()))
+        return _session(str(Path(path).resolve()), threads or pass_threads(1))
     except Exception as exc:  # onnxruntime raises its own exception types for bad files
         raise InputError(f"the mask model {Path(path).name} cannot be read: "
                          f"{str(exc).splitlines()[0][:200]}", item="masks",

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import time
+from contextlib import closing
 from pathlib import Path
 from typing import Any
 
@@ -10,9 +12,11 @@ import numpy as np
 import pytest
 
 from cadnerf_core.errors import InputError
+from cadnerf_core.intake import masks as masks_module
 from cadnerf_core.intake.mask_checks import mask_warnings
 from cadnerf_core.intake.masks import (
     found_mask,
+    in_order,
     largest_component,
     mask_overlay,
     photo_masks,
@@ -265,3 +269,44 @@ def test_working_copies_share_one_size_rule_and_are_never_enlarged() -> None:
     copy = downscaled(rgb, 100)
     assert copy.shape == (75, 100, 3) and copy.dtype == np.uint8 and int(copy[0, 0, 0]) == 128
     assert downscaled(rgb, 1000).shape == (300, 400, 3)
+
+
+def test_photos_masked_at_once_get_the_masks_one_at_a_time_gives(
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    scenes = [_synthetic_photo(96, 128), _synthetic_photo(80, 120), _synthetic_photo(100, 90)]
+    photos = [Photo(f"p{i}.png", photo.rgb) for i, (photo, _) in enumerate(scenes)]
+    monkeypatch.setattr(masks_module, "PHOTOS_AT_ONCE", 1)
+    alone = photo_masks(photos, "grabcut")
+    monkeypatch.setattr(masks_module, "PHOTOS_AT_ONCE", 2)
+    together = photo_masks(photos, "grabcut")
+    for one, two, (_, truth) in zip(alone, together, scenes, strict=True):
+        assert one.mask.shape == truth.shape and np.array_equal(one.mask, two.mask)
+        assert _iou(two.mask, truth) > 0.9 and one.warnings == two.warnings
+
+
+def test_in_order_keeps_the_order_and_raises_the_first_bad_item_in_it() -> None:
+    def work(item: tuple[float, str]) -> str:
+        time.sleep(item[0])
+        if item[1].startswith("bad"):
+            raise InputError("unusable", item=item[1])
+        return item[1]
+
+    assert list(in_order(work, [(0.05, "a"), (0.0, "b"), (0.02, "c")], 2)) == ["a", "b", "c"]
+    # The second bad item fails first; the first one in the given order is the one named.
+    with pytest.raises(InputError) as info:
+        list(in_order(work, [(0.0, "a"), (0.1, "bad 1"), (0.0, "bad 2")], 2))
+    assert info.value.item == "bad 1"
+
+
+def test_in_order_stopped_early_starts_no_more_items() -> None:
+    started: list[int] = []
+
+    def work(item: int) -> int:
+        started.append(item)
+        time.sleep(0.01)
+        return item
+
+    with closing(in_order(work, list(range(10)), 2)) as found:
+        assert next(found) == 0
+    # Two in hand, and the next one queued as 0 came back (it may have started); no others.
+    assert sorted(started) in ([0, 1], [0, 1, 2])
