@@ -120,8 +120,6 @@ def training_data(intake: Intake, config: PipelineConfig, margin: float,
     terms = match_terms(intake.retrieval.pairs, [m.index for m in kept], boxes,
                         config.retrieval.matches.min_inliers, device,
                         np.stack([m.c2w for m in kept]))
-    if terms is not None:
-        log.info("epipolar loss: %d matches between the training photos", terms.n_matches)
     return TrainData.from_numpy(rgb, crops, K, device, scene, weights, terms)
 
 

@@ -18,6 +18,7 @@ pulls no harder than a small residual.
 
 from __future__ import annotations
 
+import logging
 from collections.abc import Sequence
 from dataclasses import dataclass
 
@@ -27,6 +28,8 @@ import torch
 from cadnerf_core.cameras import rotation_angle_deg, skew
 from cadnerf_core.intake.crop import CropBox
 from cadnerf_core.retrieval.matches import PairMatch
+
+log = logging.getLogger(__name__)
 
 HUBER_PX = 1.0
 """Scale of the pseudo-Huber penalty in training-crop pixels: quadratic below, linear above."""
@@ -73,12 +76,17 @@ def match_terms(pairs: Sequence[PairMatch], photo_index: Sequence[int],
     """
     camera = {photo: k for k, photo in enumerate(photo_index)}
     a, b, x_a, x_b, weight = [], [], [], [], []
+    enough, disagree = 0, []
     for pair in pairs:
         if pair.i not in camera or pair.j not in camera or pair.inliers < min_inliers:
             continue
+        enough += 1
         i, j = camera[pair.i], camera[pair.j]
-        if c2w is not None and disagreement_deg(pair, c2w[i], c2w[j]) > PRIOR_DEG:
-            continue
+        if c2w is not None:
+            off = disagreement_deg(pair, c2w[i], c2w[j])
+            if off > PRIOR_DEG:
+                disagree.append(f"{pair.i}-{pair.j} {off:.0f} deg")
+                continue
         points = np.asarray(pair.points, dtype=np.float64)
         count = len(points)
         a.append(np.full(count, i))
@@ -86,6 +94,11 @@ def match_terms(pairs: Sequence[PairMatch], photo_index: Sequence[int],
         x_a.append(_to_crop(points[:, 0], boxes[i]))
         x_b.append(_to_crop(points[:, 1], boxes[j]))
         weight.append(np.full(count, min(1.0, pair.inliers / (2.0 * min_inliers)) / count))
+    if enough:
+        log.info("epipolar loss: %d matches, from %d of %d matched pairs%s",
+                 sum(len(part) for part in a), len(a), enough,
+                 f"; left out, turn unlike the starting cameras': {', '.join(disagree)}"
+                 if disagree else "")
     if not a:
         return None
 

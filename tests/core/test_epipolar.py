@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import dataclasses
+import logging
 
 import numpy as np
 import pytest
@@ -109,9 +110,11 @@ def test_the_loss_turns_a_wrong_camera_back() -> None:
 
 
 
-def test_a_pair_turning_against_the_starting_cameras_is_left_out() -> None:
+def test_a_pair_turning_against_the_starting_cameras_is_left_out(
+        caplog: pytest.LogCaptureFixture) -> None:
     """A pair whose matches agree with each other but not with the cameras (the mirrored side
-    of a symmetric object) is dropped; one that agrees within ``PRIOR_DEG`` is kept."""
+    of a symmetric object) is dropped, and the job's log names it; one that agrees within
+    ``PRIOR_DEG`` is kept."""
     X = _points(40)
     photos = [project(X, K, c2w) - 0.5 for c2w in POSES]
     box = CropBox(0.0, 0.0, float(SIZE), SIZE)
@@ -125,9 +128,13 @@ def test_a_pair_turning_against_the_starting_cameras_is_left_out() -> None:
     flipped = with_rotation(_pair(1, 2, photos[1], photos[2], 40), mirrored)
     assert disagreement_deg(kept, POSES[0], POSES[1]) < 1e-6
     assert disagreement_deg(flipped, POSES[1], POSES[2]) > PRIOR_DEG
-    terms = match_terms([kept, flipped], [0, 1, 2], [box] * 3, 20, torch.device("cpu"),
-                        np.stack(POSES))
+    with caplog.at_level(logging.INFO, logger="cadnerf_core.nerf.epipolar"):
+        terms = match_terms([kept, flipped], [0, 1, 2], [box] * 3, 20, torch.device("cpu"),
+                            np.stack(POSES))
     assert terms is not None and terms.n_matches == 40
+    said = caplog.text
+    assert "epipolar loss: 40 matches, from 1 of 2 matched pairs" in said
+    assert "left out" in said and "1-2 " in said and "0-1 " not in said
     assert set(zip(terms.a.tolist(), terms.b.tolist(), strict=True)) == {(0, 1)}
     unposed = match_terms([kept, flipped], [0, 1, 2], [box] * 3, 20, torch.device("cpu"))
     assert unposed is not None and unposed.n_matches == 80
