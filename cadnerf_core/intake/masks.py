@@ -62,7 +62,7 @@ ZOOM_MIN_GAIN = 0.8
 MIN_AGREEMENT = 0.75  # IoU with the network's own mask below which GrabCut's cut is dropped
 DOUBT_SIDE = 1024  # the doubt map is kept at about this many pixels on the longer side
 # Photos masked at once, each pass of the network on its share of the cores: the single-threaded
-# parts of one photo (decoding its crop, GrabCut, the masks' clean-up) overlap the network's
+# parts of one photo (resizing its crop, GrabCut, the masks' clean-up) overlap the network's
 # pass on the other, where one photo at a time would leave a core idle meanwhile.
 PHOTOS_AT_ONCE = 2
 MASK_HINT = "upload a mask for this photo (white = object, black = background)"
