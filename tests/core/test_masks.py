@@ -24,7 +24,7 @@ from cadnerf_core.intake.masks import (
     resolve_method,
 )
 from cadnerf_core.intake.photos import Photo
-from cadnerf_core.intake.saliency import learned_available
+from cadnerf_core.intake.saliency import ZOOM_MARGINS, closer_look, learned_available
 
 
 def _synthetic_photo(height: int = 96, width: int = 128) -> tuple[Photo, np.ndarray]:
@@ -135,14 +135,31 @@ class _CountingNet:
         return [feed["x"].mean(axis=1, keepdims=True)]
 
 
-@pytest.mark.parametrize(("side", "passes"), [(80, 2), (280, 1)])
-def test_the_closer_pass_runs_only_when_the_object_leaves_room(side: int, passes: int) -> None:
+def test_the_object_is_seen_closer_in_each_framing() -> None:
     rgb = np.zeros((300, 300, 3), np.float32)
-    start = (300 - side) // 2
-    rgb[start:start + side, start:start + side] = 1.0
+    rgb[110:190, 110:190] = 1.0
     net = _CountingNet()
     found_mask(Photo("square.png", rgb), "learned", net)
-    assert net.runs == passes
+    assert net.runs == 1 + len(ZOOM_MARGINS)
+
+
+def test_closer_looks_line_up_in_the_frame_of_the_middle_one() -> None:
+    # An off-centre object in a landscape photo: each framing's map, put back in the frame,
+    # must show it where the frame's own cut has it (x and y, offsets and scales).
+    rgb = np.zeros((300, 480, 3), np.float32)
+    rgb[60:150, 300:360] = 1.0
+    found = np.zeros((150, 240), bool)
+    found[30:75, 150:180] = True  # the first pass's object, at half the photo's size
+    crop, frame, single = closer_look(_CountingNet(), rgb, found, 256, (ZOOM_MARGINS[1],))
+    net = _CountingNet()
+    crop_all, frame_all, mean = closer_look(net, rgb, found, 256)
+    assert net.runs == len(ZOOM_MARGINS) and frame_all == frame
+    assert np.array_equal(crop_all, crop)
+    truth = crop.mean(axis=2) > 127
+    edge = cv2.dilate(truth.astype(np.uint8), np.ones((5, 5))) != cv2.erode(
+        truth.astype(np.uint8), np.ones((5, 5)))
+    assert ((mean > 0.5) == truth)[~edge].all() and ((single > 0.5) == truth)[~edge].all()
+    assert np.abs(mean - single)[~edge].max() < 0.05
 
 
 needs_learned = pytest.mark.skipif(not learned_available(),
