@@ -225,9 +225,8 @@ class MasksConfig(_Frozen):
     doubt_weight: float = Field(default=1.0, ge=0.0, le=1.0)
     """Weight in the silhouette losses of the pixels where a learned mask is in doubt (its
     refined cut and the network's first look disagree): 0 leaves them to the other views, 1
-    counts them as any pixel. 1: on the real photo sets most doubtful pixels are right (66 %
-    on the robot, 93 % on the espresso machine against the shipped masks), and leaving them
-    out lowered the robot's `preview` training PSNR in each of three runs (by 0.05-0.43 dB)."""
+    counts them as any pixel. 1: on the real photo sets most doubtful pixels are right (77 %
+    on the robot, 82 % on the espresso machine against the shipped masks)."""
 
 
 class PipelineConfig(_Frozen):
