@@ -20,9 +20,11 @@ views decide the shape there; by default they count in full, as measured.
 from __future__ import annotations
 
 import logging
+import threading
 from collections import deque
 from collections.abc import Callable, Generator, Sequence
 from concurrent.futures import Future, ThreadPoolExecutor
+from concurrent.futures import wait as futures_wait
 from contextlib import closing
 from dataclasses import dataclass, field
 from itertools import islice
@@ -63,6 +65,7 @@ DOUBT_SIDE = 1024  # the doubt map is kept at about this many pixels on the long
 # parts of one photo (resizing its crop, GrabCut, the masks' clean-up) overlap the network's
 # pass on the other, where one photo at a time would leave a core idle meanwhile.
 PHOTOS_AT_ONCE = 2
+CHECK_EVERY_S = 0.25  # how often a cancelled job is looked for while photos are masked
 MASK_HINT = "upload a mask for this photo (white = object, black = background)"
 
 MaskMethod = Literal["auto", "learned", "grabcut"]
@@ -180,7 +183,8 @@ def refine_saliency(image: np.ndarray, sal: np.ndarray) -> tuple[np.ndarray, np.
     return largest_component(own, weight, sal), own
 
 
-def _learned(rgb: np.ndarray, session: Any) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def _learned(rgb: np.ndarray, session: Any, stop: threading.Event | None = None
+             ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The network's object: a first pass on the whole photo finds it; passes on its box
     (cut from the full photo, about ``WORK_SIDE`` pixels, ``saliency.closer_look``) see it
     closer, and GrabCut refines their map. The working resolution is spent on the object,
@@ -198,7 +202,8 @@ def _learned(rgb: np.ndarray, session: Any) -> tuple[np.ndarray, np.ndarray, np.
     doubt_size = fitted_size(rgb.shape, DOUBT_SIDE) or (width, height)
     if not coarse.any():
         return np.zeros((height, width), bool), salient, np.zeros(doubt_size[::-1], bool)
-    crop, (top, bottom, left, right), sal = saliency.closer_look(session, rgb, coarse, WORK_SIDE)
+    crop, (top, bottom, left, right), sal = saliency.closer_look(session, rgb, coarse, WORK_SIDE,
+                                                                  stop=stop)
     cut = refine_saliency(crop, sal)[0]
     mask = np.zeros((height, width), bool)
     mask[top:bottom, left:right] = resized_mask(cut, right - left, bottom - top)
@@ -265,8 +270,9 @@ def check_uploaded(mask: np.ndarray, name: str) -> None:
         raise InputError(problem[0], item=name, hint=problem[1])
 
 
-def found_mask(photo: Photo, method: Literal["grabcut", "learned"],
-               session: Any = None) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
+def found_mask(photo: Photo, method: Literal["grabcut", "learned"], session: Any = None,
+               stop: threading.Event | None = None
+               ) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
     """Find the object in a photo (its own mask, if any, is ignored here).
 
     Args:
@@ -283,7 +289,7 @@ def found_mask(photo: Photo, method: Literal["grabcut", "learned"],
     height, width = photo.rgb.shape[:2]
     doubt = None
     if method == "learned":
-        mask, kept, doubt = _learned(photo.rgb, session)
+        mask, kept, doubt = _learned(photo.rgb, session, stop)
     else:
         small, kept = _grabcut(downscaled(photo.rgb, GRABCUT_SIDE))
         mask = resized_mask(small, width, height)
@@ -309,7 +315,8 @@ def resolve_method(method: MaskMethod, model_path: Path | None) -> Literal["lear
     return method
 
 
-def _one_mask(photo: Photo, chosen: Literal["learned", "grabcut"], session: Any
+def _one_mask(photo: Photo, chosen: Literal["learned", "grabcut"], session: Any,
+              stop: threading.Event | None = None
               ) -> tuple[np.ndarray, np.ndarray, np.ndarray | None, MaskSource]:
     """One photo's mask, what the method kept, its doubt map and its source: the photo's own
     mask (checked) where it has one, else a found one (``found_mask``)."""
@@ -319,29 +326,37 @@ def _one_mask(photo: Photo, chosen: Literal["learned", "grabcut"], session: Any
         else:
             check_cover(photo.mask, photo.name, automatic=False)
         return photo.mask, photo.mask, None, photo.mask_source or "uploaded"
-    mask, raw, doubt = found_mask(photo, chosen, session)
+    mask, raw, doubt = found_mask(photo, chosen, session, stop)
     log.debug("%s: background removed (%s), %.1f%% kept", photo.name, chosen, 100 * mask.mean())
     return mask, raw, doubt, chosen
 
 
-def in_order(work: Callable[[_S], _T], items: Sequence[_S], workers: int
+def in_order(work: Callable[[_S], _T], items: Sequence[_S], workers: int,
+             check: Callable[[], None] | None = None, stop: threading.Event | None = None
              ) -> Generator[_T, None, None]:
     """``work`` on each item (a photo), yielded in the items' order, with up to ``workers``
     in hand at once. An item's error is raised when its turn comes, so the first bad photo in
     the given order is the one named; when the caller stops early (a cancelled job), the
-    items not started are dropped and those running are waited for."""
+    items not started are dropped and those running are waited for. ``check`` (raising to
+    cancel) is called every ``CHECK_EVERY_S`` while an item runs; ``stop`` is set on the way
+    out, for the running items to end early (``saliency.closer_look`` looks at it)."""
     if workers <= 1:
         yield from map(work, items)
         return
     pool = ThreadPoolExecutor(workers, thread_name_prefix="masks")
+    stop = stop or threading.Event()
     waiting = iter(items)
     running: deque[Future[_T]] = deque(pool.submit(work, p) for p in islice(waiting, workers))
     try:
         while running:
+            while check is not None and not running[0].done():
+                check()
+                futures_wait([running[0]], timeout=CHECK_EVERY_S)
             done = running.popleft().result()
             running.extend(pool.submit(work, item) for item in islice(waiting, 1))  # the next
             yield done
     finally:
+        stop.set()
         for future in running:
             future.cancel()
         pool.shutdown(wait=True)
@@ -374,8 +389,10 @@ def photo_masks(photos: Sequence[Photo], method: MaskMethod = "auto",
     kept: list[np.ndarray] = []
     doubts: list[np.ndarray | None] = []
     sources: list[MaskSource] = []
-    with closing(in_order(lambda photo: _one_mask(photo, chosen, session), photos,
-                           workers)) as found:
+    stop = threading.Event()
+    with closing(in_order(lambda photo: _one_mask(photo, chosen, session, stop), photos,
+                          workers, None if progress is None else progress.check,
+                          stop)) as found:
         for i, (mask, raw, doubt, source) in enumerate(found):
             masks.append(mask)
             kept.append(raw)

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import importlib.metadata
 import os
+import threading
 from pathlib import Path
 from typing import Any
 
@@ -153,7 +154,7 @@ def photo_box(found: np.ndarray, shape: tuple[int, ...],
 
 
 def closer_look(session: Any, rgb: np.ndarray, found: np.ndarray, side: int,
-                margins: tuple[float, ...] = ZOOM_MARGINS
+                margins: tuple[float, ...] = ZOOM_MARGINS, stop: threading.Event | None = None
                 ) -> tuple[np.ndarray, tuple[int, int, int, int], np.ndarray]:
     """The object seen closer: a pass on its box cut from the full photo for each of
     ``margins`` (``ZOOM_MARGINS``), each cut about ``side`` pixels on its longer side, the maps
@@ -162,6 +163,8 @@ def closer_look(session: Any, rgb: np.ndarray, found: np.ndarray, side: int,
     Args:
         rgb: [H, W, 3] the photo, float in [0, 1].
         found: [h, w] bool, the object as the first pass over the whole photo found it.
+        stop: once set, no further look starts (the map is then of the looks taken, at least
+            one; a cancelled job drops it).
     Returns:
         The frame's cut [h', w', 3] uint8, its box (top, bottom, left, right) in photo pixels,
         and the mean map [h', w'] float32 in [0, 1].
@@ -171,7 +174,11 @@ def closer_look(session: Any, rgb: np.ndarray, found: np.ndarray, side: int,
     height, width = crop.shape[:2]
     fy, fx = height / (frame[1] - frame[0]), width / (frame[3] - frame[2])
     total = np.zeros((height, width), np.float32)
+    looks = 0
     for margin in margins:
+        if looks and stop is not None and stop.is_set():
+            break
+        looks += 1
         top, bottom, left, right = box = photo_box(found, rgb.shape, margin)
         look = crop if box == frame else downscaled(rgb[top:bottom, left:right], side)
         seen = predict(session, look)
@@ -181,4 +188,4 @@ def closer_look(session: Any, rgb: np.ndarray, found: np.ndarray, side: int,
                              [0, sy, (top - frame[0]) * fy + 0.5 * sy - 0.5]], np.float32)
         total += cv2.warpAffine(seen, to_frame, (width, height), flags=cv2.INTER_LINEAR,
                                 borderMode=cv2.BORDER_CONSTANT, borderValue=0.0)
-    return crop, frame, total / len(margins)
+    return crop, frame, total / looks

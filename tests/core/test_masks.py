@@ -327,3 +327,48 @@ def test_in_order_stopped_early_starts_no_more_items() -> None:
         assert next(found) == 0
     # Two in hand, and the next one queued as 0 came back (it may have started); no others.
     assert sorted(started) in ([0, 1], [0, 1, 2])
+
+
+def test_a_cancel_while_photos_are_masked_stops_the_running_ones_early() -> None:
+    import threading
+
+    from cadnerf_core.errors import JobCancelled
+
+    stop = threading.Event()
+    ended: list[str] = []
+
+    def work(item: int) -> int:
+        for _ in range(200):  # a long photo, in steps, as the closer looks are
+            if stop.is_set():
+                ended.append("early")
+                return item
+            time.sleep(0.01)
+        ended.append("whole")
+        return item
+
+    calls = []
+
+    def check() -> None:
+        calls.append(1)
+        if len(calls) > 1:
+            raise JobCancelled("cancelled")
+
+    asked = time.monotonic()
+    with pytest.raises(JobCancelled), closing(in_order(work, [0, 1, 2], 2, check, stop)) as f:
+        next(f)
+    assert time.monotonic() - asked < 1.5 and stop.is_set()
+    assert ended == ["early", "early"]
+
+
+def test_closer_look_takes_no_further_look_once_stopped() -> None:
+    import threading
+
+    stop = threading.Event()
+    stop.set()
+    rgb = np.zeros((300, 300, 3), np.float32)
+    rgb[110:190, 110:190] = 1.0
+    found = np.zeros((150, 150), bool)
+    found[55:95, 55:95] = True
+    net = _CountingNet()
+    crop, _, seen = closer_look(net, rgb, found, 256, stop=stop)
+    assert net.runs == 1 and seen.shape == crop.shape[:2] and seen.max() > 0.9
