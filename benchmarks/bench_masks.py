@@ -110,7 +110,7 @@ def retrieval(name: str, shipped: list[Any], learned: list[np.ndarray], library:
     focals = [p.focal_pixels for p in shipped]
     parts = []
     for protocol in PROTOCOLS:
-        config = RetrievalConfig(exclude_models=list(excluded(name, protocol)))
+        config = RetrievalConfig(exclude_models=excluded(name, protocol))
         picked = [retrieve(masks, names, library, config=config, images=images,
                            focals=focals).model_id
                   for masks in ([p.mask for p in shipped], learned)]
