@@ -67,6 +67,8 @@ LEVERS: dict[str, tuple[str, dict[str, Any], dict[str, Any]]] = {
                    {"retrieval.hypotheses": 1}, {"retrieval.hypotheses": 3}),
     "seeds": ("each hypothesis fitted from three seeds, the scores averaged",
               {"retrieval.hypothesis_seeds": 1}, {"retrieval.hypothesis_seeds": 3}),
+    "mirror": ("the retrieved model's mirrored walk chosen only when it fits 0.01 IoU better",
+               {"retrieval.mirror_margin": 0.0}, {"retrieval.mirror_margin": 0.01}),
 }
 
 
@@ -276,7 +278,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--meshes", nargs="*", default=None, help="mesh folder names")
     parser.add_argument("--variants", nargs="*", default=None,
                         help='only these rows: "leave-out", "with look-alike", '
-                             'focal_on/focal_off, hypotheses_on/hypotheses_off')
+                             'focal_on/focal_off, hypotheses_on/hypotheses_off, mirror_off')
     args = parser.parse_args(argv)
     logging.basicConfig(level=logging.INFO,
                         format="%(asctime)s %(levelname)s %(name)s: %(message)s")

@@ -103,6 +103,13 @@ class RetrievalConfig(_Frozen):
     """Coarse fits of each hypothesis, each from its own seed, their scores averaged: one fit's
     score scatters by 0.01-0.02 IoU between seeds, as much as hypotheses often differ. Each
     extra seed costs as much as the fits themselves."""
+    mirror_margin: float = Field(default=0.01, ge=0.0, le=1.0)
+    """Mean silhouette IoU by which the retrieved model walked the other way round must out-fit
+    the retrieved walk for the job to start from it (0: any lead). Silhouettes cannot tell a
+    walk from its mirror image on an object that is nearly symmetric: a 6-photo walk round
+    fuze fitted its mirror 0.003 better and ended 128 degrees off, 12.5 dB. The margin is
+    kept to the mirror: another model's walk switches on any lead, as the mug's walks need
+    (``docs/presets.md``)."""
     order: Literal["walk", "any", "auto"] = "auto"
     """The photos' order: "walk" (they were taken walking round the object, in this order: the
     paper's assumption), "any" (no order: the walk is found from the silhouettes and the

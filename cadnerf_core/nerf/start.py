@@ -159,7 +159,11 @@ def choose_start(retrieval: RetrievalResult, photos: Sequence[Any], masks: Seque
         log.info("start hypothesis %d: %s, direction %+d, retrieval score %.3f, fit %.3f", i,
                  hypothesis.model_id, hypothesis.direction, hypothesis.score, scores[-1])
         progress.step("retrieval", i + 1, len(candidates))
-    best = int(np.argmax(scores))
+    # The fits are blind to a mirrored walk: its slight lead says nothing.
+    eligible = [i for i, h in enumerate(candidates)
+                if not (_mirrors(h, retrieval)
+                        and scores[i] - scores[0] < config.retrieval.mirror_margin)]
+    best = max(eligible, key=lambda i: scores[i])
     record = [{"model_id": h.model_id, "direction": h.direction,
                "perspective": h.perspective, "score": h.score,
                "fit": s, "seconds": t, "chosen": i == best}
@@ -170,3 +174,9 @@ def choose_start(retrieval: RetrievalResult, photos: Sequence[Any], masks: Seque
                  chosen.model_id)
     return dataclasses.replace(chosen, alternatives=[], hypotheses=record,
                                direction_ambiguous=retrieval.direction_ambiguous and not best)
+
+
+def _mirrors(hypothesis: RetrievalResult, retrieved: RetrievalResult) -> bool:
+    """Whether ``hypothesis`` is the retrieved model walked the other way round."""
+    return (hypothesis.model_id == retrieved.model_id
+            and hypothesis.direction == -retrieved.direction)

@@ -38,7 +38,8 @@ def test_a_walk_against_strong_texture_evidence_is_not_fitted(
         return fits[(hypothesis.model_id, hypothesis.direction)]
 
     monkeypatch.setattr(start, "fit_hypothesis", fit)
-    chosen = start.choose_start(retrieval, [], [], None, PipelineConfig(),  # type: ignore[arg-type]
+    config = PipelineConfig.model_validate({"retrieval": {"mirror_margin": 0.0}})
+    chosen = start.choose_start(retrieval, [], [], None, config,  # type: ignore[arg-type]
                                 torch.device("cpu"), False, Progress())
     assert len(chosen.hypotheses) == fitted
     expected = mirrored.direction if fitted == 3 else retrieved.direction
@@ -65,3 +66,31 @@ def test_a_hypothesis_is_scored_by_the_mean_of_its_seeds_fits(
     assert seeds == [7, 7 + start.SEED_STEP, 7 + 2 * start.SEED_STEP]
     penalty = config.retrieval.discard_penalty / 3
     assert score == pytest.approx(0.65 - penalty)
+
+
+
+@pytest.mark.parametrize(("fits", "margin", "chosen"), [
+    ((0.822, 0.825, 0.70), 0.01, 0),  # the mirror leads within the margin: kept as retrieved
+    ((0.822, 0.825, 0.70), 0.0, 1),  # no margin: any lead switches
+    ((0.80, 0.85, 0.70), 0.01, 1),  # a clear lead switches to the mirror
+    ((0.822, 0.823, 0.825), 0.01, 2),  # another model needs no margin
+    ((0.822, 0.830, 0.824), 0.01, 2),  # the mirror left out, the next best fit wins
+])
+def test_the_mirrored_walk_needs_a_lead_beyond_the_margin(
+        fits: tuple[float, float, float], margin: float, chosen: int,
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    """Hypotheses: the retrieved walk, its mirror image (same model, other way round) and
+    another model's walk; the record marks the one the job starts from."""
+    retrieved = _walk(1, 0.0)
+    candidates = [retrieved, _walk(-1, 0.0), _walk(1, 0.0, "vase")]
+    retrieval = dataclasses.replace(retrieved, alternatives=candidates[1:])
+    score = {(h.model_id, h.direction): f for h, f in zip(candidates, fits, strict=True)}
+    monkeypatch.setattr(start, "fit_hypothesis",
+                        lambda hypothesis, *args: score[(hypothesis.model_id,
+                                                         hypothesis.direction)])
+    config = PipelineConfig.model_validate({"retrieval": {"mirror_margin": margin}})
+    result = start.choose_start(retrieval, [], [], None, config,  # type: ignore[arg-type]
+                                torch.device("cpu"), False, Progress())
+    assert [h["chosen"] for h in result.hypotheses] == [i == chosen for i in range(3)]
+    assert (result.model_id, result.direction) == (candidates[chosen].model_id,
+                                                   candidates[chosen].direction)
