@@ -266,18 +266,21 @@ def main(argv: list[str] | None = None) -> int:
     command = shlex.join([os.path.relpath(sys.executable), "-m", "benchmarks.run",
                           *(argv if argv is not None else sys.argv[1:])])
     areas = args.only or all_areas()
-    kept = read_sections(args.out.read_text()) if args.only and args.out.is_file() else {}
     args.out.parent.mkdir(parents=True, exist_ok=True)
     commit = git_commit()
+    measured: dict[str, Section] = {}
     for area in areas:
         log.info("benchmark %s (%s)", area, "quick" if args.quick else "full")
         text, secs = run_area(area, args.quick)
         date = dt.datetime.now(dt.UTC).strftime("%Y-%m-%d %H:%M UTC")
-        kept[area] = Section(area, text, secs, "QUICK" if args.quick else "full", commit, date,
-                             command, cpu_summary())
+        measured[area] = Section(area, text, secs, "QUICK" if args.quick else "full", commit,
+                                 date, command, cpu_summary())
         log.info("benchmark %s done in %.1f s", area, secs)
-        # Written after every area, so an interrupted run still leaves what it measured.
-        args.out.write_text(build_document(_ordered(kept)))
+        # Written after every area, so an interrupted run still leaves what it measured. With
+        # --only the others' sections are read from the file as it is now, so that what a
+        # run beside this one wrote meanwhile is kept.
+        kept = read_sections(args.out.read_text()) if args.only and args.out.is_file() else {}
+        args.out.write_text(build_document(_ordered({**kept, **measured})))
     log.info("wrote %s", args.out)
     return 0
 

@@ -349,6 +349,39 @@ def test_runner_only_replaces_the_areas_it_runs(tmp_path: Path,
     assert sections["library"].command.endswith("--only library --out " + str(out))
 
 
+
+def test_runner_keeps_what_a_run_beside_it_wrote(tmp_path: Path,
+                                                 monkeypatch: pytest.MonkeyPatch) -> None:
+    """Two ``--only`` runs at once on one document: the section the other run wrote while this
+    one measured is still there when this one writes its own."""
+    import sys
+    import types
+
+    monkeypatch.syspath_prepend(str(Path(__file__).resolve().parents[2]))
+    from benchmarks import run as runner
+
+    out = tmp_path / "benchmarks.md"
+
+    def renderer(quick: bool) -> str:
+        return "## renderer\n\nfirst run\n"
+
+    def library(quick: bool) -> str:
+        # Meanwhile, another run writes the renderer's section anew.
+        text = out.read_text().replace("first run", "the other run")
+        out.write_text(text)
+        return "## library\n\nthis run\n"
+
+    for area, run in (("renderer", renderer), ("library", library)):
+        module = types.ModuleType(f"benchmarks.bench_{area}")
+        module.run = run  # type: ignore[attr-defined]
+        monkeypatch.setitem(sys.modules, f"benchmarks.bench_{area}", module)
+    assert runner.main(["--quick", "--only", "renderer", "--out", str(out)]) == 0
+    assert runner.main(["--quick", "--only", "library", "--out", str(out)]) == 0
+    sections = runner.read_sections(out.read_text())
+    assert "the other run" in sections["renderer"].text
+    assert "this run" in sections["library"].text
+
+
 def test_true_cameras_oracle_gives_the_job_the_ground_truth(tmp_path: Path,
                                                             tiny_library: Any) -> None:
     """The training benchmark's oracle: inside ``true_cameras`` a job's kept photos carry the
