@@ -28,7 +28,8 @@ ZOOM_MARGIN = 0.25  # of the object's box on each side, the frame of the closer 
 # and not in another. Three framings against one (mean IoU against the shipped masks): robot
 # 0.943 -> 0.957, espresso 0.927 -> 0.906; a `preview` job's training PSNR against the shipped
 # masks' job (3 seeds) -1.18 -> -0.24 dB and -0.69 -> -0.47 dB. Cost: three passes a photo where
-# one was, ten 12 MP photos masked in 17.7 s instead of 11.4 (`benchmarks.bench_masks`).
+# one was: ten 12 MP photos masked in 17.7 s instead of 11.4 on 2 AMD EPYC cores with AVX2 only
+# (`benchmarks.bench_masks`, one round each).
 ZOOM_MARGINS = (0.15, ZOOM_MARGIN, 0.4)
 MEAN = np.array([0.485, 0.456, 0.406], np.float32)  # ImageNet statistics U-2-Net was trained on
 STD = np.array([0.229, 0.224, 0.225], np.float32)
