@@ -107,7 +107,7 @@ class RetrievalConfig(_Frozen):
     """Mean silhouette IoU by which the retrieved model walked the other way round must out-fit
     the retrieved walk for the job to start from it (0: any lead). Silhouettes cannot tell a
     walk from its mirror image on an object that is nearly symmetric: a 6-photo walk round
-    fuze fitted its mirror 0.003 better and ended 128 degrees off, 12.5 dB. The margin is
+    fuze fitted its mirror 0.003 better and ended 125 degrees off, 12.7 dB. The margin is
     kept to the mirror: another model's walk switches on any lead, as the mug's walks need
     (``docs/presets.md``)."""
     order: Literal["walk", "any", "auto"] = "auto"
