@@ -181,8 +181,8 @@ def training(name: str, paths: list[Path], mask_paths: list[Path], library: Any,
              seeds: tuple[int, ...] = (0,)) -> str:
     """One line: a preview job's training PSNR with the built-in and the shipped masks, for
     each of ``seeds`` and their mean (the set's look-alikes left out of the library;
-    ``overrides`` set in both jobs). One seed's difference is mostly chance: on the robot
-    photos seeds 0 and 1 gave -0.68 and +0.24 dB."""
+    ``overrides`` set in both jobs). One seed's difference is mostly chance (the section
+    lists each seed's): hence the mean over seeds."""
     from cadnerf_cli.reconstruct_cmd import stage_inputs
     from cadnerf_core.config import resolve_config
     from cadnerf_core.jobfolder import JobFolder

@@ -277,8 +277,9 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--quick", action="store_true")
     parser.add_argument("--meshes", nargs="*", default=None, help="mesh folder names")
     parser.add_argument("--variants", nargs="*", default=None,
-                        help='only these rows: "leave-out", "with look-alike", '
-                             'focal_on/focal_off, hypotheses_on/hypotheses_off, mirror_off')
+                        help='only these rows: "leave-out", "with look-alike", and the '
+                             'levers flipped from their defaults (focal_on, hypotheses_off, '
+                             'seeds_on, mirror_off)')
     args = parser.parse_args(argv)
     logging.basicConfig(level=logging.INFO,
                         format="%(asctime)s %(levelname)s %(name)s: %(message)s")
