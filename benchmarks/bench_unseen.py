@@ -27,6 +27,7 @@ Usage: ``python -m benchmarks.bench_unseen [--quick] [--meshes NAME ...]`` print
 from __future__ import annotations
 
 import argparse
+import json
 import logging
 import shutil
 import statistics
@@ -129,7 +130,8 @@ def render_walk(name: str, fov: float, work: Path) -> Path:
 
 
 def run_job(name: str, fov: float, variant: str, overrides: dict[str, Any],
-            protocol: Protocol, plan: Plan, library: Any, work: Path) -> dict[str, Any]:
+            protocol: Protocol, plan: Plan, library: Any, work: Path,
+            device: str = "cpu") -> dict[str, Any]:
     """One job, scored. Returns its row (``error`` set when it failed)."""
     from cadnerf_core.evaluation.evaluate import evaluate_dataset
     from cadnerf_core.jobfolder import JobFolder
@@ -139,7 +141,7 @@ def run_job(name: str, fov: float, variant: str, overrides: dict[str, Any],
     try:
         report = evaluate_dataset(render_walk(name, fov, work), VIEWS, library, preset=PRESET,
                                   overrides=config, job_dir=work / name / f"job_{variant}_"
-                                  f"{fov:g}", device="cpu", eval_size=plan.eval_size)
+                                  f"{fov:g}", device=device, eval_size=plan.eval_size)
     except Exception as exc:  # noqa: BLE001 - one failed job is a row, not a crash
         log.exception("%s %s at %g deg failed", name, variant, fov)
         return {**row, "error": f"{type(exc).__name__}: {exc}"}
@@ -155,23 +157,40 @@ def run_job(name: str, fov: float, variant: str, overrides: dict[str, Any],
             "switched": any(h["chosen"] for h in fits[1:])}
 
 
-def run_rows(plan: Plan, library: Any, work: Path) -> list[dict[str, Any]]:
+Job = tuple[str, float, str, dict[str, Any], Protocol]  # mesh, fov, variant, overrides, protocol
+
+
+def job_list(plan: Plan) -> list[Job]:
     """Every job of the plan, in order."""
-    rows = []
     levers = {k: v for k, v in lever_variants().items()
               if plan.variants is None or k in plan.variants}
     wanted = plan.variants or ("leave-out", "with look-alike")
+    jobs: list[Job] = []
     for name in plan.meshes:
         for fov in FOVS:
             if "leave-out" in wanted:
-                rows.append(run_job(name, fov, "leave-out", {}, "leave-out", plan, library,
-                                    work))
+                jobs.append((name, fov, "leave-out", {}, "leave-out"))
             if fov in plan.lookalike_fovs and "with look-alike" in wanted:
-                rows.append(run_job(name, fov, "with look-alike", {}, "with look-alike", plan,
-                                    library, work))
+                jobs.append((name, fov, "with look-alike", {}, "with look-alike"))
             if fov in plan.lever_fovs and name in plan.lever_meshes:
-                rows += [run_job(name, fov, variant, overrides, "leave-out", plan, library,
-                                 work) for variant, (_, overrides) in levers.items()]
+                jobs += [(name, fov, variant, overrides, "leave-out")
+                         for variant, (_, overrides) in levers.items()]
+    return jobs
+
+
+def run_rows(plan: Plan, library: Any, work: Path, device: str = "cpu",
+             shard: tuple[int, int] = (0, 1), rows_file: Path | None = None
+             ) -> list[dict[str, Any]]:
+    """The plan's jobs of one shard (every ``shard[1]``-th from ``shard[0]``), in order; each
+    row is also appended to ``rows_file`` (JSON lines) as soon as its job ends."""
+    rows = []
+    index, count = shard
+    for name, fov, variant, overrides, protocol in job_list(plan)[index::count]:
+        row = run_job(name, fov, variant, overrides, protocol, plan, library, work, device)
+        rows.append(row)
+        if rows_file is not None:
+            with rows_file.open("a") as f:
+                f.write(json.dumps(row) + "\n")
     return rows
 
 
@@ -203,17 +222,22 @@ def summary_rows(rows: list[dict[str, Any]]) -> list[dict[str, Any]]:
     return out
 
 
+CPU_WHERE = "CPU, one torch thread, 2 shared cores"
+
+
 def section(plan: Plan, rows: list[dict[str, Any]], seconds: float, quick: bool,
-            names: list[str] | None) -> str:
-    """The markdown section."""
+            names: list[str] | None, where: str = CPU_WHERE, extra_flags: str = "") -> str:
+    """The markdown section (``where``: what ran the jobs; ``extra_flags``: the command's
+    options beyond the plan's)."""
     flags = (" --quick" if quick else "") + (f" --meshes {' '.join(names)}" if names else "")
     if plan.variants:
         flags += " --variants " + " ".join(f'"{v}"' if " " in v else v for v in plan.variants)
+    flags += extra_flags
     labels = {name: label for name, (label, _) in lever_variants().items()}
     lines = [
         "## Objects the library has not seen (leave-out, three fields of view)", "",
         f"Command: `.venv/bin/python -m benchmarks.bench_unseen{flags}` ({seconds:.0f} s, "
-        f"CPU, one torch thread, 2 shared cores). Meshes: {', '.join(plan.meshes)}. Walks of "
+        f"{where}). Meshes: {', '.join(plan.meshes)}. Walks of "
         f"{VIEWS} views at {SIZE} px, {TEST_VIEWS} held-out views, fields of view "
         f"{', '.join(f'{f:g}' for f in FOVS)} deg, no EXIF; preset `{PRESET}`"
         + (f" with `{plan.overrides}`" if plan.overrides else "")
@@ -250,8 +274,12 @@ def section(plan: Plan, rows: list[dict[str, Any]], seconds: float, quick: bool,
     return "\n".join(lines) + "\n"
 
 
-def run(quick: bool, names: list[str] | None = None, variants: list[str] | None = None) -> str:
-    """Run the benchmark (``variants``: only these rows). Returns its markdown section."""
+def run(quick: bool, names: list[str] | None = None, variants: list[str] | None = None,
+        device: str = "cpu", shard: tuple[int, int] = (0, 1),
+        rows_file: Path | None = None) -> str:
+    """Run the benchmark (``variants``: only these rows; ``shard``: only every ``shard[1]``-th
+    job from ``shard[0]``, for running shards side by side; ``rows_file``: JSON lines of the
+    rows, for ``from_rows``). Returns its markdown section."""
     import torch
 
     from cadnerf_core.library.format import load_library
@@ -260,15 +288,44 @@ def run(quick: bool, names: list[str] | None = None, variants: list[str] | None 
         return "## Objects the library has not seen\n\nNot run: `../shared/eval` is absent.\n"
     plan = make_plan(quick, names, variants)
     library = load_library(LIBRARY_DIR)
-    shutil.rmtree(WORK_DIR, ignore_errors=True)
+    work = WORK_DIR if shard[1] == 1 else WORK_DIR / f"shard{shard[0]}"
+    shutil.rmtree(work, ignore_errors=True)
     threads = torch.get_num_threads()
     torch.set_num_threads(1)  # as bench_eval: small jobs, no OpenMP oversubscription
     start = time.perf_counter()
     try:
-        rows = run_rows(plan, library, WORK_DIR)
+        rows = run_rows(plan, library, work, device, shard, rows_file)
     finally:
         torch.set_num_threads(threads)
-    return section(plan, rows, time.perf_counter() - start, quick, names)
+    where = CPU_WHERE if device == "cpu" else device_words(device, shard[1])
+    return section(plan, rows, time.perf_counter() - start, quick, names, where)
+
+
+def device_words(device: str, jobs_at_once: int) -> str:
+    """What ran the jobs, in words, for a device other than the CPU."""
+    import torch
+
+    name = torch.cuda.get_device_name() if device.startswith("cuda") else device
+    return f"{name}, {jobs_at_once} job(s) at a time, one torch thread each"
+
+
+def from_rows(files: list[Path], quick: bool, names: list[str] | None,
+              variants: list[str] | None, where: str, seconds: float, shards: int,
+              device: str = "cuda") -> str:
+    """The section from the rows that shards wrote (``run(rows_file=...)``), in the plan's
+    order; a job of the plan without a row is listed as not run."""
+    plan = make_plan(quick, names, variants)
+    got = {}
+    for file in files:
+        for line in file.read_text().splitlines():
+            if line.strip():
+                row = json.loads(line)
+                got[(row["mesh"], float(row["fov"]), row["variant"])] = row
+    rows = [got.get((name, fov, variant),
+                    {"mesh": name, "fov": fov, "variant": variant, "error": "not run"})
+            for name, fov, variant, _, _ in job_list(plan)]
+    return section(plan, rows, seconds, quick, names, where,
+                   f" --device {device} --shard I/{shards} (I = 0..{shards - 1}, side by side)")
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -280,10 +337,30 @@ def main(argv: list[str] | None = None) -> int:
                         help='only these rows: "leave-out", "with look-alike", and the '
                              'levers flipped from their defaults (focal_on, hypotheses_off, '
                              'seeds_on, mirror_off)')
+    parser.add_argument("--device", default="cpu", help="cpu or cuda")
+    parser.add_argument("--shard", default="0/1",
+                        help="I/N: only every N-th job from the I-th (run N side by side)")
+    parser.add_argument("--rows", type=Path, default=None,
+                        help="append each job's row to this file (JSON lines)")
+    parser.add_argument("--from-rows", type=Path, nargs="*", default=None,
+                        help="run nothing: the section from the shards' rows files")
+    parser.add_argument("--where", default=CPU_WHERE, help="with --from-rows: what ran them")
+    parser.add_argument("--seconds", type=float, default=0.0,
+                        help="with --from-rows: the wall time of the shards")
+    parser.add_argument("--shards", type=int, default=1,
+                        help="with --from-rows: how many shards ran side by side")
     args = parser.parse_args(argv)
     logging.basicConfig(level=logging.INFO,
                         format="%(asctime)s %(levelname)s %(name)s: %(message)s")
-    sys.stdout.write(run(args.quick, args.meshes, args.variants))
+    if args.from_rows:
+        sys.stdout.write(from_rows(args.from_rows, args.quick, args.meshes, args.variants,
+                                   args.where, args.seconds, args.shards, args.device))
+        return 0
+    index, count = (int(x) for x in args.shard.split("/"))
+    if not 0 <= index < count:
+        parser.error(f"--shard {args.shard}: I must be in 0..N-1")
+    sys.stdout.write(run(args.quick, args.meshes, args.variants, args.device,
+                         (index, count), args.rows))
     return 0
 
 

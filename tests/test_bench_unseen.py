@@ -1,0 +1,52 @@
+"""The unseen-objects benchmark's plan: shards that run side by side cover every job once, and
+the section built from their rows says which jobs did not run."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import pytest
+
+from benchmarks import bench_unseen
+
+
+@pytest.fixture
+def meshes(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> list[str]:
+    names = ["armchair", "CesiumMilkTruck", "ycb_mug", "Duck"]
+    for name in names:
+        (tmp_path / "meshes" / name).mkdir(parents=True)
+    monkeypatch.setattr(bench_unseen, "EVAL_ROOT", tmp_path)
+    return names
+
+
+def test_shards_cover_every_job_once(meshes: list[str]) -> None:
+    plan = bench_unseen.make_plan(False)
+    jobs = [job[:3] for job in bench_unseen.job_list(plan)]
+    assert len(jobs) == len(set(jobs))
+    assert {(m, f, "leave-out") for m in meshes for f in bench_unseen.FOVS} <= set(jobs)
+    shards = [job for i in range(5)
+              for job in bench_unseen.job_list(plan)[i::5]]
+    assert sorted(job[:3] for job in shards) == sorted(jobs)
+
+
+def test_section_from_rows_lists_jobs_not_run(meshes: list[str], tmp_path: Path) -> None:
+    plan = bench_unseen.make_plan(False, variants=["leave-out"])
+    jobs = bench_unseen.job_list(plan)
+    assert len(jobs) == len(meshes) * len(bench_unseen.FOVS)
+    rows = [{"mesh": m, "fov": f, "variant": v, "model": "mug", "psnr": 20.0 + k,
+             "rot": 4.0 + k, "r_rot": 10.0, "focal_err": 5.0, "r_focal_err": 5.0,
+             "job_s": 60.0, "hypotheses": 3, "fit_s": 1.0, "switched": False}
+            for k, (m, f, v, _, _) in enumerate(jobs[:-1])]
+    files = []
+    for i in range(2):
+        file = tmp_path / f"rows{i}.jsonl"
+        file.write_text("".join(json.dumps(r) + "\n" for r in rows[i::2]))
+        files.append(file)
+    text = bench_unseen.from_rows(files, False, None, ["leave-out"], "a GPU", 123.0, 2)
+    missing = jobs[-1]
+    assert f"- {missing[0]} leave-out {missing[1]:g} deg: not run" in text
+    assert "--device cuda --shard I/2" in text and "(123 s, a GPU)" in text
+    # the summary's "all" row: mean PSNR and median rotation over the jobs that ran
+    expected_psnr = sum(r["psnr"] for r in rows) / len(rows)
+    assert f"| leave-out | all | {len(rows)} | {expected_psnr:.2f} |" in text
