@@ -150,9 +150,14 @@ def _order(retrieval: dict[str, Any], count: int) -> list[int]:
 def _warnings(retrieval: dict[str, Any], photos: list[PhotoResult],
               order: list[str]) -> list[str]:
     """The result's warnings: each photo's mask warnings, a walking order that is a guess or
-    photos reordered although given as a walk, then an undecided walking direction."""
+    photos reordered although given as a walk, then an undecided walking direction, then a
+    field of view that no photo told."""
     from cadnerf_core.config import AMBIGUOUS_HINT  # torch-free by contract
-    from cadnerf_core.config_retrieval import order_guess_warning, reorder_warning
+    from cadnerf_core.config_retrieval import (
+        FOCAL_UNKNOWN_WARNING,
+        order_guess_warning,
+        reorder_warning,
+    )
 
     warnings = [w for photo in photos for w in photo.mask_warnings]
     if retrieval.get("order_ambiguous"):
@@ -162,4 +167,6 @@ def _warnings(retrieval: dict[str, Any], photos: list[PhotoResult],
     if retrieval.get("direction_ambiguous"):
         warnings.append(f"{AMBIGUOUS_HINT}: resubmit with the config field "
                         '{"overrides": {"retrieval": {"walk": "cw"}}}')
+    if retrieval.get("focal_known") is False:
+        warnings.append(FOCAL_UNKNOWN_WARNING)
     return warnings

@@ -14,7 +14,9 @@ Rows:
   from retrieval, every setting at its default;
 - **with look-alike**: the whole library;
 - the levers, each flipped from its default, leave-out: the focal length fixed at retrieval's
-  estimate or learned with the poses (``phase2.focal_bound``).
+  estimate or learned with the poses (``phase2.focal_bound``), and the rest of ``LEVERS``;
+- **with EXIF**: leave-out, the photos carrying their true focal length, as the files a phone
+  wrote do (what giving the focal length is worth).
 
 QUICK: the evaluation benchmark's three quick meshes and its reduced schedule (48 px crops,
 short phases, held-out views scored at 64 px); with look-alike at 40 degrees only, the levers at
@@ -131,8 +133,9 @@ def render_walk(name: str, fov: float, work: Path) -> Path:
 
 def run_job(name: str, fov: float, variant: str, overrides: dict[str, Any],
             protocol: Protocol, plan: Plan, library: Any, work: Path,
-            device: str = "cpu") -> dict[str, Any]:
-    """One job, scored. Returns its row (``error`` set when it failed)."""
+            device: str = "cpu", exif: bool = False) -> dict[str, Any]:
+    """One job, scored (``exif``: the photos carry their true focal length, as the files a
+    phone wrote do). Returns its row (``error`` set when it failed)."""
     from cadnerf_core.evaluation.evaluate import evaluate_dataset
     from cadnerf_core.jobfolder import JobFolder
 
@@ -141,7 +144,8 @@ def run_job(name: str, fov: float, variant: str, overrides: dict[str, Any],
     try:
         report = evaluate_dataset(render_walk(name, fov, work), VIEWS, library, preset=PRESET,
                                   overrides=config, job_dir=work / name / f"job_{variant}_"
-                                  f"{fov:g}", device=device, eval_size=plan.eval_size)
+                                  f"{fov:g}", device=device, eval_size=plan.eval_size,
+                                  exif_focal=exif)
     except Exception as exc:  # noqa: BLE001 - one failed job is a row, not a crash
         log.exception("%s %s at %g deg failed", name, variant, fov)
         return {**row, "error": f"{type(exc).__name__}: {exc}"}
@@ -157,7 +161,9 @@ def run_job(name: str, fov: float, variant: str, overrides: dict[str, Any],
             "switched": any(h["chosen"] for h in fits[1:])}
 
 
-Job = tuple[str, float, str, dict[str, Any], Protocol]  # mesh, fov, variant, overrides, protocol
+# mesh, fov, variant, overrides, protocol, photos with EXIF
+Job = tuple[str, float, str, dict[str, Any], Protocol, bool]
+EXIF_VARIANT = "with EXIF"  # leave-out, the photos' true focal length in their EXIF
 
 
 def job_list(plan: Plan) -> list[Job]:
@@ -169,12 +175,14 @@ def job_list(plan: Plan) -> list[Job]:
     for name in plan.meshes:
         for fov in FOVS:
             if "leave-out" in wanted:
-                jobs.append((name, fov, "leave-out", {}, "leave-out"))
+                jobs.append((name, fov, "leave-out", {}, "leave-out", False))
             if fov in plan.lookalike_fovs and "with look-alike" in wanted:
-                jobs.append((name, fov, "with look-alike", {}, "with look-alike"))
+                jobs.append((name, fov, "with look-alike", {}, "with look-alike", False))
             if fov in plan.lever_fovs and name in plan.lever_meshes:
-                jobs += [(name, fov, variant, overrides, "leave-out")
+                jobs += [(name, fov, variant, overrides, "leave-out", False)
                          for variant, (_, overrides) in levers.items()]
+                if plan.variants is None or EXIF_VARIANT in plan.variants:
+                    jobs.append((name, fov, EXIF_VARIANT, {}, "leave-out", True))
     return jobs
 
 
@@ -185,8 +193,9 @@ def run_rows(plan: Plan, library: Any, work: Path, device: str = "cpu",
     row is also appended to ``rows_file`` (JSON lines) as soon as its job ends."""
     rows = []
     index, count = shard
-    for name, fov, variant, overrides, protocol in job_list(plan)[index::count]:
-        row = run_job(name, fov, variant, overrides, protocol, plan, library, work, device)
+    for name, fov, variant, overrides, protocol, exif in job_list(plan)[index::count]:
+        row = run_job(name, fov, variant, overrides, protocol, plan, library, work, device,
+                      exif)
         rows.append(row)
         if rows_file is not None:
             with rows_file.open("a") as f:
@@ -223,6 +232,8 @@ def summary_rows(rows: list[dict[str, Any]]) -> list[dict[str, Any]]:
 
 
 CPU_WHERE = "CPU, one torch thread, 2 shared cores"
+FULL_POINTER = ("The full benchmark (every mesh, preset `preview` itself, run in shards): "
+                "`docs/bench_unseen_full.md`.")
 
 
 def section(plan: Plan, rows: list[dict[str, Any]], seconds: float, quick: bool,
@@ -248,6 +259,8 @@ def section(plan: Plan, rows: list[dict[str, Any]], seconds: float, quick: bool,
         f"at {', '.join(f'{f:g}' for f in plan.lever_fovs)} deg on "
         f"{', '.join(plan.lever_meshes)}: "
         + "; ".join(f"`{k}` = {v}" for k, v in labels.items())
+        + f"; `{EXIF_VARIANT}` = the photos carry their true focal length in EXIF (no lever: "
+        "what a user gains by uploading the files the phone wrote)"
         + ". PSNR: mean over jobs; rotation error: median over jobs of each job's mean over "
         "its kept photos (after similarity alignment); focal error: the job's focal length "
         "against the truth, |%|, mean; job s: whole job (retrieval, training, export) "
@@ -267,6 +280,8 @@ def section(plan: Plan, rows: list[dict[str, Any]], seconds: float, quick: bool,
                         ("focal err. %", "focal_err", 0), ("job s", "job_s", 0)],
                        [r for r in rows if "error" not in r]),
     ]
+    if quick:
+        lines += ["", FULL_POINTER]
     failed = [f"- {r['mesh']} {r['variant']} {r['fov']:g} deg: {r['error']}"
               for r in rows if "error" in r]
     if failed:
@@ -323,7 +338,7 @@ def from_rows(files: list[Path], quick: bool, names: list[str] | None,
                 got[(row["mesh"], float(row["fov"]), row["variant"])] = row
     rows = [got.get((name, fov, variant),
                     {"mesh": name, "fov": fov, "variant": variant, "error": "not run"})
-            for name, fov, variant, _, _ in job_list(plan)]
+            for name, fov, variant, *_ in job_list(plan)]
     return section(plan, rows, seconds, quick, names, where,
                    f" --device {device} --shard I/{shards} (I = 0..{shards - 1}, side by side)")
 
@@ -334,9 +349,9 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--quick", action="store_true")
     parser.add_argument("--meshes", nargs="*", default=None, help="mesh folder names")
     parser.add_argument("--variants", nargs="*", default=None,
-                        help='only these rows: "leave-out", "with look-alike", and the '
-                             'levers flipped from their defaults (focal_on, hypotheses_off, '
-                             'seeds_on, mirror_off)')
+                        help='only these rows: "leave-out", "with look-alike", "with EXIF" '
+                             'and the levers flipped from their defaults (focal_on, '
+                             'hypotheses_off, seeds_on, mirror_off)')
     parser.add_argument("--device", default="cpu", help="cpu or cuda")
     parser.add_argument("--shard", default="0/1",
                         help="I/N: only every N-th job from the I-th (run N side by side)")

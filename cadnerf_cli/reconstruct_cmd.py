@@ -130,6 +130,10 @@ def reconstruct(
         from cadnerf_core.config import AMBIGUOUS_HINT
 
         typer.echo(f"warning: {AMBIGUOUS_HINT} (--walk)")
+    if retrieval.get("focal_known") is False:
+        from cadnerf_core.config_retrieval import FOCAL_UNKNOWN_WARNING
+
+        typer.echo(f"warning: {FOCAL_UNKNOWN_WARNING} (--focal-35mm)")
     typer.echo(f"results in {out.resolve()}: {ORBIT_VIDEO}, {MESH}, {POSES}, {VIEWS}/, "
                f"{MASKS}/")
 

@@ -21,6 +21,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from cadnerf_core.config import PipelineConfig
+from cadnerf_core.config_retrieval import FOCAL_UNKNOWN_WARNING
 from cadnerf_core.errors import InputError
 from cadnerf_core.intake.crop import apply_crop
 from cadnerf_core.jobfolder import CONFIG, INPUTS, OVERLAY_SIDE, JobFolder
@@ -89,6 +90,11 @@ def run_intake(job_dir: Path, library: Library, config: PipelineConfig,
                          [p.rgb for p in photos], [p.focal_pixels for p in photos],
                          crop_size=config.image_size)
     progress.check()
+    known = any(p.focal_pixels is not None for p in photos)
+    retrieval = dataclasses.replace(retrieval, focal_known=known, alternatives=[
+        dataclasses.replace(a, focal_known=known) for a in retrieval.alternatives])
+    if not known:
+        log.warning("%s", FOCAL_UNKNOWN_WARNING)
     folder.write_retrieval(retrieval.to_json())
     if len(retrieval.kept) < 2:
         raise InputError("fewer than two photos could be matched to the retrieved model",

@@ -25,6 +25,9 @@ def test_shards_cover_every_job_once(meshes: list[str]) -> None:
     jobs = [job[:3] for job in bench_unseen.job_list(plan)]
     assert len(jobs) == len(set(jobs))
     assert {(m, f, "leave-out") for m in meshes for f in bench_unseen.FOVS} <= set(jobs)
+    exif = [job for job in bench_unseen.job_list(plan) if job[2] == bench_unseen.EXIF_VARIANT]
+    assert exif and all(job[5] for job in exif)  # its photos carry their focal length
+    assert not any(job[5] for job in bench_unseen.job_list(plan) if job not in exif)
     shards = [job for i in range(5)
               for job in bench_unseen.job_list(plan)[i::5]]
     assert sorted(job[:3] for job in shards) == sorted(jobs)
@@ -37,7 +40,7 @@ def test_section_from_rows_lists_jobs_not_run(meshes: list[str], tmp_path: Path)
     rows = [{"mesh": m, "fov": f, "variant": v, "model": "mug", "psnr": 20.0 + k,
              "rot": 4.0 + k, "r_rot": 10.0, "focal_err": 5.0, "r_focal_err": 5.0,
              "job_s": 60.0, "hypotheses": 3, "fit_s": 1.0, "switched": False}
-            for k, (m, f, v, _, _) in enumerate(jobs[:-1])]
+            for k, (m, f, v, *_) in enumerate(jobs[:-1])]
     files = []
     for i in range(2):
         file = tmp_path / f"rows{i}.jsonl"

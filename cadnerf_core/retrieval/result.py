@@ -69,6 +69,9 @@ class RetrievalResult:
     went the other way."""
     perspective: str = "far"
     """The library silhouette set matched ("far" or "near", ``RetrievalConfig.perspective``)."""
+    focal_known: bool | None = None
+    """Whether any photo's focal length was known (its EXIF, or ``RetrievalConfig.focal_35mm``);
+    False: the field of view was estimated from silhouettes. None: not recorded."""
     alternatives: list[RetrievalResult] = field(default_factory=list)
     """The next best hypotheses (model, walking direction, poses), best first, when
     ``RetrievalConfig.hypotheses`` asks for more than one; not written to ``retrieval.json``."""
@@ -129,6 +132,7 @@ class RetrievalResult:
                 "direction_lead": self.direction_lead,
                 "direction_ambiguous": self.direction_ambiguous,
                 "perspective": self.perspective,
+                **({} if self.focal_known is None else {"focal_known": self.focal_known}),
                 "order": self.order or [m.index for m in self.matches],
                 "order_mode": self.order_mode, "reordered": self.reordered,
                 "order_lead": self.order_lead, "order_ambiguous": self.order_ambiguous,

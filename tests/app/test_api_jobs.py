@@ -177,6 +177,14 @@ def test_result_is_409_until_succeeded_then_complete(client: TestClient, setting
     folder.write_retrieval({**(folder.read_retrieval() or {}), "order": [0, 0, 7]})
     result = client.get(f"/v1/jobs/{job['id']}/result").json()
     assert result["order"] == ["photo_0.png", "photo_1.png", "photo_2.png"]
+    # No photo told its focal length: the last warning says so and what to send.
+    before = client.get(f"/v1/jobs/{job['id']}/result").json()["warnings"]
+    folder.write_retrieval({**(folder.read_retrieval() or {}), "focal_known": False})
+    warnings = client.get(f"/v1/jobs/{job['id']}/result").json()["warnings"]
+    assert warnings[:-1] == before and "focal length (EXIF)" in warnings[-1]
+    assert "retrieval.focal_35mm" in warnings[-1]
+    folder.write_retrieval({**(folder.read_retrieval() or {}), "focal_known": True})
+    assert client.get(f"/v1/jobs/{job['id']}/result").json()["warnings"] == before
 
 
 def test_library_silhouettes_are_served_as_png_for_listed_models_only(

@@ -271,6 +271,10 @@ def test_a_focal_length_given_for_photos_without_exif_sets_their_cameras(
     assert blind.retrieval.matches[0].K_photo[0, 0] != pytest.approx(true_focal_px, rel=1e-3)
     # Known, it lets retrieval choose the perspective: these photos are the far set's.
     assert told.retrieval.perspective == "far"
+    # Unknown, the job records it (the result warns, saying what to send).
+    assert JobFolder(tmp_path / "told").read_retrieval()["focal_known"] is True
+    assert JobFolder(tmp_path / "blind").read_retrieval()["focal_known"] is False
+    assert all(h.focal_known is False for h in blind.retrieval.alternatives)
 
 
 def test_the_focal_length_is_learned_only_where_the_photos_do_not_give_it(
