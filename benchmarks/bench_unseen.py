@@ -21,7 +21,7 @@ Rows:
 QUICK: the evaluation benchmark's three quick meshes and its reduced schedule (48 px crops,
 short phases, held-out views scored at 64 px); with look-alike at 40 degrees only, the levers at
 40 and 70. Full: every mesh with ``preview`` itself; with look-alike at every field of view, the
-levers on the quick meshes.
+levers on the quick meshes (on every mesh named with ``--meshes``).
 
 Usage: ``python -m benchmarks.bench_unseen [--quick] [--meshes NAME ...]`` prints the section.
 """
@@ -72,6 +72,8 @@ LEVERS: dict[str, tuple[str, dict[str, Any], dict[str, Any]]] = {
               {"retrieval.hypothesis_seeds": 1}, {"retrieval.hypothesis_seeds": 3}),
     "mirror": ("the retrieved model's mirrored walk chosen only when it fits 0.01 IoU better",
                {"retrieval.mirror_margin": 0.0}, {"retrieval.mirror_margin": 0.01}),
+    "prior": ("photos without EXIF taken for a 35 mm-equivalent lens (54 degrees)",
+              {"retrieval.focal_35mm": None}, {"retrieval.focal_35mm": 35.0}),
 }
 
 
@@ -98,8 +100,8 @@ def make_plan(quick: bool, names: list[str] | None = None,
         meshes = tuple(names or QUICK_MESHES)
         return Plan(meshes, dict(QUICK_OVERRIDES), (40.0,), (40.0, 70.0), meshes, 64, only)
     meshes = tuple(names or every)
-    return Plan(meshes, {}, FOVS, FOVS, tuple(m for m in meshes if m in QUICK_MESHES), None,
-                only)
+    levered = meshes if names else tuple(m for m in meshes if m in QUICK_MESHES)
+    return Plan(meshes, {}, FOVS, FOVS, levered, None, only)
 
 
 def lever_variants() -> dict[str, tuple[str, dict[str, Any]]]:
@@ -351,7 +353,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--variants", nargs="*", default=None,
                         help='only these rows: "leave-out", "with look-alike", "with EXIF" '
                              'and the levers flipped from their defaults (focal_on, '
-                             'hypotheses_off, seeds_on, mirror_off)')
+                             'hypotheses_off, seeds_on, mirror_off, prior_on)')
     parser.add_argument("--device", default="cpu", help="cpu or cuda")
     parser.add_argument("--shard", default="0/1",
                         help="I/N: only every N-th job from the I-th (run N side by side)")
