@@ -23,7 +23,10 @@ short phases, held-out views scored at 64 px); with look-alike at 40 degrees onl
 40 and 70. Full: every mesh with ``preview`` itself; with look-alike at every field of view, the
 levers on the quick meshes (on every mesh named with ``--meshes``).
 
-Usage: ``python -m benchmarks.bench_unseen [--quick] [--meshes NAME ...]`` prints the section.
+Usage: ``python -m benchmarks.bench_unseen [--quick] [--meshes NAME ...] [--variants ...]
+[--device cuda]`` prints the section. Side by side: ``--shard I/N --rows FILE`` in N processes,
+then ``--from-rows FILE --shards N`` makes the section from their rows
+(``docs/bench_unseen_full.md``).
 """
 
 from __future__ import annotations
