@@ -37,10 +37,10 @@ def order_guess_warning(names: list[str]) -> str:
 
 FOCAL_UNKNOWN_WARNING = (
     "no photo carried its focal length (EXIF), so the camera's field of view was estimated "
-    "from silhouettes, which cannot tell it: on an object the library does not hold this "
-    "can cost 4 dB and several degrees (docs/bench_unseen_full.md); upload the files your "
-    "phone wrote, or resubmit with the config field retrieval.focal_35mm (a phone's main "
-    "lens: about 26)")
+    "from silhouettes, which cannot tell it: on objects the library does not hold the true "
+    "focal length was worth 1.1 dB and 3 degrees on average (docs/bench_unseen_full.md); "
+    "upload the files your phone wrote, or resubmit with the config field "
+    "retrieval.focal_35mm (a phone's main lens: about 26)")
 """What a user is told when no photo's focal length was known (``focal_known`` False)."""
 
 

@@ -91,8 +91,7 @@ def run_intake(job_dir: Path, library: Library, config: PipelineConfig,
                          crop_size=config.image_size)
     progress.check()
     known = any(p.focal_pixels is not None for p in photos)
-    retrieval = dataclasses.replace(retrieval, focal_known=known, alternatives=[
-        dataclasses.replace(a, focal_known=known) for a in retrieval.alternatives])
+    retrieval = dataclasses.replace(retrieval, focal_known=known)
     if not known:
         log.warning("%s", FOCAL_UNKNOWN_WARNING)
     folder.write_retrieval(retrieval.to_json())

@@ -134,7 +134,8 @@ def choose_start(retrieval: RetrievalResult, photos: Sequence[Any], masks: Seque
                  recorded: Sequence[dict[str, Any]] = ()) -> RetrievalResult:
     """The hypothesis to train from: ``retrieval`` itself when it has no alternatives, else
     the best coarse fit among it and its alternatives, with every fit's score recorded
-    (``RetrievalResult.hypotheses``). Reports stage "retrieval" after each fit (cancellable).
+    (``RetrievalResult.hypotheses``) and the retrieval's ``focal_known``. Reports stage
+    "retrieval" after each fit (cancellable).
     ``recorded``: the fits of an earlier run of the same job; when they cover the same
     hypotheses their choice is kept without fitting again (a resumed job).
     """
@@ -149,7 +150,7 @@ def choose_start(retrieval: RetrievalResult, photos: Sequence[Any], masks: Seque
         best = next((i for i, r in enumerate(recorded) if r.get("chosen")), 0)
         return dataclasses.replace(candidates[best], alternatives=[], hypotheses=list(recorded),
                                    direction_ambiguous=retrieval.direction_ambiguous
-                                   and not best)
+                                   and not best, focal_known=retrieval.focal_known)
     scores, seconds = [], []
     for i, hypothesis in enumerate(candidates):
         start = time.perf_counter()
@@ -173,7 +174,8 @@ def choose_start(retrieval: RetrievalResult, photos: Sequence[Any], masks: Seque
         log.info("starting from hypothesis %d (%s) rather than the retrieved walk", best,
                  chosen.model_id)
     return dataclasses.replace(chosen, alternatives=[], hypotheses=record,
-                               direction_ambiguous=retrieval.direction_ambiguous and not best)
+                               direction_ambiguous=retrieval.direction_ambiguous and not best,
+                               focal_known=retrieval.focal_known)
 
 
 def _mirrors(hypothesis: RetrievalResult, retrieved: RetrievalResult) -> bool:
