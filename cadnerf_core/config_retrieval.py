@@ -134,7 +134,7 @@ class RetrievalConfig(_Frozen):
     (the unseen-objects walks of ``bench_unseen``: armchair, fuze), where 0.08 reordered the
     fuze's walk at 70 degrees: its retrieved cameras 41.7 degrees off instead of 15.8, the
     whole ``preview`` job's 52.7 instead of 16.5 (2 CPU cores; test PSNR 20.82 dB against
-    20.44, within the run-to-run scatter).
+    20.44).
     Shuffled photos gain 0.12-0.21 a photo where their walk is found clearly (a plane, a boot)."""
     order_ambiguity_margin: float = Field(default=0.003, ge=0.0, le=1.0)
     """"any", and "auto" when it reordered: IoU per photo by which the order found must beat
