@@ -91,20 +91,29 @@ class Plan:
     lever_meshes: tuple[str, ...]
     eval_size: int | None
     variants: tuple[str, ...] | None = None  # only these rows (None: all)
+    fovs: tuple[float, ...] = FOVS  # the fields of view rendered
 
 
 def make_plan(quick: bool, names: list[str] | None = None,
-              variants: list[str] | None = None) -> Plan:
+              variants: list[str] | None = None,
+              fovs: list[float] | None = None) -> Plan:
     """The quick or the full plan (``names``: only these meshes; ``variants``: only these
-    rows, of "leave-out", "with look-alike" and ``lever_variants``)."""
+    rows, of "leave-out", "with look-alike" and ``lever_variants``; ``fovs``: only these
+    fields of view)."""
     every = tuple(sorted(p.name for p in (EVAL_ROOT / "meshes").iterdir() if p.is_dir()))
     only = tuple(variants) if variants else None
+    chosen = tuple(float(f) for f in fovs) if fovs else FOVS
+
+    def within(values: tuple[float, ...]) -> tuple[float, ...]:
+        return tuple(f for f in values if f in chosen)
+
     if quick:
         meshes = tuple(names or QUICK_MESHES)
-        return Plan(meshes, dict(QUICK_OVERRIDES), (40.0,), (40.0, 70.0), meshes, 64, only)
+        return Plan(meshes, dict(QUICK_OVERRIDES), within((40.0,)), within((40.0, 70.0)),
+                    meshes, 64, only, chosen)
     meshes = tuple(names or every)
     levered = meshes if names else tuple(m for m in meshes if m in QUICK_MESHES)
-    return Plan(meshes, {}, FOVS, FOVS, levered, None, only)
+    return Plan(meshes, {}, chosen, chosen, levered, None, only, chosen)
 
 
 def lever_variants() -> dict[str, tuple[str, dict[str, Any]]]:
@@ -178,7 +187,7 @@ def job_list(plan: Plan) -> list[Job]:
     wanted = plan.variants or ("leave-out", "with look-alike")
     jobs: list[Job] = []
     for name in plan.meshes:
-        for fov in FOVS:
+        for fov in plan.fovs:
             if "leave-out" in wanted:
                 jobs.append((name, fov, "leave-out", {}, "leave-out", False))
             if fov in plan.lookalike_fovs and "with look-alike" in wanted:
@@ -248,14 +257,18 @@ def section(plan: Plan, rows: list[dict[str, Any]], seconds: float, quick: bool,
     flags = (" --quick" if quick else "") + (f" --meshes {' '.join(names)}" if names else "")
     if plan.variants:
         flags += " --variants " + " ".join(f'"{v}"' if " " in v else v for v in plan.variants)
+    if plan.fovs != FOVS:
+        flags += " --fovs " + " ".join(f"{f:g}" for f in plan.fovs)
     flags += extra_flags
     labels = {name: label for name, (label, _) in lever_variants().items()}
     lines = [
-        "## Objects the library has not seen (leave-out, three fields of view)", "",
+        "## Objects the library has not seen ("
+        + ", ".join(plan.variants or ("leave-out", "with look-alike", "levers")) + "; "
+        + ", ".join(f"{f:g}" for f in plan.fovs) + " deg)", "",
         f"Command: `.venv/bin/python -m benchmarks.bench_unseen{flags}` ({seconds:.0f} s, "
         f"{where}). Meshes: {', '.join(plan.meshes)}. Walks of "
         f"{VIEWS} views at {SIZE} px, {TEST_VIEWS} held-out views, fields of view "
-        f"{', '.join(f'{f:g}' for f in FOVS)} deg, no EXIF; preset `{PRESET}`"
+        f"{', '.join(f'{f:g}' for f in plan.fovs)} deg, no EXIF; preset `{PRESET}`"
         + (f" with `{plan.overrides}`" if plan.overrides else "")
         + (f"; held-out views scored at {plan.eval_size} px" if plan.eval_size else "")
         + ". leave-out: each mesh's look-alikes (`benchmarks.lookalikes`) excluded from "
@@ -296,7 +309,7 @@ def section(plan: Plan, rows: list[dict[str, Any]], seconds: float, quick: bool,
 
 def run(quick: bool, names: list[str] | None = None, variants: list[str] | None = None,
         device: str = "cpu", shard: tuple[int, int] = (0, 1),
-        rows_file: Path | None = None) -> str:
+        rows_file: Path | None = None, fovs: list[float] | None = None) -> str:
     """Run the benchmark (``variants``: only these rows; ``shard``: only every ``shard[1]``-th
     job from ``shard[0]``, for running shards side by side; ``rows_file``: JSON lines of the
     rows, for ``from_rows``). Returns its markdown section."""
@@ -306,7 +319,7 @@ def run(quick: bool, names: list[str] | None = None, variants: list[str] | None 
 
     if not (EVAL_ROOT / "meshes").is_dir():
         return "## Objects the library has not seen\n\nNot run: `../shared/eval` is absent.\n"
-    plan = make_plan(quick, names, variants)
+    plan = make_plan(quick, names, variants, fovs)
     library = load_library(LIBRARY_DIR)
     work = WORK_DIR if shard[1] == 1 else WORK_DIR / f"shard{shard[0]}"
     shutil.rmtree(work, ignore_errors=True)
@@ -331,10 +344,10 @@ def device_words(device: str, jobs_at_once: int) -> str:
 
 def from_rows(files: list[Path], quick: bool, names: list[str] | None,
               variants: list[str] | None, where: str, seconds: float, shards: int,
-              device: str = "cuda") -> str:
+              device: str = "cuda", fovs: list[float] | None = None) -> str:
     """The section from the rows that shards wrote (``run(rows_file=...)``), in the plan's
     order; a job of the plan without a row is listed as not run."""
-    plan = make_plan(quick, names, variants)
+    plan = make_plan(quick, names, variants, fovs)
     got = {}
     for file in files:
         for line in file.read_text().splitlines():
@@ -357,6 +370,8 @@ def main(argv: list[str] | None = None) -> int:
                         help='only these rows: "leave-out", "with look-alike", "with EXIF" '
                              'and the levers flipped from their defaults (focal_on, '
                              'hypotheses_off, seeds_on, mirror_off, prior_on)')
+    parser.add_argument("--fovs", type=float, nargs="*", default=None,
+                        help=f"only these fields of view (of {', '.join(f'{f:g}' for f in FOVS)})")
     parser.add_argument("--device", default="cpu", help="cpu or cuda")
     parser.add_argument("--shard", default="0/1",
                         help="I/N: only every N-th job from the I-th (run N side by side)")
@@ -374,13 +389,16 @@ def main(argv: list[str] | None = None) -> int:
                         format="%(asctime)s %(levelname)s %(name)s: %(message)s")
     if args.from_rows:
         sys.stdout.write(from_rows(args.from_rows, args.quick, args.meshes, args.variants,
-                                   args.where, args.seconds, args.shards, args.device))
+                                   args.where, args.seconds, args.shards, args.device,
+                                   args.fovs))
         return 0
     index, count = (int(x) for x in args.shard.split("/"))
     if not 0 <= index < count:
         parser.error(f"--shard {args.shard}: I must be in 0..N-1")
+    if args.fovs and not set(args.fovs) <= set(FOVS):
+        parser.error(f"--fovs: each must be one of {', '.join(f'{f:g}' for f in FOVS)}")
     sys.stdout.write(run(args.quick, args.meshes, args.variants, args.device,
-                         (index, count), args.rows))
+                         (index, count), args.rows, args.fovs))
     return 0
 
 

@@ -53,3 +53,17 @@ def test_section_from_rows_lists_jobs_not_run(meshes: list[str], tmp_path: Path)
     # the summary's "all" row: mean PSNR and median rotation over the jobs that ran
     expected_psnr = sum(r["psnr"] for r in rows) / len(rows)
     assert f"| leave-out | all | {len(rows)} | {expected_psnr:.2f} |" in text
+
+
+def test_fovs_restrict_every_row_and_name_themselves(meshes: list[str]) -> None:
+    plan = bench_unseen.make_plan(False, variants=["with look-alike"], fovs=[40.0])
+    jobs = bench_unseen.job_list(plan)
+    assert sorted(job[:3] for job in jobs) == sorted((m, 40.0, "with look-alike")
+                                                     for m in meshes)
+    text = bench_unseen.section(plan, [], 1.0, False, None)
+    assert '--variants "with look-alike" --fovs 40`' in text
+    assert "fields of view 40 deg" in text
+    assert "--fovs" not in bench_unseen.section(bench_unseen.make_plan(False), [], 1.0, False,
+                                                None)
+    with pytest.raises(SystemExit):
+        bench_unseen.main(["--fovs", "45"])
