@@ -24,7 +24,8 @@ short phases, held-out views scored at 64 px); with look-alike at 40 degrees onl
 levers on the quick meshes (on every mesh named with ``--meshes``).
 
 Usage: ``python -m benchmarks.bench_unseen [--quick] [--meshes NAME ...] [--variants ...]
-[--device cuda]`` prints the section. Side by side: ``--shard I/N --rows FILE`` in N processes,
+[--fovs DEG ...] [--views N] [--device cuda]`` prints the section (``--views 3`` and ``9``: the
+paper's other Table 1 rows). Side by side: ``--shard I/N --rows FILE`` in N processes,
 then ``--from-rows FILE --shards N`` makes the section from their rows
 (``docs/bench_unseen_full.md``).
 """
@@ -92,14 +93,15 @@ class Plan:
     eval_size: int | None
     variants: tuple[str, ...] | None = None  # only these rows (None: all)
     fovs: tuple[float, ...] = FOVS  # the fields of view rendered
+    views: int = VIEWS  # photos in each walk (the paper's Table 1 rows: 3, 6, 9)
 
 
 def make_plan(quick: bool, names: list[str] | None = None,
               variants: list[str] | None = None,
-              fovs: list[float] | None = None) -> Plan:
+              fovs: list[float] | None = None, views: int = VIEWS) -> Plan:
     """The quick or the full plan (``names``: only these meshes; ``variants``: only these
     rows, of "leave-out", "with look-alike" and ``lever_variants``; ``fovs``: only these
-    fields of view)."""
+    fields of view; ``views``: photos a walk)."""
     every = tuple(sorted(p.name for p in (EVAL_ROOT / "meshes").iterdir() if p.is_dir()))
     only = tuple(variants) if variants else None
     chosen = tuple(float(f) for f in fovs) if fovs else FOVS
@@ -110,10 +112,10 @@ def make_plan(quick: bool, names: list[str] | None = None,
     if quick:
         meshes = tuple(names or QUICK_MESHES)
         return Plan(meshes, dict(QUICK_OVERRIDES), within((40.0,)), within((40.0, 70.0)),
-                    meshes, 64, only, chosen)
+                    meshes, 64, only, chosen, views)
     meshes = tuple(names or every)
     levered = meshes if names else tuple(m for m in meshes if m in QUICK_MESHES)
-    return Plan(meshes, {}, chosen, chosen, levered, None, only, chosen)
+    return Plan(meshes, {}, chosen, chosen, levered, None, only, chosen, views)
 
 
 def lever_variants() -> dict[str, tuple[str, dict[str, Any]]]:
@@ -134,13 +136,13 @@ def lever_variants() -> dict[str, tuple[str, dict[str, Any]]]:
     return out
 
 
-def render_walk(name: str, fov: float, work: Path) -> Path:
-    """The walk of mesh ``name`` at ``fov`` degrees (rendered once)."""
+def render_walk(name: str, fov: float, work: Path, views: int = VIEWS) -> Path:
+    """The walk of ``views`` photos of mesh ``name`` at ``fov`` degrees (rendered once)."""
     from cadnerf_core.evaluation.dataset import render_dataset
 
-    folder = work / name / f"fov{fov:g}"
+    folder = work / name / (f"fov{fov:g}" if views == VIEWS else f"fov{fov:g}_{views}views")
     if not (folder / "transforms_test.json").is_file():
-        render_dataset(mesh_file(EVAL_ROOT / "meshes" / name), folder, VIEWS, SIZE, SEED,
+        render_dataset(mesh_file(EVAL_ROOT / "meshes" / name), folder, views, SIZE, SEED,
                        up="z" if name in Z_UP else "y", test_views=TEST_VIEWS, fov_deg=fov)
     return folder
 
@@ -153,10 +155,11 @@ def run_job(name: str, fov: float, variant: str, overrides: dict[str, Any],
     from cadnerf_core.evaluation.evaluate import evaluate_dataset
     from cadnerf_core.jobfolder import JobFolder
 
-    row: dict[str, Any] = {"mesh": name, "fov": fov, "variant": variant}
+    row: dict[str, Any] = {"mesh": name, "fov": fov, "variant": variant, "views": plan.views}
     config = {**plan.overrides, **exclude_overrides(name, protocol), **overrides, "seed": SEED}
     try:
-        report = evaluate_dataset(render_walk(name, fov, work), VIEWS, library, preset=PRESET,
+        report = evaluate_dataset(render_walk(name, fov, work, plan.views), plan.views, library,
+                                  preset=PRESET,
                                   overrides=config, job_dir=work / name / f"job_{variant}_"
                                   f"{fov:g}", device=device, eval_size=plan.eval_size,
                                   exif_focal=exif)
@@ -259,15 +262,18 @@ def section(plan: Plan, rows: list[dict[str, Any]], seconds: float, quick: bool,
         flags += " --variants " + " ".join(f'"{v}"' if " " in v else v for v in plan.variants)
     if plan.fovs != FOVS:
         flags += " --fovs " + " ".join(f"{f:g}" for f in plan.fovs)
+    if plan.views != VIEWS:
+        flags += f" --views {plan.views}"
     flags += extra_flags
     labels = {name: label for name, (label, _) in lever_variants().items()}
     lines = [
         "## Objects the library has not seen ("
         + ", ".join(plan.variants or ("leave-out", "with look-alike", "levers")) + "; "
-        + ", ".join(f"{f:g}" for f in plan.fovs) + " deg)", "",
+        + ", ".join(f"{f:g}" for f in plan.fovs) + " deg"
+        + ("" if plan.views == VIEWS else f"; {plan.views} views") + ")", "",
         f"Command: `.venv/bin/python -m benchmarks.bench_unseen{flags}` ({seconds:.0f} s, "
         f"{where}). Meshes: {', '.join(plan.meshes)}. Walks of "
-        f"{VIEWS} views at {SIZE} px, {TEST_VIEWS} held-out views, fields of view "
+        f"{plan.views} views at {SIZE} px, {TEST_VIEWS} held-out views, fields of view "
         f"{', '.join(f'{f:g}' for f in plan.fovs)} deg, no EXIF; preset `{PRESET}`"
         + (f" with `{plan.overrides}`" if plan.overrides else "")
         + (f"; held-out views scored at {plan.eval_size} px" if plan.eval_size else "")
@@ -309,17 +315,18 @@ def section(plan: Plan, rows: list[dict[str, Any]], seconds: float, quick: bool,
 
 def run(quick: bool, names: list[str] | None = None, variants: list[str] | None = None,
         device: str = "cpu", shard: tuple[int, int] = (0, 1),
-        rows_file: Path | None = None, fovs: list[float] | None = None) -> str:
+        rows_file: Path | None = None, fovs: list[float] | None = None,
+        views: int = VIEWS) -> str:
     """Run the benchmark (``variants``: only these rows; ``shard``: only every ``shard[1]``-th
     job from ``shard[0]``, for running shards side by side; ``rows_file``: JSON lines of the
-    rows, for ``from_rows``). Returns its markdown section."""
+    rows, for ``from_rows``; ``views``: photos a walk). Returns its markdown section."""
     import torch
 
     from cadnerf_core.library.format import load_library
 
     if not (EVAL_ROOT / "meshes").is_dir():
         return "## Objects the library has not seen\n\nNot run: `../shared/eval` is absent.\n"
-    plan = make_plan(quick, names, variants, fovs)
+    plan = make_plan(quick, names, variants, fovs, views)
     library = load_library(LIBRARY_DIR)
     work = WORK_DIR if shard[1] == 1 else WORK_DIR / f"shard{shard[0]}"
     shutil.rmtree(work, ignore_errors=True)
@@ -344,16 +351,19 @@ def device_words(device: str, jobs_at_once: int) -> str:
 
 def from_rows(files: list[Path], quick: bool, names: list[str] | None,
               variants: list[str] | None, where: str, seconds: float, shards: int,
-              device: str = "cuda", fovs: list[float] | None = None) -> str:
+              device: str = "cuda", fovs: list[float] | None = None,
+              views: int = VIEWS) -> str:
     """The section from the rows that shards wrote (``run(rows_file=...)``), in the plan's
-    order; a job of the plan without a row is listed as not run."""
-    plan = make_plan(quick, names, variants, fovs)
+    order; a job of the plan without a row is listed as not run (rows of walks of another
+    ``views`` count are not the plan's)."""
+    plan = make_plan(quick, names, variants, fovs, views)
     got = {}
     for file in files:
         for line in file.read_text().splitlines():
             if line.strip():
                 row = json.loads(line)
-                got[(row["mesh"], float(row["fov"]), row["variant"])] = row
+                if row.get("views", VIEWS) == views:
+                    got[(row["mesh"], float(row["fov"]), row["variant"])] = row
     rows = [got.get((name, fov, variant),
                     {"mesh": name, "fov": fov, "variant": variant, "error": "not run"})
             for name, fov, variant, *_ in job_list(plan)]
@@ -372,6 +382,8 @@ def main(argv: list[str] | None = None) -> int:
                              'hypotheses_off, seeds_on, mirror_off, prior_on)')
     parser.add_argument("--fovs", type=float, nargs="*", default=None,
                         help=f"only these fields of view (of {', '.join(f'{f:g}' for f in FOVS)})")
+    parser.add_argument("--views", type=int, default=VIEWS,
+                        help=f"photos a walk (default {VIEWS}; the paper's Table 1: 3, 6, 9)")
     parser.add_argument("--device", default="cpu", help="cpu or cuda")
     parser.add_argument("--shard", default="0/1",
                         help="I/N: only every N-th job from the I-th (run N side by side)")
@@ -390,15 +402,17 @@ def main(argv: list[str] | None = None) -> int:
     if args.from_rows:
         sys.stdout.write(from_rows(args.from_rows, args.quick, args.meshes, args.variants,
                                    args.where, args.seconds, args.shards, args.device,
-                                   args.fovs))
+                                   args.fovs, args.views))
         return 0
     index, count = (int(x) for x in args.shard.split("/"))
     if not 0 <= index < count:
         parser.error(f"--shard {args.shard}: I must be in 0..N-1")
     if args.fovs and not set(args.fovs) <= set(FOVS):
         parser.error(f"--fovs: each must be one of {', '.join(f'{f:g}' for f in FOVS)}")
+    if not 3 <= args.views <= 10:
+        parser.error(f"--views {args.views}: a job takes 3 to 10 photos")
     sys.stdout.write(run(args.quick, args.meshes, args.variants, args.device,
-                         (index, count), args.rows, args.fovs))
+                         (index, count), args.rows, args.fovs, args.views))
     return 0
 
 

@@ -67,3 +67,27 @@ def test_fovs_restrict_every_row_and_name_themselves(meshes: list[str]) -> None:
                                                 None)
     with pytest.raises(SystemExit):
         bench_unseen.main(["--fovs", "45"])
+
+
+def test_views_name_themselves_and_keep_rows_apart(meshes: list[str], tmp_path: Path) -> None:
+    plan = bench_unseen.make_plan(False, variants=["leave-out"], fovs=[55.0], views=9)
+    text = bench_unseen.section(plan, [], 1.0, False, None)
+    assert "--fovs 55 --views 9`" in text and "Walks of 9 views" in text
+    assert "; 9 views)" in text.splitlines()[0]
+    assert "--views" not in bench_unseen.section(bench_unseen.make_plan(False), [], 1.0, False,
+                                                 None)
+    # a rows file holding walks of 6 and of 9 photos: each section takes only its own
+    row = {"mesh": meshes[0], "fov": 55.0, "variant": "leave-out", "model": "mug",
+           "psnr": 20.0, "rot": 4.0, "r_rot": 10.0, "focal_err": 5.0, "r_focal_err": 5.0,
+           "job_s": 60.0, "hypotheses": 3, "fit_s": 1.0, "switched": False}
+    file = tmp_path / "rows.jsonl"
+    file.write_text(json.dumps({**row, "views": 9, "psnr": 25.0}) + "\n"
+                    + json.dumps(row) + "\n")  # rows written before views were recorded: 6
+    nine = bench_unseen.from_rows([file], False, None, ["leave-out"], "cpu", 1.0, 1,
+                                  fovs=[55.0], views=9)
+    six = bench_unseen.from_rows([file], False, None, ["leave-out"], "cpu", 1.0, 1,
+                                 fovs=[55.0])
+    assert f"| {meshes[0]} | 55 | leave-out | mug | 25.00 |" in nine
+    assert f"| {meshes[0]} | 55 | leave-out | mug | 20.00 |" in six
+    with pytest.raises(SystemExit):
+        bench_unseen.main(["--views", "2"])
