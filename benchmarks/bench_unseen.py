@@ -226,7 +226,8 @@ def run_rows(plan: Plan, library: Any, work: Path, device: str = "cpu",
 def summary_rows(rows: list[dict[str, Any]]) -> list[dict[str, Any]]:
     """Per variant (and field of view, and all together): mean PSNR, median rotation error,
     mean |focal error|, mean job time over the jobs that ran; levers compared with the
-    leave-out jobs of the same meshes and fields of view."""
+    leave-out jobs of the same meshes and fields of view. Rows without a record of the start's
+    fits (``fit_s``, ``switched``: taken from an older table) leave those columns empty."""
     done = [r for r in rows if "error" not in r]
     out = []
     for variant in dict.fromkeys(r["variant"] for r in done):
@@ -239,7 +240,8 @@ def summary_rows(rows: list[dict[str, Any]]) -> list[dict[str, Any]]:
             fits = [r["fit_s"] for r in group if r.get("fit_s") is not None]
             out.append({
                 "fit_s": statistics.fmean(fits) if fits else None,
-                "switched": sum(bool(r.get("switched")) for r in group),
+                "switched": sum(bool(r["switched"]) for r in group)
+                if all("switched" in r for r in group) else None,
                 "variant": variant, "fov": "all" if fov is None else f"{fov:g}",
                 "jobs": len(group), "psnr": statistics.fmean(r["psnr"] for r in group),
                 "base_psnr": statistics.fmean(r["psnr"] for r in base) if base else None,

@@ -91,3 +91,12 @@ def test_views_name_themselves_and_keep_rows_apart(meshes: list[str], tmp_path: 
     assert f"| {meshes[0]} | 55 | leave-out | mug | 20.00 |" in six
     with pytest.raises(SystemExit):
         bench_unseen.main(["--views", "2"])
+
+
+def test_rows_without_start_records_leave_those_columns_empty(meshes: list[str]) -> None:
+    rows = [{"mesh": m, "fov": 40.0, "variant": "leave-out", "psnr": 20.0, "rot": 5.0,
+             "focal_err": 1.0, "job_s": 60.0} for m in meshes]
+    summary = bench_unseen.summary_rows(rows)
+    assert all(s["switched"] is None and s["fit_s"] is None for s in summary)
+    rows[0].update(switched=True, fit_s=1.0)
+    assert [s["switched"] for s in bench_unseen.summary_rows(rows[:1])] == [1, 1]
