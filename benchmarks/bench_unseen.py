@@ -78,7 +78,7 @@ LEVERS: dict[str, tuple[str, dict[str, Any], dict[str, Any]]] = {
                {"retrieval.mirror_margin": 0.0}, {"retrieval.mirror_margin": 0.01}),
     "prior": ("photos without EXIF taken for a 35 mm-equivalent lens (54 degrees)",
               {"retrieval.focal_35mm": None}, {"retrieval.focal_35mm": 35.0}),
-    "poselr": ("the poses learned at 4e-3 in phases two and three (off: 2e-3)",
+    "poselr": ("the poses learned at 4e-3 in phases two and three (off: 2e-3, the default)",
                {"phase2.pose_lr": 2e-3, "phase3.pose_lr": 2e-3},
                {"phase2.pose_lr": 4e-3, "phase3.pose_lr": 4e-3}),
 }
@@ -384,7 +384,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--variants", nargs="*", default=None,
                         help='only these rows: "leave-out", "with look-alike", "with EXIF" '
                              'and the levers flipped from their defaults (focal_on, '
-                             'hypotheses_off, seeds_on, mirror_off, prior_on, poselr_off)')
+                             'hypotheses_off, seeds_on, mirror_off, prior_on, poselr_on)')
     parser.add_argument("--fovs", type=float, nargs="*", default=None,
                         help=f"only these fields of view (of {', '.join(f'{f:g}' for f in FOVS)})")
     parser.add_argument("--views", type=int, default=VIEWS,

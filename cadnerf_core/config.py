@@ -308,8 +308,8 @@ PRESETS: dict[str, PipelineConfig] = {
         field={"hidden": 64, "pos_freqs": 6, "deform_hidden": 48, "color_hidden": 64},
         render={"samples_per_ray": 32, "grid_resolution": 32},
         phase1={"steps": 200, "batch_points": 4096},
-        phase2={"steps": 400, "rays": 1024, "pose_lr": 4e-3},
-        phase3={"steps": 2000, "rays": 1024, "scene_steps": 300, "pose_lr": 4e-3},
+        phase2={"steps": 400, "rays": 1024},
+        phase3={"steps": 2000, "rays": 1024, "scene_steps": 300},
         export={"orbit_size": 256, "orbit_frames": 36, "orbit_fps": 6, "mesh_resolution": 64}),
 }
 """The named presets a job may start from; ``standard`` is the default."""
