@@ -161,11 +161,10 @@ def run_job(name: str, fov: float, variant: str, overrides: dict[str, Any],
     row: dict[str, Any] = {"mesh": name, "fov": fov, "variant": variant, "views": plan.views}
     config = {**plan.overrides, **exclude_overrides(name, protocol), **overrides, "seed": SEED}
     try:
-        report = evaluate_dataset(render_walk(name, fov, work, plan.views), plan.views, library,
-                                  preset=PRESET,
-                                  overrides=config, job_dir=work / name / f"job_{variant}_"
-                                  f"{fov:g}", device=device, eval_size=plan.eval_size,
-                                  exif_focal=exif)
+        walk = render_walk(name, fov, work, plan.views)
+        report = evaluate_dataset(walk, plan.views, library, preset=PRESET, overrides=config,
+                                  job_dir=walk.parent / f"job_{variant}_{walk.name}",
+                                  device=device, eval_size=plan.eval_size, exif_focal=exif)
     except Exception as exc:  # noqa: BLE001 - one failed job is a row, not a crash
         log.exception("%s %s at %g deg failed", name, variant, fov)
         return {**row, "error": f"{type(exc).__name__}: {exc}"}
