@@ -100,3 +100,27 @@ def test_rows_without_start_records_leave_those_columns_empty(meshes: list[str])
     assert all(s["switched"] is None and s["fit_s"] is None for s in summary)
     rows[0].update(switched=True, fit_s=1.0)
     assert [s["switched"] for s in bench_unseen.summary_rows(rows[:1])] == [1, 1]
+
+
+def test_jobs_of_walks_with_other_photo_counts_get_folders_of_their_own(
+        meshes: list[str], tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    from cadnerf_core.evaluation import evaluate
+
+    seen: list[tuple[int, Path]] = []
+
+    def fake_walk(name: str, fov: float, work: Path, views: int = 6) -> Path:
+        return work / name / (f"fov{fov:g}" if views == 6 else f"fov{fov:g}_{views}views")
+
+    def refuse(walk: Path, views: int, *args: object, job_dir: Path, **kwargs: object) -> None:
+        seen.append((views, job_dir))
+        raise RuntimeError("not trained here")
+
+    monkeypatch.setattr(bench_unseen, "render_walk", fake_walk)
+    monkeypatch.setattr(evaluate, "evaluate_dataset", refuse)
+    for views in (6, 9):
+        plan = bench_unseen.make_plan(False, variants=["leave-out"], fovs=[40.0], views=views)
+        row = bench_unseen.run_job(meshes[0], 40.0, "leave-out", {}, "leave-out", plan, None,
+                                   tmp_path)
+        assert row["views"] == views and "not trained here" in row["error"]
+    assert [v for v, _ in seen] == [6, 9]
+    assert seen[0][1] != seen[1][1] and seen[0][1].parent == seen[1][1].parent
