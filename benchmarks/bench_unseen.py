@@ -25,9 +25,10 @@ levers on the quick meshes (on every mesh named with ``--meshes``).
 
 Usage: ``python -m benchmarks.bench_unseen [--quick] [--meshes NAME ...] [--variants ...]
 [--fovs DEG ...] [--views N] [--device cuda]`` prints the section (``--views 3`` and ``9``: the
-paper's other Table 1 rows). Side by side: ``--shard I/N --rows FILE`` in N processes,
-then ``--from-rows FILE --shards N`` makes the section from their rows
-(``docs/bench_unseen_full.md``).
+paper's other Table 1 rows; several counts make one section each). Side by side: ``--workers K``
+runs K jobs at a time from one queue (a machine with many cores or a GPU), or ``--shard I/N
+--rows FILE`` in N processes, then ``--from-rows FILE --shards N`` makes the section from their
+rows (``docs/bench_unseen_full.md``).
 """
 
 from __future__ import annotations
@@ -35,10 +36,13 @@ from __future__ import annotations
 import argparse
 import json
 import logging
+import multiprocessing
+import os
 import shutil
 import statistics
 import sys
 import time
+from concurrent.futures import ProcessPoolExecutor, as_completed
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -222,6 +226,69 @@ def run_rows(plan: Plan, library: Any, work: Path, device: str = "cpu",
     return rows
 
 
+LOG_FORMAT = "%(asctime)s %(process)d %(levelname)s %(name)s: %(message)s"
+_WORKER: dict[str, Any] = {}  # a queue worker's library, loaded once per process
+
+
+def _start_worker() -> None:
+    """A queue worker's start: one torch thread, the library loaded once."""
+    import torch
+
+    from cadnerf_core.library.format import load_library
+
+    logging.basicConfig(level=logging.INFO, format=LOG_FORMAT)
+    torch.set_num_threads(1)
+    _WORKER["library"] = load_library(LIBRARY_DIR)
+
+
+def _queued_job(job: Job, plan: Plan, work: Path, device: str) -> dict[str, Any]:
+    """One job in a queue worker, its walk rendered in the worker's own folder (two jobs of
+    one walk never write it at once)."""
+    name, fov, variant, overrides, protocol, exif = job
+    return run_job(name, fov, variant, overrides, protocol, plan, _WORKER["library"],
+                   work / f"worker{os.getpid()}", device, exif)
+
+
+def rows_done(rows_file: Path | None) -> dict[tuple[str, float, str, int], dict[str, Any]]:
+    """The rows a file already holds of jobs that ran (``--rows`` of a run cut short), by
+    (mesh, fov, variant, views): a queue run with the same file runs only the others."""
+    if rows_file is None or not rows_file.is_file():
+        return {}
+    done = {}
+    for line in rows_file.read_text().splitlines():
+        if line.strip():
+            row = json.loads(line)
+            if "error" not in row:
+                done[(row["mesh"], float(row["fov"]), row["variant"],
+                      int(row.get("views", VIEWS)))] = row
+    return done
+
+
+def run_queue(jobs: list[tuple[Plan, Job]], work: Path, device: str, workers: int,
+              rows_file: Path | None = None) -> list[dict[str, Any]]:
+    """``jobs`` (each with its plan) run ``workers`` at a time from one queue, in fresh
+    (spawned) processes, since torch must not run in a process that forks; each row appended
+    to ``rows_file`` as its job ends. Returns the rows in the jobs' order."""
+    rows: list[dict[str, Any] | None] = [None] * len(jobs)
+    context = multiprocessing.get_context("spawn")
+    with ProcessPoolExecutor(workers, mp_context=context, initializer=_start_worker) as pool:
+        futures = {pool.submit(_queued_job, job, plan, work, device): k
+                   for k, (plan, job) in enumerate(jobs)}
+        for future in as_completed(futures):
+            k = futures[future]
+            plan, job = jobs[k]
+            try:
+                row = future.result()
+            except Exception as exc:  # noqa: BLE001 - a worker that died is a row, not a crash
+                row = {"mesh": job[0], "fov": job[1], "variant": job[2], "views": plan.views,
+                       "error": f"{type(exc).__name__}: {exc}"}
+            rows[k] = row
+            if rows_file is not None:
+                with rows_file.open("a") as f:
+                    f.write(json.dumps(row) + "\n")
+    return [row for row in rows if row is not None]
+
+
 def summary_rows(rows: list[dict[str, Any]]) -> list[dict[str, Any]]:
     """Per variant (and field of view, and all together): mean PSNR, median rotation error,
     mean |focal error|, mean job time over the jobs that ran; levers compared with the
@@ -320,29 +387,46 @@ def section(plan: Plan, rows: list[dict[str, Any]], seconds: float, quick: bool,
 def run(quick: bool, names: list[str] | None = None, variants: list[str] | None = None,
         device: str = "cpu", shard: tuple[int, int] = (0, 1),
         rows_file: Path | None = None, fovs: list[float] | None = None,
-        views: int = VIEWS) -> str:
+        views: int | list[int] = VIEWS, workers: int = 1) -> str:
     """Run the benchmark (``variants``: only these rows; ``shard``: only every ``shard[1]``-th
     job from ``shard[0]``, for running shards side by side; ``rows_file``: JSON lines of the
-    rows, for ``from_rows``; ``views``: photos a walk). Returns its markdown section."""
+    rows, for ``from_rows``; ``views``: photos a walk, one section per count; ``workers``: jobs
+    at a time from one queue). Returns its markdown sections."""
     import torch
 
     from cadnerf_core.library.format import load_library
 
     if not (EVAL_ROOT / "meshes").is_dir():
         return "## Objects the library has not seen\n\nNot run: `../shared/eval` is absent.\n"
-    plan = make_plan(quick, names, variants, fovs, views)
-    library = load_library(LIBRARY_DIR)
+    plans = [make_plan(quick, names, variants, fovs, v)
+             for v in ([views] if isinstance(views, int) else views)]
     work = WORK_DIR if shard[1] == 1 else WORK_DIR / f"shard{shard[0]}"
     shutil.rmtree(work, ignore_errors=True)
-    threads = torch.get_num_threads()
-    torch.set_num_threads(1)  # as bench_eval: small jobs, no OpenMP oversubscription
+    index, count = shard
+    done = rows_done(rows_file)
     start = time.perf_counter()
-    try:
-        rows = run_rows(plan, library, work, device, shard, rows_file)
-    finally:
-        torch.set_num_threads(threads)
-    where = CPU_WHERE if device == "cpu" else device_words(device, shard[1])
-    return section(plan, rows, time.perf_counter() - start, quick, names, where)
+    if workers > 1:
+        queue = [(plan, job) for plan in plans for job in job_list(plan)[index::count]
+                 if (job[0], job[1], job[2], plan.views) not in done]
+        rows = list(done.values()) + run_queue(queue, work, device, workers, rows_file)
+    else:
+        library = load_library(LIBRARY_DIR)
+        threads = torch.get_num_threads()
+        torch.set_num_threads(1)  # as bench_eval: small jobs, no OpenMP oversubscription
+        try:
+            rows = [row for plan in plans
+                    for row in run_rows(plan, library, work, device, shard, rows_file)]
+        finally:
+            torch.set_num_threads(threads)
+    seconds = time.perf_counter() - start
+    where = (CPU_WHERE if device == "cpu" and workers == 1
+             else device_words(device, max(workers, shard[1])))
+    if len(plans) > 1:
+        where += f"; one run for {' and '.join(str(p.views) for p in plans)} views"
+    extra = ((f" --device {device}" if device != "cpu" else "")
+             + (f" --workers {workers}" if workers > 1 else ""))
+    return "\n".join(section(plan, [r for r in rows if r.get("views", VIEWS) == plan.views],
+                             seconds, quick, names, where, extra) for plan in plans)
 
 
 def device_words(device: str, jobs_at_once: int) -> str:
@@ -356,10 +440,11 @@ def device_words(device: str, jobs_at_once: int) -> str:
 def from_rows(files: list[Path], quick: bool, names: list[str] | None,
               variants: list[str] | None, where: str, seconds: float, shards: int,
               device: str = "cuda", fovs: list[float] | None = None,
-              views: int = VIEWS) -> str:
+              views: int = VIEWS, workers: int = 1) -> str:
     """The section from the rows that shards wrote (``run(rows_file=...)``), in the plan's
     order; a job of the plan without a row is listed as not run (rows of walks of another
-    ``views`` count are not the plan's)."""
+    ``views`` count are not the plan's). ``workers`` > 1: the rows came from one queue run
+    (``--workers``) rather than from shards."""
     plan = make_plan(quick, names, variants, fovs, views)
     got = {}
     for file in files:
@@ -371,8 +456,9 @@ def from_rows(files: list[Path], quick: bool, names: list[str] | None,
     rows = [got.get((name, fov, variant),
                     {"mesh": name, "fov": fov, "variant": variant, "error": "not run"})
             for name, fov, variant, *_ in job_list(plan)]
-    return section(plan, rows, seconds, quick, names, where,
-                   f" --device {device} --shard I/{shards} (I = 0..{shards - 1}, side by side)")
+    how = (f" --workers {workers}" if workers > 1
+           else f" --shard I/{shards} (I = 0..{shards - 1}, side by side)")
+    return section(plan, rows, seconds, quick, names, where, f" --device {device}{how}")
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -386,13 +472,17 @@ def main(argv: list[str] | None = None) -> int:
                              'hypotheses_off, seeds_on, mirror_off, prior_on, poselr_on)')
     parser.add_argument("--fovs", type=float, nargs="*", default=None,
                         help=f"only these fields of view (of {', '.join(f'{f:g}' for f in FOVS)})")
-    parser.add_argument("--views", type=int, default=VIEWS,
-                        help=f"photos a walk (default {VIEWS}; the paper's Table 1: 3, 6, 9)")
+    parser.add_argument("--views", type=int, nargs="+", default=[VIEWS],
+                        help=f"photos a walk (default {VIEWS}; the paper's Table 1: 3, 6, 9); "
+                             "several: one section each")
+    parser.add_argument("--workers", type=int, default=1,
+                        help="jobs at a time, from one queue, each in a process of its own")
     parser.add_argument("--device", default="cpu", help="cpu or cuda")
     parser.add_argument("--shard", default="0/1",
                         help="I/N: only every N-th job from the I-th (run N side by side)")
     parser.add_argument("--rows", type=Path, default=None,
-                        help="append each job's row to this file (JSON lines)")
+                        help="append each job's row to this file (JSON lines); with "
+                             "--workers, jobs whose rows it already holds are not run again")
     parser.add_argument("--from-rows", type=Path, nargs="*", default=None,
                         help="run nothing: the section from the shards' rows files")
     parser.add_argument("--where", default=CPU_WHERE, help="with --from-rows: what ran them")
@@ -401,22 +491,25 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--shards", type=int, default=1,
                         help="with --from-rows: how many shards ran side by side")
     args = parser.parse_args(argv)
-    logging.basicConfig(level=logging.INFO,
-                        format="%(asctime)s %(levelname)s %(name)s: %(message)s")
+    logging.basicConfig(level=logging.INFO, format=LOG_FORMAT)
     if args.from_rows:
-        sys.stdout.write(from_rows(args.from_rows, args.quick, args.meshes, args.variants,
-                                   args.where, args.seconds, args.shards, args.device,
-                                   args.fovs, args.views))
+        sys.stdout.write("\n".join(
+            from_rows(args.from_rows, args.quick, args.meshes, args.variants, args.where,
+                      args.seconds, args.shards, args.device, args.fovs, views, args.workers)
+            for views in args.views))
         return 0
     index, count = (int(x) for x in args.shard.split("/"))
     if not 0 <= index < count:
         parser.error(f"--shard {args.shard}: I must be in 0..N-1")
     if args.fovs and not set(args.fovs) <= set(FOVS):
         parser.error(f"--fovs: each must be one of {', '.join(f'{f:g}' for f in FOVS)}")
-    if not 3 <= args.views <= 10:
-        parser.error(f"--views {args.views}: a job takes 3 to 10 photos")
+    for views in args.views:
+        if not 3 <= views <= 10:
+            parser.error(f"--views {views}: a job takes 3 to 10 photos")
+    if args.workers < 1:
+        parser.error(f"--workers {args.workers}: at least 1")
     sys.stdout.write(run(args.quick, args.meshes, args.variants, args.device,
-                         (index, count), args.rows, args.fovs, args.views))
+                         (index, count), args.rows, args.fovs, args.views, args.workers))
     return 0
 
 

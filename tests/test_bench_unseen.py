@@ -124,3 +124,36 @@ def test_jobs_of_walks_with_other_photo_counts_get_folders_of_their_own(
         assert row["views"] == views and "not trained here" in row["error"]
     assert [v for v, _ in seen] == [6, 9]
     assert seen[0][1] != seen[1][1] and seen[0][1].parent == seen[1][1].parent
+
+
+def test_a_queue_run_resumes_from_its_rows_file(meshes: list[str], tmp_path: Path,
+                                                monkeypatch: pytest.MonkeyPatch) -> None:
+    row = {"mesh": meshes[0], "fov": 40.0, "variant": "leave-out", "views": 9,
+           "model": "mug", "psnr": 23.0, "rot": 4.0, "r_rot": 10.0, "focal_err": 5.0,
+           "r_focal_err": 5.0, "job_s": 60.0, "hypotheses": 3, "fit_s": 1.0,
+           "switched": False}
+    failed = {**row, "mesh": meshes[1], "error": "RuntimeError: out of memory"}
+    file = tmp_path / "rows.jsonl"
+    file.write_text(json.dumps(row) + "\n" + json.dumps(failed) + "\n")
+    assert list(bench_unseen.rows_done(file)) == [(meshes[0], 40.0, "leave-out", 9)]
+    assert bench_unseen.rows_done(tmp_path / "absent.jsonl") == {}
+
+    queued: list[tuple[int, str]] = []
+
+    def fake_queue(jobs: list, work: Path, device: str, workers: int,
+                   rows_file: Path | None = None) -> list[dict]:
+        assert workers == 2 and rows_file == file
+        queued.extend((plan.views, job[0]) for plan, job in jobs)
+        return []
+
+    monkeypatch.setattr(bench_unseen, "run_queue", fake_queue)
+    monkeypatch.setattr(bench_unseen, "WORK_DIR", tmp_path / "work")
+    text = bench_unseen.run(False, variants=["leave-out"], fovs=[40.0], views=[6, 9],
+                            workers=2, rows_file=file)
+    # the job that ran is not queued again; the one that failed is, and so is every 6-view job
+    assert sorted(queued) == sorted([(6, m) for m in meshes] + [(9, m) for m in meshes[1:]])
+    nine = text[text.index("; 9 views)"):]
+    assert f"| {meshes[0]} | 40 | leave-out | mug | 23.00 |" in nine
+    assert "--views 9 --workers 2`" in nine and "one run for 6 and 9 views" in nine
+    with pytest.raises(SystemExit):
+        bench_unseen.main(["--workers", "0"])
