@@ -82,7 +82,8 @@ LEVERS: dict[str, tuple[str, dict[str, Any], dict[str, Any]]] = {
                {"retrieval.mirror_margin": 0.0}, {"retrieval.mirror_margin": 0.01}),
     "prior": ("photos without EXIF taken for a 35 mm-equivalent lens (54 degrees)",
               {"retrieval.focal_35mm": None}, {"retrieval.focal_35mm": 35.0}),
-    "poselr": ("the poses learned at 4e-3 in phases two and three (off: 2e-3, the default)",
+    "poselr": ("the poses learned at 4e-3 in phases two and three, the start's fits at 2e-3 "
+               "(off: 2e-3 throughout, the default)",
                {"phase2.pose_lr": 2e-3, "phase3.pose_lr": 2e-3},
                {"phase2.pose_lr": 4e-3, "phase3.pose_lr": 4e-3}),
 }

@@ -8,6 +8,7 @@ from typing import Literal
 
 from pydantic import Field, model_validator
 
+from cadnerf_core.config_bounds import MAX_LR
 from cadnerf_core.config_bounds import Frozen as _Frozen
 from cadnerf_core.config_matches import MatchesConfig
 
@@ -108,6 +109,10 @@ class RetrievalConfig(_Frozen):
     """Phase-two steps of each hypothesis's coarse fit (phase one gets half as many)."""
     hypothesis_size: int = Field(default=32, ge=16, le=256)
     """Side in pixels of the crops a hypothesis is fitted and scored on."""
+    hypothesis_pose_lr: float = Field(default=2e-3, gt=0.0, le=MAX_LR)
+    """Learning rate of the poses in a hypothesis's coarse fit, whatever phase two's: the fits
+    are compared with one another, so the rate that ranks the starts stays put when training
+    learns the poses faster."""
     hypothesis_seeds: int = Field(default=1, ge=1, le=8)
     """Coarse fits of each hypothesis, each from its own seed, their scores averaged: one fit's
     score scatters by 0.01-0.02 IoU between seeds, as much as hypotheses often differ. Each

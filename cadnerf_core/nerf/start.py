@@ -34,13 +34,14 @@ SEED_STEP = 101  # between the seeds of a hypothesis's fits (each phase adds 1 t
 
 def coarse_config(config: PipelineConfig) -> PipelineConfig:
     """The job's configuration cut down to a hypothesis's coarse fit: small crops, few steps,
-    no colour phase."""
+    the poses learned at ``retrieval.hypothesis_pose_lr``, no colour phase."""
     rcfg = config.retrieval
     data = config.model_dump()
     data["image_size"] = rcfg.hypothesis_size
     data["phase1"]["steps"] = max(1, rcfg.hypothesis_steps // 2)
     data["phase2"]["steps"] = rcfg.hypothesis_steps
     data["phase2"]["rays"] = min(config.phase2.rays, 512)
+    data["phase2"]["pose_lr"] = rcfg.hypothesis_pose_lr
     data["render"]["samples_per_ray"] = min(config.render.samples_per_ray, 24)
     return PipelineConfig.model_validate(data)
 

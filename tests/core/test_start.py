@@ -94,3 +94,14 @@ def test_the_mirrored_walk_needs_a_lead_beyond_the_margin(
     assert [h["chosen"] for h in result.hypotheses] == [i == chosen for i in range(3)]
     assert (result.model_id, result.direction) == (candidates[chosen].model_id,
                                                    candidates[chosen].direction)
+
+
+def test_a_coarse_fit_learns_the_poses_at_its_own_rate() -> None:
+    """Training may learn the poses faster; the fits that rank the starts keep their rate."""
+    config = PipelineConfig.model_validate({"phase2": {"pose_lr": 4e-3},
+                                            "retrieval": {"hypothesis_pose_lr": 1e-3}})
+    coarse = start.coarse_config(config)
+    assert coarse.phase2.pose_lr == 1e-3
+    assert config.phase2.pose_lr == 4e-3  # the job's own configuration is untouched
+    default = start.coarse_config(PipelineConfig.model_validate({"phase2": {"pose_lr": 4e-3}}))
+    assert default.phase2.pose_lr == PipelineConfig().retrieval.hypothesis_pose_lr == 2e-3
