@@ -168,7 +168,8 @@ def fair_use(folder: Path, url: str, library: Path, keys: int, per_key: int) -> 
     with the default per-key limits; the figures of ``run_fair_load``."""
     names = [f"fair-key-{chr(ord('a') + i)}" for i in range(keys)]
     redis.Redis.from_url(url).flushdb()
-    live = start_live(folder / "fair", url, library, api_keys=",".join(names), **FAIR_LIMITS)
+    live = start_live(folder / "fair", url, library, True, api_keys=",".join(names),
+                      **FAIR_LIMITS)
     try:
         return run_fair_load(live.url, names, per_key, timeout_s=900.0)
     finally:
