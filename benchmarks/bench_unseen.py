@@ -221,10 +221,15 @@ def run_rows(plan: Plan, library: Any, work: Path, device: str = "cpu",
         row = run_job(name, fov, variant, overrides, protocol, plan, library, work, device,
                       exif)
         rows.append(row)
-        if rows_file is not None:
-            with rows_file.open("a") as f:
-                f.write(json.dumps(row) + "\n")
+        append_row(rows_file, row)
     return rows
+
+
+def append_row(rows_file: Path | None, row: dict[str, Any]) -> None:
+    """Append one job's row to ``rows_file`` (JSON lines) as soon as it ends (None: nowhere)."""
+    if rows_file is not None:
+        with rows_file.open("a") as f:
+            f.write(json.dumps(row) + "\n")
 
 
 LOG_FORMAT = "%(asctime)s %(process)d %(levelname)s %(name)s: %(message)s"
@@ -284,9 +289,7 @@ def run_queue(jobs: list[tuple[Plan, Job]], work: Path, device: str, workers: in
                 row = {"mesh": job[0], "fov": job[1], "variant": job[2], "views": plan.views,
                        "error": f"{type(exc).__name__}: {exc}"}
             rows[k] = row
-            if rows_file is not None:
-                with rows_file.open("a") as f:
-                    f.write(json.dumps(row) + "\n")
+            append_row(rows_file, row)
     return [row for row in rows if row is not None]
 
 
