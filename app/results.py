@@ -152,7 +152,7 @@ def _warnings(retrieval: dict[str, Any], photos: list[PhotoResult],
     """The result's warnings: each photo's mask warnings, a walking order that is a guess or
     photos reordered although given as a walk, then an undecided walking direction, then a
     field of view that no photo told."""
-    from cadnerf_core.config import AMBIGUOUS_HINT  # torch-free by contract
+    from cadnerf_core.config import direction_guess_hint  # torch-free by contract
     from cadnerf_core.config_retrieval import (
         FOCAL_UNKNOWN_WARNING,
         order_guess_warning,
@@ -165,8 +165,10 @@ def _warnings(retrieval: dict[str, Any], photos: list[PhotoResult],
     elif retrieval.get("reordered") and retrieval.get("order_mode") == "auto":
         warnings.append(reorder_warning(order))
     if retrieval.get("direction_ambiguous"):
-        warnings.append(f"{AMBIGUOUS_HINT}: resubmit with the config field "
-                        '{"overrides": {"retrieval": {"walk": "cw"}}}')
+        other = "ccw" if int(retrieval.get("direction", 1)) < 0 else "cw"
+        warnings.append(f"{direction_guess_hint(int(retrieval.get('direction', 1)))}: resubmit "
+                        'with the config field {"overrides": {"retrieval": {"walk": '
+                        f'"{other}"}}}}}}')
     if retrieval.get("focal_known") is False:
         warnings.append(FOCAL_UNKNOWN_WARNING)
     return warnings

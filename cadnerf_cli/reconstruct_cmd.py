@@ -127,9 +127,10 @@ def reconstruct(
 
         typer.echo(f"warning: {reorder_warning([names[i] for i in retrieval['order']])}")
     if retrieval.get("direction_ambiguous"):
-        from cadnerf_core.config import AMBIGUOUS_HINT
+        from cadnerf_core.config import direction_guess_hint
 
-        typer.echo(f"warning: {AMBIGUOUS_HINT} (--walk)")
+        typer.echo(f"warning: {direction_guess_hint(int(retrieval.get('direction', 1)))} "
+                   "(--walk)")
     if retrieval.get("focal_known") is False:
         from cadnerf_core.config_retrieval import FOCAL_UNKNOWN_WARNING
 

@@ -152,9 +152,9 @@ def summary_lines(result: RetrievalResult) -> list[str]:
              f"direction: {result.direction:+d}  perspective: {result.perspective}",
              "top models:"]
     if result.direction_ambiguous:
-        from cadnerf_core.config import AMBIGUOUS_HINT
+        from cadnerf_core.config import direction_guess_hint
 
-        lines.insert(1, f"warning: {AMBIGUOUS_HINT}")
+        lines.insert(1, f"warning: {direction_guess_hint(result.direction)}")
     if result.order and result.order != sorted(result.order):
         walked = ", ".join(result.matches[i].name for i in result.order)
         lines.insert(1, f"walking order{' (reordered)' if result.reordered else ''}: {walked}")

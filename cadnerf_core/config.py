@@ -23,9 +23,9 @@ from cadnerf_core.config_bounds import (
     check_point_budget,
 )
 from cadnerf_core.config_bounds import Frozen as _Frozen
-from cadnerf_core.config_retrieval import AMBIGUOUS_HINT as AMBIGUOUS_HINT
 from cadnerf_core.config_retrieval import MatchesConfig as MatchesConfig
 from cadnerf_core.config_retrieval import RetrievalConfig as RetrievalConfig
+from cadnerf_core.config_retrieval import direction_guess_hint as direction_guess_hint
 
 
 def _check_window(name: str, window: tuple[float, float]) -> None:

@@ -12,11 +12,17 @@ from cadnerf_core.config_bounds import MAX_LR
 from cadnerf_core.config_bounds import Frozen as _Frozen
 from cadnerf_core.config_matches import MatchesConfig
 
-AMBIGUOUS_HINT = ("the walking direction is a guess: these photos look alike walked either way "
-                  "round, so counter-clockwise was assumed (the object on your left as you "
-                  "walked); if you walked with it on your right, the poses are those of the "
-                  "mirrored walk: give the direction (walk: cw)")
-"""What a user is told when ``RetrievalResult.direction_ambiguous``."""
+
+def direction_guess_hint(direction: int) -> str:
+    """What a user is told when ``RetrievalResult.direction_ambiguous``: the way round the walk
+    was taken (``direction`` +1: counter-clockwise seen from above, -1: clockwise) and the
+    ``walk`` value that gives the other."""
+    taken, side, other = (("counter-clockwise", "left", "cw") if direction >= 0
+                          else ("clockwise", "right", "ccw"))
+    return ("the walking direction is a guess: these photos look alike walked either way "
+            f"round, so the walk was taken {taken} (the object on your {side} as you walked); "
+            "if you walked the other way round, the poses are those of the mirrored walk: "
+            f"give the direction (walk: {other})")
 
 
 def reorder_warning(names: list[str]) -> str:

@@ -16,7 +16,7 @@ from typing import TYPE_CHECKING, TypeVar
 
 import numpy as np
 
-from cadnerf_core.config import AMBIGUOUS_HINT, RetrievalConfig
+from cadnerf_core.config import RetrievalConfig, direction_guess_hint
 from cadnerf_core.config_retrieval import order_guess_warning, reorder_warning
 from cadnerf_core.errors import InputError
 from cadnerf_core.intake.crop import CropBox, apply_crop
@@ -280,8 +280,9 @@ def _retrieve(seen: _Seen, names: Sequence[str], library: Library, allowed: np.n
         log.info("perspective: %s (photos' angle against the matched views': far %.3f, "
                  "near %.3f)", chosen.perspective, *mismatch)
     if chosen.direction_ambiguous:
-        log.warning("%s (lead %.3f IoU, texture evidence %+.2f)", AMBIGUOUS_HINT,
-                    chosen.direction_lead, chosen.direction_evidence)
+        log.warning("%s (lead %.3f IoU, texture evidence %+.2f)",
+                    direction_guess_hint(chosen.direction), chosen.direction_lead,
+                    chosen.direction_evidence)
     return chosen
 
 

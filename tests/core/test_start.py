@@ -96,6 +96,31 @@ def test_the_mirrored_walk_needs_a_lead_beyond_the_margin(
                                                    candidates[chosen].direction)
 
 
+@pytest.mark.parametrize("ambiguous", [True, False])
+def test_a_switch_leaves_a_guessed_direction_a_guess(
+        ambiguous: bool, monkeypatch: pytest.MonkeyPatch) -> None:
+    """Retrieval guessed the direction; a fit that prefers the mirrored walk does not make it
+    known: the result still says it is a guess, and its hint names the way it was taken."""
+    from app.results import _warnings
+
+    retrieved = dataclasses.replace(_walk(1, 0.0), direction_ambiguous=ambiguous)
+    mirrored = _walk(-1, 0.0)
+    retrieval = dataclasses.replace(retrieved, alternatives=[mirrored])
+    score = {1: 0.80, -1: 0.85}
+    monkeypatch.setattr(start, "fit_hypothesis", lambda h, *args: score[h.direction])
+    config = PipelineConfig.model_validate({"retrieval": {"mirror_margin": 0.01}})
+    result = start.choose_start(retrieval, [], [], None, config,  # type: ignore[arg-type]
+                                torch.device("cpu"), False, Progress())
+    assert result.direction == -1
+    assert result.direction_ambiguous is ambiguous
+    warnings = _warnings(result.to_json(), [], [])
+    if ambiguous:
+        assert len(warnings) == 1 and "taken clockwise" in warnings[0]
+        assert '"walk": "ccw"' in warnings[0]
+    else:
+        assert warnings == []
+
+
 def test_a_coarse_fit_learns_the_poses_at_its_own_rate() -> None:
     """Training may learn the poses faster; the fits that rank the starts keep their rate."""
     config = PipelineConfig.model_validate({"phase2": {"pose_lr": 4e-3},
