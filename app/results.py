@@ -6,6 +6,7 @@ the job folder (no ``..``, no symbolic links leading out).
 
 from __future__ import annotations
 
+import json
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
@@ -165,10 +166,11 @@ def _warnings(retrieval: dict[str, Any], photos: list[PhotoResult],
     elif retrieval.get("reordered") and retrieval.get("order_mode") == "auto":
         warnings.append(reorder_warning(order))
     if retrieval.get("direction_ambiguous"):
-        other = "ccw" if int(retrieval.get("direction", 1)) < 0 else "cw"
-        warnings.append(f"{direction_guess_hint(int(retrieval.get('direction', 1)))}: resubmit "
-                        'with the config field {"overrides": {"retrieval": {"walk": '
-                        f'"{other}"}}}}}}')
+        direction = int(retrieval.get("direction", 1))
+        other = json.dumps({"overrides": {"retrieval": {"walk": "ccw" if direction < 0
+                                                        else "cw"}}})
+        warnings.append(f"{direction_guess_hint(direction)}: resubmit with the config field "
+                        f"{other}")
     if retrieval.get("focal_known") is False:
         warnings.append(FOCAL_UNKNOWN_WARNING)
     return warnings
