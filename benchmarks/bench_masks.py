@@ -101,23 +101,47 @@ def quality(name: str, shipped: list[Any]) -> tuple[list[str], dict[str, list[np
 
 def retrieval(name: str, shipped: list[Any], learned: list[np.ndarray], library: Any) -> str:
     """One line: the model retrieved with the shipped and with the learned masks, under the
-    leave-out protocol (the headline: the set's look-alikes excluded) and with them in."""
+    leave-out protocol (the headline: the set's look-alikes excluded) and with them in; where
+    they differ, how close each set of masks scores the two models (``walk_scores``)."""
     from cadnerf_core.config_retrieval import RetrievalConfig
     from cadnerf_core.retrieval.retrieve import retrieve
 
     names = [p.name for p in shipped]
     images = [p.rgb for p in shipped]
     focals = [p.focal_pixels for p in shipped]
+    mask_sets = {"shipped": [p.mask for p in shipped], "learned": learned}
     parts = []
     for protocol in PROTOCOLS:
         config = RetrievalConfig(exclude_models=excluded(name, protocol))
         picked = [retrieve(masks, names, library, config=config, images=images,
-                           focals=focals).model_id
-                  for masks in ([p.mask for p in shipped], learned)]
+                           focals=focals).model_id for masks in mask_sets.values()]
         same = "same model" if picked[0] == picked[1] else "DIFFERENT"
-        parts.append(f"{protocol}: shipped masks **{picked[0]}**, learned masks "
-                     f"**{picked[1]}** ({same})")
+        part = (f"{protocol}: shipped masks **{picked[0]}**, learned masks **{picked[1]}** "
+                f"({same})")
+        if picked[0] != picked[1]:
+            scores = {label: walk_scores(masks, names, images, focals, library, picked)
+                      for label, masks in mask_sets.items()}
+            part += "; best walk of each, objective a photo (IoU less the gap prior): " + \
+                ", ".join(f"{label} masks {picked[0]} {s[0]:.3f} / {picked[1]} {s[1]:.3f}"
+                          for label, s in scores.items())
+        parts.append(part)
     return f"- {name}: " + "; ".join(parts)
+
+
+def walk_scores(masks: list[np.ndarray], names: list[str], images: list[np.ndarray],
+                focals: list[float | None], library: Any, models: list[str]) -> list[float]:
+    """Each of ``models``' best walk with these masks (retrieval with that model alone in the
+    library, its objective over the photos): how far apart the masks put two models."""
+    from cadnerf_core.config_retrieval import RetrievalConfig
+    from cadnerf_core.retrieval.retrieve import retrieve
+
+    ids = [m.id for m in library.models]
+    out = []
+    for model in models:
+        alone = RetrievalConfig(exclude_models=tuple(i for i in ids if i != model))
+        result = retrieve(masks, names, library, config=alone, images=images, focals=focals)
+        out.append(result.score / len(masks))
+    return out
 
 
 def _big_photos(photos: list[Any], folder: Path) -> list[Path]:

@@ -75,3 +75,24 @@ def test_training_runs_both_jobs_for_each_seed_and_reports_the_mean(
     assert "difference **-1.25 dB**" in line
     assert "seed 0: built-in masks 24.00 dB (m), shipped masks 26.00 dB (m), " \
            "difference -2.00 dB" in line
+
+
+def test_walk_scores_rank_the_model_the_masks_were_drawn_from_first(tiny_library: Any) -> None:
+    # Masks drawn from the mug's own silhouettes along a walk (every other azimuth, level):
+    # the mug's best walk fits them best.
+    lib = tiny_library
+    mug = [m.id for m in lib.models].index("mug")
+    views = [v for v in range(len(lib.az_el)) if lib.az_el[v, 1] == 0.0][::2]
+    masks = [np.pad(lib.silhouettes[mug, v], 16) for v in views]
+    names = [f"p{i}.png" for i in range(len(masks))]
+    images = [np.repeat(np.where(m[..., None], 0.3, 1.0), 3, axis=2).astype(np.float32)
+              for m in masks]
+    scores = bench_masks.walk_scores(masks, names, images, [None] * len(masks), lib,
+                                     ["mug", "chair_wood"])
+    assert scores[0] > scores[1]
+    # The mug alone scores what retrieval over the whole library scores when it picks the mug.
+    from cadnerf_core.retrieval.retrieve import retrieve
+
+    whole = retrieve(masks, names, lib, images=images)
+    assert whole.model_id == "mug"
+    assert scores[0] == pytest.approx(whole.score / len(masks))
