@@ -44,6 +44,7 @@ T = TypeVar("T")
 log = logging.getLogger(__name__)
 
 TOP_MODELS = 5  # models listed in a result, best first
+BOUND_SLACK = 1e-4  # summed IoU: float32 rounding of ``vote_models``' sums, with room to spare
 APPEARANCE_SIZE = 128  # side of the crops the texture direction cue looks at
 FOCAL_GUESS = 1.2
 """Focal length per pixel of the longer side assumed for matching photos whose own is unknown
@@ -141,14 +142,33 @@ def _choose_walk(iou: np.ndarray, m: int, ranking: Sequence[tuple[int, int, floa
                  az_index: np.ndarray, n_azimuths: int, config: RetrievalConfig,
                  evidence: float, steps: np.ndarray | None) -> tuple[int, PoseSearchResult]:
     """The model and its walk: the voted model ``m``'s, or (``model_choice`` "walk", DP) the
-    best walk of the ``TOP_MODELS`` most voted. Returns (model index, its walk)."""
+    best walk of the ``walk_models`` most voted. Returns (model index, its walk)."""
     found = solve_poses(iou[:, m, :], az_index, n_azimuths, config, evidence, steps)
     if config.model_choice == "walk" and config.solver == "dp":
-        for other, _, _ in ranking[1:TOP_MODELS]:
+        for entry in walk_pool(ranking, config)[1:]:
+            if walk_bound(entry, len(iou), config) <= found.score:
+                continue  # no walk of this model can score more
+            other = entry[0]
             walk = solve_poses(iou[:, other, :], az_index, n_azimuths, config, evidence, steps)
             if walk.score > found.score:
                 m, found = other, walk
     return m, found
+
+
+def walk_pool(ranking: Sequence[tuple[int, int, float]],
+              config: RetrievalConfig) -> Sequence[tuple[int, int, float]]:
+    """The models whose best walks compete (``RetrievalConfig.walk_models``), most voted
+    first."""
+    return ranking[:config.walk_models] if config.walk_models else ranking
+
+
+def walk_bound(entry: tuple[int, int, float], n_photos: int, config: RetrievalConfig) -> float:
+    """The most any walk of the model of ``entry`` (a ``vote_models`` ranking entry: model,
+    votes, summed best IoU) can score with the DP: every photo at its own best view, less the
+    least spread penalty (gaps summing to one turn over at most ``n_photos`` kept photos cost
+    at least ``spread_weight / n_photos``; discards and the matches' step prior only lower
+    it). A little above it, for the float32 sum of the ranking."""
+    return entry[2] - config.spread_weight / n_photos + BOUND_SLACK
 
 
 def retrieve(masks: Sequence[np.ndarray], names: Sequence[str], library: Library,
@@ -425,17 +445,22 @@ def _alternatives(iou: np.ndarray, ranking: Sequence[tuple[int, int, float]],
                   evidence: float, steps: np.ndarray | None,
                   chosen: tuple[int, int]) -> list[tuple[int, PoseSearchResult]]:
     """The best walks after the ``chosen`` (model, direction), best score first: each of the
-    ``TOP_MODELS`` most voted models walked each allowed way round; ``config.hypotheses`` - 1
+    ``walk_models`` most voted models walked each allowed way round; ``config.hypotheses`` - 1
     of them. Returns (model index, walk) pairs."""
     if config.hypotheses <= 1:
         return []
-    walks = {"ccw": ("ccw",), "cw": ("cw",)}.get(config.walk, ("ccw", "cw"))
-    found = []
-    for other, _, _ in ranking[:TOP_MODELS]:
-        for walk in walks:
-            given = config.model_copy(update={"walk": walk})
+    walks = [config.model_copy(update={"walk": walk})
+             for walk in {"ccw": ("ccw",), "cw": ("cw",)}.get(config.walk, ("ccw", "cw"))]
+    wanted = config.hypotheses - 1
+    found: list[tuple[int, PoseSearchResult]] = []
+    for entry in walk_pool(ranking, config):
+        if len(found) == wanted and walk_bound(entry, len(iou), config) < found[-1][1].score:
+            continue  # none of its walks can join the best
+        other = entry[0]
+        for given in walks:
             result = solve_poses(iou[:, other, :], az_index, n_azimuths, given, evidence, steps)
             if (other, result.direction) != chosen:
                 found.append((other, result))
-    found.sort(key=lambda pair: -pair[1].score)
-    return found[:config.hypotheses - 1]
+        found.sort(key=lambda pair: -pair[1].score)  # stable: ties stay most voted first
+        del found[wanted:]
+    return found

@@ -396,3 +396,62 @@ def test_hypotheses_are_the_next_best_distinct_walks(tiny_library: Any) -> None:
                                                            perspective="far"))
     assert {h.direction for h in (told, *told.alternatives)} == {-1}
     assert {h.perspective for h in told.alternatives} == {"far"}
+
+
+def _walk_table(n_photos: int, n_models: int, n_az: int, rng: np.random.Generator
+                ) -> np.ndarray:
+    """[P, M, V] IoU with one elevation per azimuth: model ``M - 1`` fits the photos evenly
+    spread round the turn at 0.8, each other model m fits photo m alone at 0.9 (its vote) and
+    the rest at random below 0.5."""
+    iou = rng.uniform(0.0, 0.5, (n_photos, n_models, n_az)).astype(np.float32)
+    for p in range(n_photos):
+        iou[p, n_models - 1, p * n_az // n_photos] = 0.8
+        if p < n_models - 1:
+            iou[p, p, int(rng.integers(n_az))] = 0.9
+    return iou
+
+
+def test_the_best_walk_wins_though_no_photo_voted_for_its_model() -> None:
+    from cadnerf_core.retrieval.retrieve import _choose_walk
+
+    n_photos, n_models, n_az = 6, 7, 12
+    iou = _walk_table(n_photos, n_models, n_az, np.random.default_rng(0))
+    voted, ranking = vote_models(iou)
+    assert dict((m, v) for m, v, _ in ranking)[n_models - 1] == 0  # no vote for the walker
+    az_index = np.arange(n_az)
+    every = RetrievalConfig(walk_models=0)
+    m, walk = _choose_walk(iou, voted, ranking, az_index, n_az, every, 0.0, None)
+    assert m == n_models - 1 and list(walk.views) == [p * 2 for p in range(n_photos)]
+    five = RetrievalConfig(walk_models=5)
+    m5, _ = _choose_walk(iou, voted, ranking, az_index, n_az, five, 0.0, None)
+    assert m5 != n_models - 1 and m5 in [e[0] for e in ranking[:5]]
+
+
+def test_pruning_by_the_walk_bound_changes_no_choice(monkeypatch: pytest.MonkeyPatch) -> None:
+    from cadnerf_core.retrieval import retrieve as module
+
+    rng = np.random.default_rng(1)
+    config = RetrievalConfig(hypotheses=4)
+    for trial in range(6):
+        n_photos = 4 + trial
+        iou = rng.uniform(0.0, 1.0, (n_photos, 9, 16)).astype(np.float32) ** 2
+        voted, ranking = vote_models(iou)
+        az_index = np.arange(16)
+        for entry in ranking:  # the bound holds for every model, either way round
+            for walk in ("ccw", "cw"):
+                found = module.solve_poses(iou[:, entry[0]], az_index, 16,
+                                           config.model_copy(update={"walk": walk}))
+                assert found.score <= module.walk_bound(entry, n_photos, config)
+        pruned = module._choose_walk(iou, voted, ranking, az_index, 16, config, 0.0, None)
+        chosen = (pruned[0], pruned[1].direction)
+        alternatives = module._alternatives(iou, ranking, az_index, 16, config, 0.0, None,
+                                            chosen)
+        with monkeypatch.context() as patched:
+            patched.setattr(module, "walk_bound", lambda *_: float("inf"))
+            full = module._choose_walk(iou, voted, ranking, az_index, 16, config, 0.0, None)
+            every = module._alternatives(iou, ranking, az_index, 16, config, 0.0, None,
+                                         chosen)
+        assert pruned[0] == full[0] and pruned[1].score == full[1].score
+        assert [(m, w.direction, w.score) for m, w in alternatives] == \
+            [(m, w.direction, w.score) for m, w in every]
+        assert len(alternatives) == 3
