@@ -12,6 +12,7 @@
   masks and with the shipped masks, look-alikes left out (a few minutes a job).
 
 Usage: ``python -m benchmarks.bench_masks [--quick] [--library DIR]`` prints the section.
+``python -m benchmarks.bench_masks --retrieval`` prints only the retrieval lines.
 ``python -m benchmarks.bench_masks --training [--sets NAME ...] [--seeds N ...] [--overrides JSON]``
 prints only the training lines (seeds 0, 1, 2 by default, and their mean), with configuration
 values set in both jobs of each set (a lever's effect:
@@ -294,13 +295,36 @@ def training_only(argv: list[str]) -> int:
     return 0
 
 
+def retrieval_only(argv: list[str]) -> int:
+    """``--retrieval``: the retrieval lines alone (each set's learned masks made afresh)."""
+    parser = argparse.ArgumentParser(description="CAD-NeRF mask benchmark, retrieval only")
+    parser.add_argument("--retrieval", action="store_true")
+    parser.add_argument("--library", type=Path, default=LIBRARY_DIR)
+    args = parser.parse_args(argv)
+    from cadnerf_core.intake.masks import photo_masks
+    from cadnerf_core.intake.photos import Photo
+    from cadnerf_core.library.format import load_library
+
+    library = load_library(args.library)
+    for name in SETS:
+        if (EVAL_ROOT / "photos" / name / "masks").is_dir():
+            shipped = _load(name)[0]
+            learned = [r.mask for r in photo_masks([Photo(p.name, p.rgb) for p in shipped],
+                                                   "learned")]
+            print(retrieval(name, shipped, learned, library), flush=True)
+    return 0
+
+
 def main(argv: list[str] | None = None) -> int:
-    """Print the section (``--quick``: the short run; ``--training``: ``training_only``)."""
+    """Print the section (``--quick``: the short run; ``--training``: ``training_only``;
+    ``--retrieval``: ``retrieval_only``)."""
     from benchmarks.run import area_main
 
     argv = sys.argv[1:] if argv is None else argv
     if "--training" in argv:
         return training_only(argv)
+    if "--retrieval" in argv:
+        return retrieval_only(argv)
     return area_main(run, "CAD-NeRF mask benchmark", argv)
 
 

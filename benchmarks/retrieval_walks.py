@@ -29,6 +29,8 @@ VARIANTS: dict[str, tuple[str, dict[str, Any]]] = {
     "bare": ("DP, bare", {"model_choice": "votes", "spread_weight": 0.0, "appearance_weight": 0.0,
                         "direction_margin": 0.005, "ambiguous_walk": "best"}),
     "votes": ("DP, model by votes", {"model_choice": "votes"}),
+    # The best walk of the five most voted models only, not of every model.
+    "five": ("DP, walks of the five most voted", {"walk_models": 5}),
     "nospread": ("DP, no spread prior", {"spread_weight": 0.0}),
     "notexture": ("DP, no texture cue", {"appearance_weight": 0.0}),
     # Where the direction is ambiguous, the walk with the higher objective rather than the
@@ -53,6 +55,7 @@ PHONE_VARIANTS: dict[str, str] = {
     "near": "near set only",
     "auto": "**set chosen by the focal length (ours)**",
     "iou": "set with the higher mean IoU",
+    "five": "set chosen by the focal length, walks of the five most voted",
 }
 
 
@@ -168,6 +171,9 @@ def phone_set(name: str, views: int, direction: int, library: Any, work: Path,
                                              exclude_models=excluded(name)),
                              images=list(data.images), focals=focals)
                for key in ("far", "near", "auto")}
+    results["five"] = retrieve(list(data.masks), data.names, library,
+                               RetrievalConfig(exclude_models=excluded(name), walk_models=5),
+                               images=list(data.images), focals=focals)
     results["iou"] = max((results["far"], results["near"]),
                          key=lambda r: float(np.mean([m.iou for m in r.kept])))
     return PhoneResult(name, views, direction, fov,

@@ -116,7 +116,7 @@ class RetrievalConfig(_Frozen):
     """Start hypotheses (model, walking direction, poses, silhouette set) each given a short
     coarse silhouette fit before training, the best fit kept: the retrieved walk, then (where
     no focal length is known and ``perspective`` is "auto") the near set's best walk, then the
-    next best walks of the most voted models either way round (1: the retrieved walk alone).
+    next best walks of the ``walk_models`` either way round (1: the retrieved walk alone).
     3 measured better than 1 on objects the library has not seen (``bench_unseen``), at about
     3 s a hypothesis on 2 CPU cores."""
     hypothesis_steps: int = Field(default=60, ge=1, le=2000)

@@ -2,8 +2,8 @@
 
 Retrieval commits to one model, one walking direction and one view per photo; a start 20 to
 40 degrees off is often more than pose refinement can undo. With ``RetrievalConfig.hypotheses``
-above 1, the retrieved walk and the next best walks (other models among the most voted, the
-other direction) each get phase one and a cut-down phase two on small crops
+above 1, the retrieved walk and the next best walks (other models, the other direction) each
+get phase one and a cut-down phase two on small crops
 (``hypothesis_size``, ``hypothesis_steps``); the hypothesis whose rendered silhouettes agree
 best with the masks at its refined poses is the one the job trains from.
 """
