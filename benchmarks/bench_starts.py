@@ -34,8 +34,8 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from benchmarks.bench_eval import EVAL_ROOT, LIBRARY_DIR, QUICK_MESHES, Z_UP, mesh_file
-from benchmarks.bench_unseen import FOVS, SEED, SIZE, TEST_VIEWS, VIEWS
+from benchmarks.bench_eval import EVAL_ROOT, LIBRARY_DIR, QUICK_MESHES
+from benchmarks.bench_unseen import FOVS, SEED, SIZE, VIEWS, render_walk
 from benchmarks.lookalikes import exclude_overrides
 
 log = logging.getLogger(__name__)
@@ -67,18 +67,6 @@ class StartRow:
         return self.chosen[2] < RIGHT_DEG
 
 
-def render(name: str, fov: float, direction: int, work: Path) -> Path:
-    """The walk of mesh ``name`` at ``fov`` degrees going ``direction`` (rendered once)."""
-    from cadnerf_core.evaluation.dataset import render_dataset
-
-    folder = work / name / f"fov{fov:g}_{'ccw' if direction > 0 else 'cw'}"
-    if not (folder / "transforms_test.json").is_file():
-        render_dataset(mesh_file(EVAL_ROOT / "meshes" / name), folder, VIEWS, SIZE, SEED,
-                       up="z" if name in Z_UP else "y", test_views=TEST_VIEWS, fov_deg=fov,
-                       direction=direction)
-    return folder
-
-
 def start_row(name: str, fov: float, direction: int, library: Any, work: Path) -> StartRow:
     """Render one walk, run a job's intake and robust start on it, and score both."""
     import torch
@@ -89,7 +77,7 @@ def start_row(name: str, fov: float, direction: int, library: Any, work: Path) -
     from cadnerf_core.pipeline import read_job_config, robust_start, run_intake
     from cadnerf_core.progress import Progress
 
-    walk = first_views(load_dataset(render(name, fov, direction, work)), VIEWS)
+    walk = first_views(load_dataset(render_walk(name, fov, work, direction=direction)), VIEWS)
     job_dir = work / name / f"job_fov{fov:g}_{direction:+d}"
     shutil.rmtree(job_dir, ignore_errors=True)
     write_job(job_dir, walk, PRESET, {**exclude_overrides(name, "leave-out"), "seed": SEED})

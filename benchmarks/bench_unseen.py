@@ -144,14 +144,19 @@ def lever_variants() -> dict[str, tuple[str, dict[str, Any]]]:
     return out
 
 
-def render_walk(name: str, fov: float, work: Path, views: int = VIEWS) -> Path:
-    """The walk of ``views`` photos of mesh ``name`` at ``fov`` degrees (rendered once)."""
+def render_walk(name: str, fov: float, work: Path, views: int = VIEWS,
+                direction: int | None = None) -> Path:
+    """The walk of ``views`` photos of mesh ``name`` at ``fov`` degrees (rendered once);
+    ``direction`` +1 / -1: walked counter-clockwise / clockwise (None: the seed's way)."""
     from cadnerf_core.evaluation.dataset import render_dataset
 
     folder = work / name / (f"fov{fov:g}" if views == VIEWS else f"fov{fov:g}_{views}views")
+    if direction is not None:
+        folder = folder.with_name(f"{folder.name}_{'ccw' if direction > 0 else 'cw'}")
     if not (folder / "transforms_test.json").is_file():
         render_dataset(mesh_file(EVAL_ROOT / "meshes" / name), folder, views, SIZE, SEED,
-                       up="z" if name in Z_UP else "y", test_views=TEST_VIEWS, fov_deg=fov)
+                       up="z" if name in Z_UP else "y", test_views=TEST_VIEWS, fov_deg=fov,
+                       direction=direction)
     return folder
 
 
