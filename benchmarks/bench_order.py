@@ -63,6 +63,16 @@ class Walk:
     wide: dict[float, dict[str, float]] = field(default_factory=dict)
     # field of view -> order mode -> median rotation error, the same walk in order rendered
     # with a phone's wider lens (``WIDE_FOVS``)
+    alike: int = 0  # neighbouring pairs of the walk among its most alike pairs (``alike_hits``)
+
+
+def alike_hits(likeness: np.ndarray) -> int:
+    """How many of a walk's ``P`` neighbouring pairs (photo i and i + 1, the last and the first)
+    are among its ``P`` most alike pairs by ``likeness`` [P, P] (photos in walking order)."""
+    n = len(likeness)
+    pairs = sorted(((float(likeness[a, b]), a, b) for a in range(n) for b in range(a + 1, n)),
+                   reverse=True)[:n]
+    return sum((b - a) in (1, n - 1) for _, a, b in pairs)
 
 
 def _retrieve(data: Any, perm: np.ndarray, library: Any, mode: str, exclude: tuple[str, ...],
@@ -95,7 +105,10 @@ def walk_set(name: str, views: int, direction: int, library: Any, work: Path,
             work / f"{name}_{views}_{direction}_{fov:g}", views, SIZE, SEED + views,
             up="z" if name in Z_UP else "y", direction=direction, fov_deg=fov))
 
+    from cadnerf_core.retrieval.retrieve import photo_likeness
+
     data = render(40.0)
+    alike = alike_hits(photo_likeness(list(data.masks), list(data.images), library))
     exclude = excluded(name)
     identity = np.arange(views)
     ordered = {mode: _retrieve(data, identity, library, mode, exclude)[0]
@@ -116,7 +129,7 @@ def walk_set(name: str, views: int, direction: int, library: Any, work: Path,
             found[mode].append(right)
             if mode == "any":
                 guess.append(ambiguous)
-    return Walk(name, views, ordered, shuffled, found, guess, wide)
+    return Walk(name, views, ordered, shuffled, found, guess, wide, alike)
 
 
 def solver_lines(library: Any) -> list[str]:
@@ -252,6 +265,21 @@ def _wide_rows(walks: list[Walk]) -> list[str]:
     return rows
 
 
+def _alike_line(walks: list[Walk]) -> str:
+    """How well the order search's likeness prior tells neighbours apart, against chance."""
+    parts = []
+    for views in sorted({w.views for w in walks}):
+        group = [w for w in walks if w.views == views]
+        hits = sum(w.alike for w in group)
+        chance = 100.0 * views / (views * (views - 1) / 2)
+        parts.append(f"{views} views: {100.0 * hits / (views * len(group)):.0f} % "
+                     f"(chance {chance:.0f} %)")
+    return ("- Neighbours by likeness (the order search's prior: colours and outlines inside "
+            "the masks, and shared points where matched): of each walk's neighbouring pairs, "
+            "the share among its most alike pairs (as many as it has photos): "
+            + "; ".join(parts) + ".")
+
+
 def _mesh_rows(walks: list[Walk]) -> list[str]:
     rows = ["| mesh | views | in order, `walk` | shuffled, `any` (per seed) | order found | "
             "said a guess |", "|---|---|---|---|---|---|"]
@@ -288,7 +316,8 @@ def run(quick: bool, library_dir: Path = LIBRARY_DIR) -> str:
               *_table(walks), "", "The same walks in order, rendered through a phone's wider "
               "lens (the object filling the same share of the frame, as in `bench_unseen`); "
               "`auto` reordered: its poses differ from `walk`'s:", "", *_wide_rows(walks), "",
-              *_mesh_rows(walks), "", *real_lines(library, shuffles), ""]
+              *_mesh_rows(walks), "", _alike_line(walks), "", *real_lines(library, shuffles),
+              ""]
     return "\n".join(lines)
 
 

@@ -24,3 +24,21 @@ def test_wide_rows_name_the_walks_auto_made_worse() -> None:
     # medians over the three walks: walk of 15.8, 12, 157; auto of 41.7, 12, 116.5
     assert by_key[("6", "70 deg")] == "| 6 | 70 deg | 15.8 | 41.7 | 2 of 3 | 1 of 3 (fuze) |"
     assert by_key[("6", "55 deg")].startswith("| 6 | 55 deg | 15.8 | 15.8 |")
+
+
+def test_alike_hits_counts_the_walks_neighbours_among_its_most_alike_pairs() -> None:
+    import numpy as np
+
+    from benchmarks.bench_order import alike_hits
+
+    n = 6
+    ring = np.zeros((n, n))
+    for i in range(n):  # neighbours in the walk (the closing pair included) look alike
+        ring[i, (i + 1) % n] = ring[(i + 1) % n, i] = 1.0
+    assert alike_hits(ring) == n
+    opposite = np.full((n, n), -1.0)
+    for i in range(n):  # each photo looks like the one across the object and, less, like
+        opposite[i, (i + 3) % n] = 1.0  # the one two steps on: no neighbour among those
+        opposite[i, (i + 2) % n] = opposite[(i + 2) % n, i] = 0.5
+    opposite[0, 1] = opposite[1, 0] = 0.75  # but one
+    assert alike_hits(opposite) == 1

@@ -317,7 +317,7 @@ def _order(seen: _Seen, library: Library, allowed: np.ndarray, config: Retrieval
     silhouette set ``config.perspective`` names (the far one when "auto") among the most voted
     models, with the photos' likeness (colours, outlines, and the matches between them where
     the object has texture) as the prior that neighbours look alike."""
-    from cadnerf_core.retrieval.ordering import choose_order, neighbour_similarity, standardised
+    from cadnerf_core.retrieval.ordering import choose_order
 
     views = library.view_set("near" if config.perspective == "near" else "far")
     silhouettes = views.silhouettes
@@ -325,17 +325,36 @@ def _order(seen: _Seen, library: Library, allowed: np.ndarray, config: Retrieval
         silhouettes = silhouettes[allowed]
     iou = iou_table(seen.crops, silhouettes)
     _, ranking = vote_models(iou)
-    similarity = None
-    if seen.appearance is not None and config.similarity_weight > 0:
-        similarity = neighbour_similarity(list(seen.appearance[0]), list(seen.appearance[1]))
-        if any(p.inliers for p in seen.pairs):  # shared points: the surest sign of neighbours
-            shared = np.log1p(inlier_table(seen.pairs, len(seen.sizes)))
-            similarity = similarity + standardised(shared)
+    similarity = _likeness(seen) if config.similarity_weight > 0 else None
     az_index = azimuth_bins(views.az_el, views.spec.n_azimuths)
     candidates = [m for m, _, _ in ranking[:TOP_MODELS]]
     return choose_order(iou, candidates, az_index, views.spec.n_azimuths, config.order,
                         config.order_margin, config.spread_weight, similarity,
                         config.similarity_weight, progress.check if progress else None)
+
+
+def _likeness(seen: _Seen) -> np.ndarray | None:
+    """How alike the photos look (the order search's prior that neighbours look alike): their
+    colours and outlines (``ordering.neighbour_similarity``), and the matches between them
+    where the object has texture. None without the photos."""
+    from cadnerf_core.retrieval.ordering import neighbour_similarity, standardised
+
+    if seen.appearance is None:
+        return None
+    similarity = neighbour_similarity(list(seen.appearance[0]), list(seen.appearance[1]))
+    if any(p.inliers for p in seen.pairs):  # shared points: the surest sign of neighbours
+        shared = np.log1p(inlier_table(seen.pairs, len(seen.sizes)))
+        similarity = similarity + standardised(shared)
+    return similarity
+
+
+def photo_likeness(masks: Sequence[np.ndarray], images: Sequence[np.ndarray],
+                   library: Library, config: RetrievalConfig | None = None) -> np.ndarray:
+    """[P, P] how alike the photos look, as the order search weighs it (``_likeness``)."""
+    config = config or RetrievalConfig()
+    found = _likeness(_look(masks, images, None, library, config))
+    assert found is not None, "photos given"
+    return found
 
 
 def allowed_models(library: Library, exclude: Sequence[str]) -> np.ndarray:
