@@ -164,11 +164,12 @@ def walk_pool(ranking: Sequence[tuple[int, int, float]],
 
 def walk_bound(entry: tuple[int, int, float], n_photos: int, config: RetrievalConfig) -> float:
     """The most any walk of the model of ``entry`` (a ``vote_models`` ranking entry: model,
-    votes, summed best IoU) can score with the DP: every photo at its own best view, less the
+    votes, summed best IoU) can score: every photo at its own best view, less, for the DP, the
     least spread penalty (gaps summing to one turn over at most ``n_photos`` kept photos cost
     at least ``spread_weight / n_photos``; discards and the matches' step prior only lower
     it). A little above it, for the float32 sum of the ranking."""
-    return entry[2] - config.spread_weight / n_photos + BOUND_SLACK
+    spread = config.spread_weight / n_photos if config.solver == "dp" else 0.0
+    return entry[2] - spread + BOUND_SLACK
 
 
 def retrieve(masks: Sequence[np.ndarray], names: Sequence[str], library: Library,

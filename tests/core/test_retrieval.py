@@ -431,9 +431,9 @@ def test_pruning_by_the_walk_bound_changes_no_choice(monkeypatch: pytest.MonkeyP
     from cadnerf_core.retrieval import retrieve as module
 
     rng = np.random.default_rng(1)
-    config = RetrievalConfig(hypotheses=4)
-    for trial in range(6):
-        n_photos = 4 + trial
+    for trial, solver in enumerate(["dp"] * 6 + ["paper"] * 2):
+        config = RetrievalConfig(hypotheses=4, solver=solver)  # type: ignore[arg-type]
+        n_photos = 4 + trial % 6
         iou = rng.uniform(0.0, 1.0, (n_photos, 9, 16)).astype(np.float32) ** 2
         voted, ranking = vote_models(iou)
         az_index = np.arange(16)
