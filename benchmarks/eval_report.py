@@ -125,8 +125,8 @@ def table4(rows: list[Row]) -> str:
 
 def _solver_ms(iou: np.ndarray, library: Any, config: Any, repeats: int = 5) -> float:
     """Median wall time of one pose solve on one model's IoU table, in milliseconds."""
-    from cadnerf_core.retrieval.retrieve import solve_poses
     from cadnerf_core.retrieval.scoring import azimuth_bins
+    from cadnerf_core.retrieval.walks import solve_poses
 
     az_index = azimuth_bins(library.az_el, library.spec.n_azimuths)
     times = []

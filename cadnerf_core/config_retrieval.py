@@ -95,7 +95,7 @@ class RetrievalConfig(_Frozen):
     that no photo voted for. Every model against the five most voted, look-alikes left out:
     retrieved poses 15.9 against 16.8 degrees median over 52 walks (``bench_retrieval``), 20.94
     against 20.75 dB and 9.5 degrees both over the 39 jobs of ``bench_unseen``; about 0.1 s
-    more a retrieval (models that cannot win are not walked: ``retrieve.walk_bound``). With
+    more a retrieval (models that cannot win are not walked: ``walks.walk_bound``). With
     masks made from photos a basic shape's walk can edge out the right model's (the espresso
     photos with learned masks: the cylinder's 0.578 a photo against the espresso machine's
     0.553, ``bench_masks --retrieval``); 5 keeps the race to the most voted."""

@@ -31,9 +31,10 @@ from cadnerf_core.retrieval.matches import (
     reindexed,
     walk_evidence,
 )
-from cadnerf_core.retrieval.posesearch import PoseSearchResult, cyclic_dp, paper_algorithm1
+from cadnerf_core.retrieval.posesearch import PoseSearchResult
 from cadnerf_core.retrieval.result import PhotoMatch, RetrievalResult
 from cadnerf_core.retrieval.scoring import azimuth_bins, iou_table, vote_models
+from cadnerf_core.retrieval.walks import alternatives, choose_walk
 
 if TYPE_CHECKING:
     from cadnerf_core.library.format import Library
@@ -44,56 +45,10 @@ T = TypeVar("T")
 log = logging.getLogger(__name__)
 
 TOP_MODELS = 5  # models listed in a result, best first
-BOUND_SLACK = 1e-4  # summed IoU: float32 rounding of ``vote_models``' sums, with room to spare
 APPEARANCE_SIZE = 128  # side of the crops the texture direction cue looks at
 FOCAL_GUESS = 1.2
 """Focal length per pixel of the longer side assumed for matching photos whose own is unknown
 (COLMAP's default: about 45 degrees across); the sign of a turn does not depend on it."""
-
-
-def solve_poses(iou: np.ndarray, az_index: np.ndarray, n_azimuths: int,
-                config: RetrievalConfig, evidence: float = 0.0,
-                steps: np.ndarray | None = None) -> PoseSearchResult:
-    """Run the configured pose solver on one model's IoU table.
-
-    Args:
-        iou: [P, V] IoU of each photo with each view.
-        az_index: [V] azimuth bin of each view.
-        n_azimuths: number of azimuth bins.
-        evidence: texture evidence for the walking direction (> 0: increasing azimuth),
-            used by the DP when it reaches ``config.appearance_threshold``.
-        steps: [P] size in degrees of the turn from photo p - 1 to photo p that the photos'
-            matches measured (NaN where unknown), a prior on the DP's steps
-            (``MatchesConfig.step_weight``); None: none.
-    Returns:
-        chosen views (-1 = discarded), score and direction.
-    """
-    given = {"ccw": 1, "cw": -1}.get(config.walk, 0)
-    if given:
-        # A clockwise walk is a counter-clockwise one over mirrored azimuth bins; the chosen
-        # view indices do not depend on the bins' numbering.
-        bins = az_index if given > 0 else (-np.asarray(az_index)) % n_azimuths
-        forward = config.model_copy(update={"walk": "auto", "both_directions": False})
-        found = solve_poses(iou, bins, n_azimuths, forward, steps=steps)
-        return dataclasses.replace(found, direction=given, direction_lead=None)
-    if config.solver == "paper":
-        found = paper_algorithm1(iou, az_index, config.top_k, config.max_discard)
-        if np.isfinite(found.score):
-            return found
-        # No ordered choice among the top-k: fall back on each photo's own best view.
-        log.warning("the paper's solver found no ordered poses; using each photo's best view")
-        return PoseSearchResult(np.argmax(iou, axis=1), float(iou.max(axis=1).sum()), 1)
-    backward_cost = config.direction_margin * len(iou)
-    if abs(evidence) >= config.appearance_threshold:
-        # Each direction gains (or loses) weight * evidence: the decreasing walk pays twice.
-        backward_cost += 2.0 * config.appearance_weight * evidence
-    bin_deg = 360.0 / n_azimuths
-    return cyclic_dp(iou, az_index, n_azimuths, config.discard_penalty, config.max_discard,
-                     config.both_directions, config.cyclic, backward_cost=backward_cost,
-                     spread_weight=config.spread_weight,
-                     steps=None if steps is None else steps / bin_deg,
-                     step_weight=config.matches.step_weight,
-                     step_tolerance=config.matches.step_tolerance_deg / bin_deg)
 
 
 def direction_evidence(images: Sequence[np.ndarray], masks: Sequence[np.ndarray],
@@ -136,40 +91,6 @@ def photo_pairs(images: Sequence[np.ndarray], masks: Sequence[np.ndarray],
         intrinsics.append(np.array([[focal, 0.0, width / 2.0], [0.0, focal, height / 2.0],
                                     [0.0, 0.0, 1.0]]))
     return match_photos(images, masks, intrinsics, config.matches)
-
-
-def _choose_walk(iou: np.ndarray, m: int, ranking: Sequence[tuple[int, int, float]],
-                 az_index: np.ndarray, n_azimuths: int, config: RetrievalConfig,
-                 evidence: float, steps: np.ndarray | None) -> tuple[int, PoseSearchResult]:
-    """The model and its walk: the voted model ``m``'s, or (``model_choice`` "walk", DP) the
-    best walk of the ``walk_models`` most voted. Returns (model index, its walk)."""
-    found = solve_poses(iou[:, m, :], az_index, n_azimuths, config, evidence, steps)
-    if config.model_choice == "walk" and config.solver == "dp":
-        for entry in walk_pool(ranking, config)[1:]:
-            if walk_bound(entry, len(iou), config) <= found.score:
-                continue  # no walk of this model can score more
-            other = entry[0]
-            walk = solve_poses(iou[:, other, :], az_index, n_azimuths, config, evidence, steps)
-            if walk.score > found.score:
-                m, found = other, walk
-    return m, found
-
-
-def walk_pool(ranking: Sequence[tuple[int, int, float]],
-              config: RetrievalConfig) -> Sequence[tuple[int, int, float]]:
-    """The models whose best walks compete (``RetrievalConfig.walk_models``), most voted
-    first."""
-    return ranking[:config.walk_models] if config.walk_models else ranking
-
-
-def walk_bound(entry: tuple[int, int, float], n_photos: int, config: RetrievalConfig) -> float:
-    """The most any walk of the model of ``entry`` (a ``vote_models`` ranking entry: model,
-    votes, summed best IoU) can score: every photo at its own best view, less, for the DP, the
-    least spread penalty (gaps summing to one turn over at most ``n_photos`` kept photos cost
-    at least ``spread_weight / n_photos``; discards and the matches' step prior only lower
-    it). A little above it, for the float32 sum of the ranking."""
-    spread = config.spread_weight / n_photos if config.solver == "dp" else 0.0
-    return entry[2] - spread + BOUND_SLACK
 
 
 def retrieve(masks: Sequence[np.ndarray], names: Sequence[str], library: Library,
@@ -411,7 +332,7 @@ def _retrieve_from(photos: _Photos, library: Library, config: RetrievalConfig,
     if progress is not None:
         progress.step("retrieval", steps[0] + 1, steps[1])
     az_index = azimuth_bins(library.az_el, spec.n_azimuths)
-    m, found = _choose_walk(iou, voted, ranking, az_index, spec.n_azimuths, config, evidence,
+    m, found = choose_walk(iou, voted, ranking, az_index, spec.n_azimuths, config, evidence,
                             photos.steps)
     ambiguous = (found.direction_lead is not None
                  and found.direction_lead < config.ambiguity_margin
@@ -419,7 +340,7 @@ def _retrieve_from(photos: _Photos, library: Library, config: RetrievalConfig,
     if ambiguous and found.direction < 0 and config.ambiguous_walk == "ccw":
         ccw = config.model_copy(update={"walk": "ccw"})
         lead = found.direction_lead
-        m, found = _choose_walk(iou, voted, ranking, az_index, spec.n_azimuths, ccw, evidence,
+        m, found = choose_walk(iou, voted, ranking, az_index, spec.n_azimuths, ccw, evidence,
                                 photos.steps)
         found = dataclasses.replace(found, direction_lead=lead)
     models = [library.models[i] for i in allowed]
@@ -435,7 +356,7 @@ def _retrieve_from(photos: _Photos, library: Library, config: RetrievalConfig,
                               _matches(photos, library, iou, o, walk, config), config.solver,
                               walk.direction, walk.score, evidence, perspective=perspective,
                               pairs=photos.pairs)
-              for o, walk in _alternatives(iou, ranking, az_index, spec.n_azimuths, config,
+              for o, walk in alternatives(iou, ranking, az_index, spec.n_azimuths, config,
                                            evidence, photos.steps, (m, found.direction))]
     return RetrievalResult(models[m].id, models[m].category, top, matches, config.solver,
                            found.direction, found.score, evidence, found.direction_lead,
@@ -458,29 +379,3 @@ def _matches(photos: _Photos, library: Library, iou: np.ndarray, m: int,
     if config.shared_focal:
         matches = share_focal(matches, photos.sizes, photos.focals)
     return matches
-
-
-def _alternatives(iou: np.ndarray, ranking: Sequence[tuple[int, int, float]],
-                  az_index: np.ndarray, n_azimuths: int, config: RetrievalConfig,
-                  evidence: float, steps: np.ndarray | None,
-                  chosen: tuple[int, int]) -> list[tuple[int, PoseSearchResult]]:
-    """The best walks after the ``chosen`` (model, direction), best score first: each of the
-    ``walk_models`` most voted models walked each allowed way round; ``config.hypotheses`` - 1
-    of them. Returns (model index, walk) pairs."""
-    if config.hypotheses <= 1:
-        return []
-    walks = [config.model_copy(update={"walk": walk})
-             for walk in {"ccw": ("ccw",), "cw": ("cw",)}.get(config.walk, ("ccw", "cw"))]
-    wanted = config.hypotheses - 1
-    found: list[tuple[int, PoseSearchResult]] = []
-    for entry in walk_pool(ranking, config):
-        if len(found) == wanted and walk_bound(entry, len(iou), config) < found[-1][1].score:
-            continue  # none of its walks can join the best
-        other = entry[0]
-        for given in walks:
-            result = solve_poses(iou[:, other, :], az_index, n_azimuths, given, evidence, steps)
-            if (other, result.direction) != chosen:
-                found.append((other, result))
-        found.sort(key=lambda pair: -pair[1].score)  # stable: ties stay most voted first
-        del found[wanted:]
-    return found

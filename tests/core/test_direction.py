@@ -12,7 +12,8 @@ from cadnerf_core.intake.photos import canonical_masks
 from cadnerf_core.mesh.renderer import MeshRenderer
 from cadnerf_core.retrieval.direction import walk_direction_evidence
 from cadnerf_core.retrieval.posesearch import cyclic_dp
-from cadnerf_core.retrieval.retrieve import direction_evidence, solve_poses
+from cadnerf_core.retrieval.retrieve import direction_evidence
+from cadnerf_core.retrieval.walks import solve_poses
 
 SIZE = 128
 
