@@ -16,7 +16,11 @@ Rows:
 - the levers, each flipped from its default, leave-out: the focal length fixed at retrieval's
   estimate or learned with the poses (``phase2.focal_bound``), and the rest of ``LEVERS``;
 - **with EXIF**: leave-out, the photos carrying their true focal length, as the files a phone
-  wrote do (what giving the focal length is worth).
+  wrote do (what giving the focal length is worth);
+- **clockwise** (full runs): leave-out, a walk of the same seed taken clockwise. Seed 0 walks
+  every mesh counter-clockwise, the way a job takes a walk whose direction neither silhouettes
+  nor texture tell, so the leave-out rows alone never see that guess fail; the headline is
+  over both.
 
 QUICK: the evaluation benchmark's three quick meshes and its reduced schedule (48 px crops,
 short phases, held-out views scored at 64 px); with look-alike at 40 degrees only, the levers at
@@ -102,6 +106,7 @@ class Plan:
     variants: tuple[str, ...] | None = None  # only these rows (None: all)
     fovs: tuple[float, ...] = FOVS  # the fields of view rendered
     views: int = VIEWS  # photos in each walk (the paper's Table 1 rows: 3, 6, 9)
+    quick: bool = False  # the QUICK plan (no clockwise rows unless asked for)
 
 
 def make_plan(quick: bool, names: list[str] | None = None,
@@ -120,7 +125,7 @@ def make_plan(quick: bool, names: list[str] | None = None,
     if quick:
         meshes = tuple(names or QUICK_MESHES)
         return Plan(meshes, dict(QUICK_OVERRIDES), within((40.0,)), within((40.0, 70.0)),
-                    meshes, 64, only, chosen, views)
+                    meshes, 64, only, chosen, views, quick=True)
     meshes = tuple(names or every)
     levered = meshes if names else tuple(m for m in meshes if m in QUICK_MESHES)
     return Plan(meshes, {}, chosen, chosen, levered, None, only, chosen, views)
@@ -171,7 +176,8 @@ def run_job(name: str, fov: float, variant: str, overrides: dict[str, Any],
     row: dict[str, Any] = {"mesh": name, "fov": fov, "variant": variant, "views": plan.views}
     config = {**plan.overrides, **exclude_overrides(name, protocol), **overrides, "seed": SEED}
     try:
-        walk = render_walk(name, fov, work, plan.views)
+        walk = render_walk(name, fov, work, plan.views,
+                           direction=-1 if variant == CW_VARIANT else None)
         report = evaluate_dataset(walk, plan.views, library, preset=PRESET, overrides=config,
                                   job_dir=walk.parent / f"job_{variant}_{walk.name}",
                                   device=device, eval_size=plan.eval_size, exif_focal=exif)
@@ -193,13 +199,15 @@ def run_job(name: str, fov: float, variant: str, overrides: dict[str, Any],
 # mesh, fov, variant, overrides, protocol, photos with EXIF
 Job = tuple[str, float, str, dict[str, Any], Protocol, bool]
 EXIF_VARIANT = "with EXIF"  # leave-out, the photos' true focal length in their EXIF
+CW_VARIANT = "clockwise"  # leave-out, the walk taken clockwise (seed 0 walks counter-clockwise)
 
 
 def job_list(plan: Plan) -> list[Job]:
     """Every job of the plan, in order."""
     levers = {k: v for k, v in lever_variants().items()
               if plan.variants is None or k in plan.variants}
-    wanted = plan.variants or ("leave-out", "with look-alike")
+    wanted = plan.variants or ("leave-out", "with look-alike", *(() if plan.quick else
+                                                                 (CW_VARIANT,)))
     jobs: list[Job] = []
     for name in plan.meshes:
         for fov in plan.fovs:
@@ -207,6 +215,8 @@ def job_list(plan: Plan) -> list[Job]:
                 jobs.append((name, fov, "leave-out", {}, "leave-out", False))
             if fov in plan.lookalike_fovs and "with look-alike" in wanted:
                 jobs.append((name, fov, "with look-alike", {}, "with look-alike", False))
+            if CW_VARIANT in wanted:
+                jobs.append((name, fov, CW_VARIANT, {}, "leave-out", False))
             if fov in plan.lever_fovs and name in plan.lever_meshes:
                 jobs += [(name, fov, variant, overrides, "leave-out", False)
                          for variant, (_, overrides) in levers.items()]
@@ -365,6 +375,8 @@ def section(plan: Plan, rows: list[dict[str, Any]], seconds: float, quick: bool,
         + "; ".join(f"`{k}` = {v}" for k, v in labels.items())
         + f"; `{EXIF_VARIANT}` = the photos carry their true focal length in EXIF (no lever: "
         "what a user gains by uploading the files the phone wrote)"
+        + f"; `{CW_VARIANT}` = leave-out, each walk taken clockwise (the other rows' walks go "
+        "counter-clockwise, the way a job takes a walk whose direction it cannot tell)"
         + ". PSNR: mean over jobs; rotation error: median over jobs of each job's mean over "
         "its kept photos (after similarity alignment); focal error: the job's focal length "
         "against the truth, |%|, mean; job s: whole job (retrieval, training, export) "
@@ -476,7 +488,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--quick", action="store_true")
     parser.add_argument("--meshes", nargs="*", default=None, help="mesh folder names")
     parser.add_argument("--variants", nargs="*", default=None,
-                        help='only these rows: "leave-out", "with look-alike", "with EXIF" '
+                        help='only these rows: "leave-out", "with look-alike", "with EXIF", '
+                             '"clockwise" '
                              'and the levers flipped from their defaults (focal_on, '
                              'hypotheses_off, seeds_on, mirror_off, prior_on, poselr_on)')
     parser.add_argument("--fovs", type=float, nargs="*", default=None,

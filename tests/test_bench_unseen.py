@@ -108,7 +108,8 @@ def test_jobs_of_walks_with_other_photo_counts_get_folders_of_their_own(
 
     seen: list[tuple[int, Path]] = []
 
-    def fake_walk(name: str, fov: float, work: Path, views: int = 6) -> Path:
+    def fake_walk(name: str, fov: float, work: Path, views: int = 6,
+                  direction: int | None = None) -> Path:
         return work / name / (f"fov{fov:g}" if views == 6 else f"fov{fov:g}_{views}views")
 
     def refuse(walk: Path, views: int, *args: object, job_dir: Path, **kwargs: object) -> None:
@@ -157,3 +158,34 @@ def test_a_queue_run_resumes_from_its_rows_file(meshes: list[str], tmp_path: Pat
     assert "--views 9 --workers 2`" in nine and "one run for 6 and 9 views" in nine
     with pytest.raises(SystemExit):
         bench_unseen.main(["--workers", "0"])
+
+
+def test_clockwise_rows_walk_the_other_way_in_full_runs_only(
+        meshes: list[str], tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    from cadnerf_core.evaluation import evaluate
+
+    full = bench_unseen.job_list(bench_unseen.make_plan(False))
+    assert {(m, f) for m, f, v, *_ in full if v == bench_unseen.CW_VARIANT} == {
+        (m, f) for m in meshes for f in bench_unseen.FOVS}
+    assert all(job[4] == "leave-out" for job in full if job[2] == bench_unseen.CW_VARIANT)
+    quick = bench_unseen.job_list(bench_unseen.make_plan(True))
+    assert quick and not any(job[2] == bench_unseen.CW_VARIANT for job in quick)
+    asked = bench_unseen.job_list(bench_unseen.make_plan(True, variants=["clockwise"]))
+    assert asked and all(job[2] == bench_unseen.CW_VARIANT for job in asked)
+
+    walked: list[int | None] = []
+
+    def fake_walk(name: str, fov: float, work: Path, views: int = 6,
+                  direction: int | None = None) -> Path:
+        walked.append(direction)
+        return work / name / f"fov{fov:g}"
+
+    def refuse(*args: object, **kwargs: object) -> None:
+        raise RuntimeError("not trained here")
+
+    monkeypatch.setattr(bench_unseen, "render_walk", fake_walk)
+    monkeypatch.setattr(evaluate, "evaluate_dataset", refuse)
+    plan = bench_unseen.make_plan(False, fovs=[40.0])
+    for variant in ("leave-out", bench_unseen.CW_VARIANT):
+        bench_unseen.run_job(meshes[0], 40.0, variant, {}, "leave-out", plan, None, tmp_path)
+    assert walked == [None, -1]  # the seed's way (counter-clockwise for seed 0), then clockwise
