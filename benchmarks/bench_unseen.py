@@ -200,6 +200,7 @@ def run_job(name: str, fov: float, variant: str, overrides: dict[str, Any],
 Job = tuple[str, float, str, dict[str, Any], Protocol, bool]
 EXIF_VARIANT = "with EXIF"  # leave-out, the photos' true focal length in their EXIF
 CW_VARIANT = "clockwise"  # leave-out, the walk taken clockwise (seed 0 walks counter-clockwise)
+BOTH_WAYS = "leave-out, both ways"  # summary over the leave-out and clockwise jobs together
 
 
 def job_list(plan: Plan) -> list[Job]:
@@ -311,12 +312,18 @@ def run_queue(jobs: list[tuple[Plan, Job]], work: Path, device: str, workers: in
 def summary_rows(rows: list[dict[str, Any]]) -> list[dict[str, Any]]:
     """Per variant (and field of view, and all together): mean PSNR, median rotation error,
     mean |focal error|, mean job time over the jobs that ran; levers compared with the
-    leave-out jobs of the same meshes and fields of view. Rows without a record of the start's
-    fits (``fit_s``, ``switched``: taken from an older table) leave those columns empty."""
+    leave-out jobs of the same meshes and fields of view; with clockwise rows, also the
+    leave-out and clockwise jobs together (``BOTH_WAYS``, the headline). Rows without a
+    record of the start's fits (``fit_s``, ``switched``: taken from an older table) leave
+    those columns empty."""
     done = [r for r in rows if "error" not in r]
+    groups = [(v, [r for r in done if r["variant"] == v])
+              for v in dict.fromkeys(r["variant"] for r in done)]
+    if {"leave-out", CW_VARIANT} <= {v for v, _ in groups}:  # the headline: both ways round
+        groups.append((BOTH_WAYS, [r for r in done
+                                   if r["variant"] in ("leave-out", CW_VARIANT)]))
     out = []
-    for variant in dict.fromkeys(r["variant"] for r in done):
-        mine = [r for r in done if r["variant"] == variant]
+    for variant, mine in groups:
         for fov in [*sorted({r["fov"] for r in mine}), None]:
             group = [r for r in mine if fov is None or r["fov"] == fov]
             pairs = {(r["mesh"], r["fov"]) for r in group}

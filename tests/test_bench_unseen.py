@@ -189,3 +189,19 @@ def test_clockwise_rows_walk_the_other_way_in_full_runs_only(
     for variant in ("leave-out", bench_unseen.CW_VARIANT):
         bench_unseen.run_job(meshes[0], 40.0, variant, {}, "leave-out", plan, None, tmp_path)
     assert walked == [None, -1]  # the seed's way (counter-clockwise for seed 0), then clockwise
+
+
+def test_summary_puts_both_walking_directions_together() -> None:
+    def row(variant: str, fov: float, psnr: float, rot: float) -> dict[str, object]:
+        return {"mesh": "mug", "fov": fov, "variant": variant, "psnr": psnr, "rot": rot,
+                "focal_err": 10.0, "job_s": 100.0}
+
+    rows = [row("leave-out", 40.0, 24.0, 2.0), row("leave-out", 70.0, 22.0, 4.0),
+            row("clockwise", 40.0, 14.0, 170.0), row("clockwise", 70.0, 20.0, 6.0)]
+    both = {s["fov"]: s for s in bench_unseen.summary_rows(rows)
+            if s["variant"] == bench_unseen.BOTH_WAYS}
+    assert both["all"]["jobs"] == 4 and both["all"]["psnr"] == pytest.approx(20.0)
+    assert both["all"]["rot"] == pytest.approx(5.0)  # median of 2, 4, 6, 170
+    assert both["40"]["base_psnr"] == pytest.approx(24.0)  # base: the counter-clockwise walk
+    assert not any(s["variant"] == bench_unseen.BOTH_WAYS
+                   for s in bench_unseen.summary_rows(rows[:2]))
