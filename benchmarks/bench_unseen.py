@@ -207,8 +207,8 @@ def job_list(plan: Plan) -> list[Job]:
     """Every job of the plan, in order."""
     levers = {k: v for k, v in lever_variants().items()
               if plan.variants is None or k in plan.variants}
-    wanted = plan.variants or ("leave-out", "with look-alike", *(() if plan.quick else
-                                                                 (CW_VARIANT,)))
+    default = ("leave-out", "with look-alike") + (() if plan.quick else (CW_VARIANT,))
+    wanted = plan.variants or default
     jobs: list[Job] = []
     for name in plan.meshes:
         for fov in plan.fovs:
@@ -382,8 +382,9 @@ def section(plan: Plan, rows: list[dict[str, Any]], seconds: float, quick: bool,
         + "; ".join(f"`{k}` = {v}" for k, v in labels.items())
         + f"; `{EXIF_VARIANT}` = the photos carry their true focal length in EXIF (no lever: "
         "what a user gains by uploading the files the phone wrote)"
-        + f"; `{CW_VARIANT}` = leave-out, each walk taken clockwise (the other rows' walks go "
-        "counter-clockwise, the way a job takes a walk whose direction it cannot tell)"
+        + f"; `{CW_VARIANT}` = leave-out, a walk of the same seed taken clockwise (the other "
+        "rows' walks go counter-clockwise, the way a job takes a walk whose direction it "
+        "cannot tell)"
         + ". PSNR: mean over jobs; rotation error: median over jobs of each job's mean over "
         "its kept photos (after similarity alignment); focal error: the job's focal length "
         "against the truth, |%|, mean; job s: whole job (retrieval, training, export) "

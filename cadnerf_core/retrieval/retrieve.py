@@ -333,7 +333,7 @@ def _retrieve_from(photos: _Photos, library: Library, config: RetrievalConfig,
         progress.step("retrieval", steps[0] + 1, steps[1])
     az_index = azimuth_bins(library.az_el, spec.n_azimuths)
     m, found = choose_walk(iou, voted, ranking, az_index, spec.n_azimuths, config, evidence,
-                            photos.steps)
+                           photos.steps)
     ambiguous = (found.direction_lead is not None
                  and found.direction_lead < config.ambiguity_margin
                  and abs(evidence) < config.appearance_threshold)
@@ -341,7 +341,7 @@ def _retrieve_from(photos: _Photos, library: Library, config: RetrievalConfig,
         ccw = config.model_copy(update={"walk": "ccw"})
         lead = found.direction_lead
         m, found = choose_walk(iou, voted, ranking, az_index, spec.n_azimuths, ccw, evidence,
-                                photos.steps)
+                               photos.steps)
         found = dataclasses.replace(found, direction_lead=lead)
     models = [library.models[i] for i in allowed]
     top = [{"model_id": models[i].id, "category": models[i].category,
@@ -357,7 +357,7 @@ def _retrieve_from(photos: _Photos, library: Library, config: RetrievalConfig,
                               walk.direction, walk.score, evidence, perspective=perspective,
                               pairs=photos.pairs)
               for o, walk in alternatives(iou, ranking, az_index, spec.n_azimuths, config,
-                                           evidence, photos.steps, (m, found.direction))]
+                                          evidence, photos.steps, (m, found.direction))]
     return RetrievalResult(models[m].id, models[m].category, top, matches, config.solver,
                            found.direction, found.score, evidence, found.direction_lead,
                            perspective=perspective, direction_ambiguous=ambiguous,

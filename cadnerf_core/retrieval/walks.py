@@ -64,8 +64,8 @@ def solve_poses(iou: np.ndarray, az_index: np.ndarray, n_azimuths: int,
 
 
 def choose_walk(iou: np.ndarray, m: int, ranking: Sequence[tuple[int, int, float]],
-                 az_index: np.ndarray, n_azimuths: int, config: RetrievalConfig,
-                 evidence: float, steps: np.ndarray | None) -> tuple[int, PoseSearchResult]:
+                az_index: np.ndarray, n_azimuths: int, config: RetrievalConfig,
+                evidence: float, steps: np.ndarray | None) -> tuple[int, PoseSearchResult]:
     """The model and its walk: the voted model ``m``'s, or (``model_choice`` "walk", DP) the
     best walk of the ``walk_models`` most voted. Returns (model index, its walk)."""
     found = solve_poses(iou[:, m, :], az_index, n_azimuths, config, evidence, steps)
@@ -98,9 +98,9 @@ def walk_bound(entry: tuple[int, int, float], n_photos: int, config: RetrievalCo
 
 
 def alternatives(iou: np.ndarray, ranking: Sequence[tuple[int, int, float]],
-                  az_index: np.ndarray, n_azimuths: int, config: RetrievalConfig,
-                  evidence: float, steps: np.ndarray | None,
-                  chosen: tuple[int, int]) -> list[tuple[int, PoseSearchResult]]:
+                 az_index: np.ndarray, n_azimuths: int, config: RetrievalConfig,
+                 evidence: float, steps: np.ndarray | None,
+                 chosen: tuple[int, int]) -> list[tuple[int, PoseSearchResult]]:
     """The best walks after the ``chosen`` (model, direction), best score first: each of the
     ``walk_models`` most voted models walked each allowed way round; ``config.hypotheses`` - 1
     of them. Returns (model index, walk) pairs."""
