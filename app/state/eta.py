@@ -136,6 +136,18 @@ class StageHistory:
 
 
 @dataclass
+class _Report:
+    """What the last report said of the running stage, for ``EtaModel.tick``."""
+
+    at: float  # when it came
+    part: float  # share of the stage done
+    stage_seconds: float  # the stage's expected whole duration at this machine's speed
+    future_s: float  # expected seconds of the stages after it
+    start: float  # fraction of the job where the stage starts
+    share: float  # the stage's share of the job's fraction
+
+
+@dataclass
 class EtaModel:
     """Fraction done and seconds left of a running job from its stage reports."""
 
@@ -144,28 +156,38 @@ class EtaModel:
     stage_started: float = 0.0
     durations: dict[str, float] = field(default_factory=dict)
     fraction: float = 0.0
-    last: tuple[float, float, float] | None = None  # (time, seconds left, stage's end fraction)
+    last: _Report | None = None
+    _ticked: float = float("-inf")  # when ``tick`` last moved the bar
 
     def update(self, stage: str, done: int, total: int, now: float) -> tuple[float, float]:
-        """Account for a report; returns (fraction done in [0, 1], seconds left)."""
-        fraction, left, stage_end = self._account(stage, done, total, now)
-        self.last = (now, left, stage_end)
-        return fraction, left
+        """Account for a report; returns (fraction done in [0, 1], seconds left). The bar
+        moves on as between reports first (``tick``), so a report that is behind it (a stage
+        slower than planned) never holds it still."""
+        self.tick(now)
+        return self._account(stage, done, total, now)
 
     def tick(self, now: float) -> tuple[float, float] | None:
-        """Between two reports (a long stage reports every fiftieth of its steps): the fraction
-        and seconds left moved on by the time passed since the last report, at its rate, never
-        past the end of the current stage. None before any report."""
-        if self.last is None:
+        """Between two reports: the bar moves on toward the running stage's end, first at the
+        stage's expected rate, then ever more slowly (the gap to the end falls as 1 / time),
+        so it never stands still and never reaches the stage's end before the stage does (a
+        stage slower than planned slows the bar; the next report never finds it at the end).
+        Returns (fraction, seconds left); None before any report."""
+        last = self.last
+        if last is None:
             return None
-        at, left, stage_end = self.last
-        passed = max(now - at, 0.0)
-        moved = self.fraction + (1.0 - self.fraction) * min(passed / max(left, 1e-6), 1.0)
-        self.fraction = max(self.fraction, min(moved, stage_end))
-        return self.fraction, max(left - passed, 0.0)
+        passed = max(now - max(last.at, self._ticked), 0.0)
+        self._ticked = max(now, self._ticked)
+        part = min(max((self.fraction - last.start) / max(last.share, 1e-12), 0.0), 1.0)
+        remaining = max((1.0 - last.part) * last.stage_seconds, 1e-6)
+        # gap' = -gap^2 / (gap_0 * remaining): gap = gap_0 / (1 + t / remaining) from a report.
+        gap = 1.0 - part
+        gap = gap / (1.0 + gap * passed / (max(1.0 - last.part, 1e-6) * remaining))
+        part = 1.0 - gap
+        self.fraction = max(self.fraction, min(last.start + last.share * part, 1.0))
+        stage_left = max(remaining - max(now - last.at, 0.0), 0.0)
+        return self.fraction, stage_left + last.future_s
 
-    def _account(self, stage: str, done: int, total: int,
-                 now: float) -> tuple[float, float, float]:
+    def _account(self, stage: str, done: int, total: int, now: float) -> tuple[float, float]:
         if stage != self.stage:
             if self.stage is not None:
                 self.durations[self.stage] = now - self.stage_started
@@ -174,10 +196,19 @@ class EtaModel:
         order = list(STAGES) if stage in STAGES else [*STAGES, stage]
         position = order.index(stage)
         weights = [self.expected.get(s, 1.0) for s in order]
-        done_weight = sum(weights[:position]) + weights[position] * part
-        self.fraction = max(self.fraction, min(done_weight / sum(weights), 1.0))
-        stage_end = min(sum(weights[:position + 1]) / sum(weights), 1.0)
-        return self.fraction, self._eta(order, position, part, now), stage_end
+        start = sum(weights[:position]) / sum(weights)
+        share = weights[position] / sum(weights)
+        self.fraction = max(self.fraction, min(start + share * part, 1.0))
+        stage_seconds, future = self._plan(order, position, part, now)
+        self.last = _Report(now, part, stage_seconds, future, start, share)
+        if part >= 1.0 and position + 1 < len(order):
+            # A finished stage: until the next one reports, ticks move the bar into it.
+            following = weights[position + 1]
+            after = sum(weights[position + 2:])
+            speed = future / (following + after) if following + after > 0 else 1.0
+            self.last = _Report(now, 0.0, following * speed, after * speed, start + share,
+                                following / sum(weights))
+        return self.fraction, max((1.0 - part) * stage_seconds + future, 0.0)
 
     def finish(self, now: float) -> dict[str, float]:
         """Close the current stage; returns every stage's measured seconds."""
@@ -185,7 +216,10 @@ class EtaModel:
             self.durations[self.stage] = now - self.stage_started
         return self.durations
 
-    def _eta(self, order: list[str], position: int, part: float, now: float) -> float:
+    def _plan(self, order: list[str], position: int, part: float,
+              now: float) -> tuple[float, float]:
+        """(expected whole seconds of the current stage, expected seconds of the stages after
+        it), both at the speed this job has shown so far."""
         measured = [(self.durations[s], self.expected.get(s, 1.0)) for s in order[:position]
                     if s in self.durations]
         # The finished stages tell how fast this machine is against the table: the current
@@ -195,17 +229,16 @@ class EtaModel:
         observed_total = elapsed / part if part > 0 and elapsed > 0.2 else None
         # The observed rate of this stage is trusted more as the stage advances.
         if observed_total is None:
-            current_left = expected_now * (1 - part)
+            stage_seconds = expected_now
         else:
-            current_left = (part * observed_total * (1 - part)
-                            + (1 - part) * expected_now * (1 - part))
+            stage_seconds = part * observed_total + (1 - part) * expected_now
             measured.append((observed_total, self.expected.get(order[position], 1.0)))
         future = sum(self.expected.get(s, 1.0) for s in order[position + 1:]) * _speed(measured)
-        return max(current_left + future, 0.0)
+        return stage_seconds, future
 
 
 def _speed(measured: list[tuple[float, float]]) -> float:
     """Measured over planned seconds of (measured, planned) pairs (1 without any), bounded."""
     spent = sum(m for m, _ in measured)
     planned = sum(e for _, e in measured)
-    return min(max(spent / planned, 0.05), 50.0) if planned > 0 and spent > 0 else 1.0
+    return min(max(spent / planned, 1e-3), 1e3) if planned > 0 and spent > 0 else 1.0

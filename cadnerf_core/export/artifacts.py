@@ -21,7 +21,7 @@ from cadnerf_core.export.bundle import (
     novel_view_entries,
     write_bundle,
 )
-from cadnerf_core.export.mesh import export_mesh
+from cadnerf_core.export.mesh import EXPORT_STEPS, export_mesh
 from cadnerf_core.export.renders import novel_cameras, render_orbit, render_views
 from cadnerf_core.jobfolder import (
     JobFolder,
@@ -116,10 +116,9 @@ def export_job(job_dir: Path, model: TrainedModel, retrieval: RetrievalResult,
     lap("views_s")
     render_orbit(job_dir, model, data, progress, n_views, total)
     lap("orbit_s")
-    progress.step("export", 1, 3)
+    progress.step("export", 0, EXPORT_STEPS)
     mesh = export_mesh(job_dir, model, progress)
     lap("mesh_s")
-    progress.step("export", 2, 3)
     sizes = {i: tuple(p.size) for i, p in enumerate(photos)}
     poses = poses_json(model, retrieval, sizes, {i: float(p.scale) for i, p in enumerate(photos)})
     novel, K_novel = novel_cameras(model, data)
@@ -130,6 +129,7 @@ def export_job(job_dir: Path, model: TrainedModel, retrieval: RetrievalResult,
         "novel_views": novel_view_entries(views[data.n_images:], novel, K_novel,
                                           ecfg.orbit_size)})
     export_for_tools(job_dir, poses, model.c2w, mesh)
+    progress.step("export", 5, EXPORT_STEPS)
     lap("bundle_s")
     timings["export_s"] = time.perf_counter() - start
     metrics = metrics_json(model, retrieval, scores)
@@ -137,7 +137,7 @@ def export_job(job_dir: Path, model: TrainedModel, retrieval: RetrievalResult,
     folder.write_metrics(metrics)
     progress.check()
     write_bundle(folder)
-    progress.step("export", 3, 3)
+    progress.step("export", EXPORT_STEPS, EXPORT_STEPS)
     psnr_by_name = {p["name"]: p for p in metrics["photos"]}
     return {"model_id": retrieval.model_id, "category": retrieval.category,
             "photos": [{"name": p["name"], "iou": p["iou"], "discarded": p["discarded"],

@@ -98,6 +98,11 @@ def write_obj(folder: JobFolder, mesh: TexturedMesh) -> None:
     folder.write_text(MESH_OBJ, obj_text(mesh, Path(MESH_MTL).name))
 
 
+EXPORT_STEPS = 6
+"""Reports of stage "export": the mesh's occupancy, its surface, its texture and its files
+(``export_mesh``), the files for other tools, ``results.zip`` (``artifacts.export_job``)."""
+
+
 def export_mesh(job_dir: Path, model: TrainedModel,
                 progress: Progress | None = None) -> TexturedMesh:
     """mesh.glb, mesh.obj and mesh.usdz: marching cubes on the learned occupancy, decimated to
@@ -108,17 +113,24 @@ def export_mesh(job_dir: Path, model: TrainedModel,
     axis = np.linspace(-bound, bound, G, dtype=np.float32)
     points = np.stack(np.meshgrid(axis, axis, axis, indexing="ij"), -1).reshape(-1, 3)
     check = None if progress is None else progress.check
+
+    def report(done: int) -> None:
+        if progress is not None:
+            progress.step("export", done, EXPORT_STEPS)
+
     values = model.occupancy(points, check=check).reshape(G, G, G)
+    report(1)
     mesh = decimate(extract_mesh(values, bound, ecfg.mesh_level), ecfg.mesh_faces)
+    report(2)
 
     def color(p: np.ndarray, d: np.ndarray) -> np.ndarray:
         return model.colors(p, d, check=check)
 
     textured = bake_texture(mesh, color, ecfg.texture_size)
-    if progress is not None:
-        progress.check()  # before any output: a cancelled or deleted job writes nothing more
+    report(3)  # then checks: before any output, a cancelled or deleted job writes nothing more
     folder = JobFolder(job_dir)
     write_glb(folder.file(MESH), textured)
     write_obj(folder, textured)
     write_usdz(folder.file(MESH_USDZ), textured, folder.file(MESH_TEXTURE))
+    report(4)
     return textured

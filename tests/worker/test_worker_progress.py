@@ -30,8 +30,10 @@ def test_fraction_is_weighted_by_expected_stage_time() -> None:
     assert fraction == pytest.approx(1 / 20)
     fraction, _ = eta.update("phase2", 2, 4, now=2.0)  # masks..phase1 done (4 s) + half of 4 s
     assert fraction == pytest.approx(6 / 20)
-    fraction, _ = eta.update("phase1", 1, 2, now=3.0)  # going back never lowers the fraction
+    fraction, _ = eta.update("phase1", 1, 2, now=2.0)  # going back never lowers the fraction
     assert fraction == pytest.approx(6 / 20)
+    fraction, _ = eta.update("phase1", 1, 2, now=3.0)  # the bar moves on with time alone
+    assert 6 / 20 < fraction < 8 / 20
 
 
 def test_eta_follows_the_observed_speed() -> None:
@@ -126,8 +128,9 @@ def test_reports_reach_redis_throttled_and_state_json_on_stage_changes(store: Jo
 
 def test_between_reports_the_eta_moves_on_with_the_cancel_checks(store: JobStore, new_job,
                                                                   clean_redis) -> None:
-    """The core checks for cancellation on every step but reports every fiftieth: those
-    checks count the seconds left down and the fraction up, never past the stage's end."""
+    """Between two reports the core's cancel checks move the fraction up and the seconds left
+    down; a stage far slower than planned keeps moving, ever more slowly, without reaching
+    its end (the bar must not stand at a stage's end while the stage goes on)."""
     record = new_job()
     clock = Clock()
     progress = JobProgress(store, record.id, EtaModel(dict(EXPECTED)), clock=clock, tick_s=2.0)
@@ -140,11 +143,36 @@ def test_between_reports_the_eta_moves_on_with_the_cancel_checks(store: JobStore
     progress.cancelled()
     moved = clean_redis.hgetall(keys.job(record.id))
     assert float(moved["eta_s"]) == pytest.approx(float(first["eta_s"]) - 3.0)
-    assert float(first["progress"]) < float(moved["progress"]) <= 16 / 20
-    clock.now += 60.0  # far past the plan: the fraction stops at the end of phase three
-    progress.cancelled()
-    stuck = clean_redis.hgetall(keys.job(record.id))
-    assert float(stuck["eta_s"]) == 0.0 and float(stuck["progress"]) == pytest.approx(16 / 20)
+    assert float(first["progress"]) < float(moved["progress"]) < 16 / 20
+    seen = [float(moved["progress"])]
+    for _ in range(30):  # far past the plan: still moving, never at the stage's end
+        clock.now += 10.0
+        progress.cancelled()
+        seen.append(float(clean_redis.hget(keys.job(record.id), "progress")))
+    assert all(b > a for a, b in zip(seen, seen[1:], strict=False)), seen
+    assert seen[-1] < 16 / 20
+    assert float(clean_redis.hget(keys.job(record.id), "eta_s")) >= 2 + 2
+
+
+def test_a_slow_stage_moves_the_bar_every_few_seconds_and_reports_catch_up() -> None:
+    """A stage ten times slower than planned, reporting once a second (``Progress.advance``)
+    with ticks in between, on a clock the test drives: the fraction changes at every write,
+    and no report ever finds the bar ahead of it."""
+    eta = EtaModel(dict(EXPECTED))
+    now, steps, last_fraction = 0.0, 80, -1.0
+    eta.update("phase3", 0, steps, now)
+    for done in range(1, steps + 1):
+        for _ in range(4):  # ticks between two reports, each 0.25 s apart
+            now += 0.25
+            ticked = eta.tick(now)
+            assert ticked is not None
+            assert ticked[0] > last_fraction
+            last_fraction = ticked[0]
+        fraction, left = eta.update("phase3", done, steps, now)
+        assert fraction == pytest.approx(max(last_fraction, 8 / 20 + 8 / 20 * done / steps))
+        assert fraction < 16 / 20 or done == steps
+        assert left > 0
+        last_fraction = fraction
 
 
 def test_cancel_flag_and_deadline(store: JobStore, new_job) -> None:
