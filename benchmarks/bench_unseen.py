@@ -416,11 +416,12 @@ def section(plan: Plan, rows: list[dict[str, Any]], seconds: float, quick: bool,
 def run(quick: bool, names: list[str] | None = None, variants: list[str] | None = None,
         device: str = "cpu", shard: tuple[int, int] = (0, 1),
         rows_file: Path | None = None, fovs: list[float] | None = None,
-        views: int | list[int] = VIEWS, workers: int = 1) -> str:
+        views: int | list[int] = VIEWS, workers: int = 1, threads: int = 1) -> str:
     """Run the benchmark (``variants``: only these rows; ``shard``: only every ``shard[1]``-th
     job from ``shard[0]``, for running shards side by side; ``rows_file``: JSON lines of the
     rows, for ``from_rows``; ``views``: photos a walk, one section per count; ``workers``: jobs
-    at a time from one queue). Returns its markdown sections."""
+    at a time from one queue; ``threads``: torch threads of a job run one at a time, 2 for a
+    job as a user's runs alone on 2 cores). Returns its markdown sections."""
     import torch
 
     from cadnerf_core.library.format import load_library
@@ -441,19 +442,22 @@ def run(quick: bool, names: list[str] | None = None, variants: list[str] | None 
     else:
         library = load_library(LIBRARY_DIR)
         threads = torch.get_num_threads()
-        torch.set_num_threads(1)  # as bench_eval: small jobs, no OpenMP oversubscription
+        torch.set_num_threads(threads)  # 1 as bench_eval: no OpenMP oversubscription
         try:
             rows = [row for plan in plans
                     for row in run_rows(plan, library, work, device, shard, rows_file)]
         finally:
             torch.set_num_threads(threads)
     seconds = time.perf_counter() - start
-    where = (CPU_WHERE if device == "cpu" and workers == 1
+    where = (CPU_WHERE if device == "cpu" and workers == 1 and threads == 1
+             else f"CPU, {threads} torch threads, one job at a time" if device == "cpu"
+             and workers == 1 and shard[1] == 1
              else device_words(device, max(workers, shard[1])))
     if len(plans) > 1:
         where += f"; one run for {' and '.join(str(p.views) for p in plans)} views"
     extra = ((f" --device {device}" if device != "cpu" else "")
-             + (f" --workers {workers}" if workers > 1 else ""))
+             + (f" --workers {workers}" if workers > 1 else "")
+             + (f" --threads {threads}" if threads != 1 and workers == 1 else ""))
     return "\n".join(section(plan, [r for r in rows if r.get("views", VIEWS) == plan.views],
                              seconds, quick, names, where, extra) for plan in plans)
 
@@ -508,6 +512,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--workers", type=int, default=1,
                         help="jobs at a time, from one queue, each in a process of its own")
     parser.add_argument("--device", default="cpu", help="cpu or cuda")
+    parser.add_argument("--threads", type=int, default=1,
+                        help="torch threads of a job when jobs run one at a time")
     parser.add_argument("--shard", default="0/1",
                         help="I/N: only every N-th job from the I-th (run N side by side)")
     parser.add_argument("--rows", type=Path, default=None,
@@ -539,7 +545,8 @@ def main(argv: list[str] | None = None) -> int:
     if args.workers < 1:
         parser.error(f"--workers {args.workers}: at least 1")
     sys.stdout.write(run(args.quick, args.meshes, args.variants, args.device,
-                         (index, count), args.rows, args.fovs, args.views, args.workers))
+                         (index, count), args.rows, args.fovs, args.views, args.workers,
+                         args.threads))
     return 0
 
 

@@ -77,6 +77,10 @@ class RenderConfig(_Frozen):
     """Training steps between two updates of the grid from the learned density."""
     use_grid: bool = True
     """Skip samples in empty grid cells (off: every sample is evaluated)."""
+    cull_alpha: float = Field(default=1e-3, ge=0.0, lt=1.0)
+    """Phase three leaves out of its differentiable pass the samples whose occupancy, looked
+    up first without gradients, is below this or which lie behind opaque matter (as nerfacc's
+    ``alpha_thre``): they add next to nothing to a pixel or a gradient. 0: every sample."""
     chunk_rays: int = Field(default=0, ge=0, le=MAX_RAYS)
     """Rays per chunk when rendering images (memory bound, not a quality setting). 0: 65536 on
     a GPU (fewer, larger launches: a 512-px frame in 4 chunks, not 64), 4096 on the CPU."""

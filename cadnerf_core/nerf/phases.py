@@ -27,7 +27,7 @@ from cadnerf_core.nerf.fields import FieldOutputs
 from cadnerf_core.nerf.poses import in_window
 from cadnerf_core.nerf.rays import pixel_rays
 from cadnerf_core.nerf.state import TrainData, TrainState
-from cadnerf_core.nerf.volrend import RenderOutput, render_rays
+from cadnerf_core.nerf.volrend import Culling, RenderOutput, render_rays
 from cadnerf_core.progress import Progress
 
 log = logging.getLogger(__name__)
@@ -37,7 +37,6 @@ OccupancySampler = Callable[[int], tuple[np.ndarray, np.ndarray]]
 
 POOL_MAX = 1 << 18  # CAD occupancy samples drawn once for phase one
 CPU_PASS_RAYS = 2048  # ``render.train_pass_rays`` 0 on the CPU
-REPORTS = 50  # progress reports per phase
 
 
 def autocast(state: TrainState) -> contextlib.AbstractContextManager[None]:
@@ -64,15 +63,8 @@ def adam(params: Iterable[torch.nn.Parameter] | Iterable[dict[str, Any]], lr: fl
 
 
 def _report(progress: Progress | None, stage: str, step: int, total: int) -> None:
-    if progress is None:
-        return
-    every = max(1, total // REPORTS)
-    if (step + 1) % every == 0 or step + 1 == total:
-        progress.step(stage, step + 1, total)
-    else:
-        # Cancelling must take effect within seconds, not within a fiftieth of a phase; the
-        # check itself is cheap (callers throttle their own look-ups).
-        progress.check()
+    if progress is not None:
+        progress.advance(stage, step + 1, total)
 
 
 def phase1_step(state: TrainState, optimizer: torch.optim.Optimizer, points: torch.Tensor,
@@ -169,8 +161,9 @@ def pixel_weights(data: TrainData, img: torch.Tensor, x: torch.Tensor,
 
 def render_batch(state: TrainState, data: TrainData, img: torch.Tensor, x: torch.Tensor,
                  y: torch.Tensor, with_color: bool, pose_grad: bool,
-                 background: torch.Tensor | None = None) -> RenderOutput:
-    """Render training rays of pixels (img, x, y) at the current poses."""
+                 background: torch.Tensor | None = None, cull: bool = False) -> RenderOutput:
+    """Render training rays of pixels (img, x, y) at the current poses (``cull``: samples of
+    alpha below ``render.cull_alpha`` or behind opaque matter left out, ``volrend.Culling``)."""
     with contextlib.nullcontext() if pose_grad else torch.no_grad():
         c2w = state.poses(img)
         K = state.poses.intrinsics(data.K[img])
@@ -179,26 +172,48 @@ def render_batch(state: TrainState, data: TrainData, img: torch.Tensor, x: torch
             and data.scene_images is not None:
         background = state.fields.background(rays_d)
 
-    def fn(p: torch.Tensor, d: torch.Tensor) -> FieldOutputs:
+    def fn(p: torch.Tensor, d: torch.Tensor | None) -> FieldOutputs:
         # Only the networks run in reduced precision; compositing stays in float32.
         with autocast(state):
             return state.fields.query(p, d if with_color else None)
 
     rcfg = state.config.render
+    culling = Culling(rcfg.cull_alpha) if cull and rcfg.cull_alpha > 0 else None
+    grid = (state.fine_grid or state.grid) if culling is not None else state.grid
     return render_rays(fn, rays_o, rays_d, rcfg.samples_per_ray, rcfg.bound,
-                       state.grid if rcfg.use_grid else None, with_color, True, background)
+                       grid if rcfg.use_grid else None, with_color, True, background, culling)
+
+
+def _occupancy_fn(state: TrainState) -> Callable[[torch.Tensor], torch.Tensor]:
+    def occupancy(p: torch.Tensor) -> torch.Tensor:
+        with autocast(state):
+            return state.fields.query(p, None).occupancy
+
+    return occupancy
 
 
 def _maybe_update_grid(state: TrainState, step: int) -> None:
     rcfg = state.config.render
     if not rcfg.use_grid or (step + 1) % rcfg.grid_update_every:
         return
+    state.grid.update(_occupancy_fn(state), rcfg.grid_threshold, rcfg.grid_dilation)
+    if state.fine_grid is not None:
+        refresh_fine_grid(state)
 
-    def occupancy(p: torch.Tensor) -> torch.Tensor:
-        with autocast(state):
-            return state.fields.query(p, None).occupancy
 
-    state.grid.update(occupancy, rcfg.grid_threshold, rcfg.grid_dilation)
+FINE_GRID_FACTOR = 2  # the culled passes' grid against the training grid's cells
+
+
+@torch.no_grad()
+def refresh_fine_grid(state: TrainState) -> None:
+    """``state.fine_grid`` remade from the learned field (``SkipGrid.refined``, one fine cell
+    of dilation): a culled pass's look-up without gradients then skips the empty margin the
+    training grid keeps for the shape to grow, which phase three's settled shape rarely
+    needs and its mask loss still covers within a cell."""
+    rcfg = state.config.render
+    if rcfg.use_grid and rcfg.cull_alpha > 0:
+        state.fine_grid = state.grid.refined(_occupancy_fn(state), FINE_GRID_FACTOR,
+                                             rcfg.grid_threshold)
 
 
 def ray_passes(state: TrainState, n: int) -> list[tuple[slice, float]]:
@@ -387,7 +402,7 @@ def phase3_step(state: TrainState, data: TrainData, optimizer: torch.optim.Optim
         for i, (part, share) in enumerate(ray_passes(state, len(img))):
             pimg, px, py = img[part], x[part], y[part]
             out = render_batch(state, data, pimg, px, py, True, pose_optimizer is not None,
-                               white)
+                               white, cull=True)
             assert out.rgb is not None
             loss = F.mse_loss(out.rgb, target[pimg, py, px])
             if cfg.mask_weight > 0:
@@ -418,6 +433,7 @@ def run_phase3(state: TrainState, data: TrainData, progress: Progress | None = N
     pose_optimizer = adam(state.poses.optimizer_groups(cfg.pose_lr, state.config.phase2.focal_lr),
                           cfg.pose_lr, state.device)
     blurred: dict[float, torch.Tensor] = {}
+    refresh_fine_grid(state)
     for step in range(cfg.steps):
         active = state.config.optimise_poses and in_window(step, cfg.steps, cfg.pose_window)
         sigma = target_blur(step, cfg.steps, cfg.pose_window, cfg.pose_blur) * data.width

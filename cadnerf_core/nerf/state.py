@@ -69,6 +69,9 @@ class TrainState:
     grid: SkipGrid
     device: torch.device
     history: dict[str, list[float]] = field(default_factory=dict)
+    fine_grid: SkipGrid | None = None
+    """A finer grid of where the learned field is, for the samples a culled pass looks at
+    (``phases.refresh_fine_grid``); None: ``grid``."""
 
     @classmethod
     def create(cls, config: PipelineConfig, c2w_init: np.ndarray, device: torch.device,

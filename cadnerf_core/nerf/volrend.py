@@ -21,7 +21,20 @@ import torch
 from cadnerf_core.nerf.fields import FieldOutputs
 from cadnerf_core.nerf.grid import SkipGrid
 
-FieldFn = Callable[[torch.Tensor, torch.Tensor], FieldOutputs]
+FieldFn = Callable[[torch.Tensor, torch.Tensor | None], FieldOutputs]
+"""(points [P, 3], dirs [P, 3] or None) -> FieldOutputs; dirs None: occupancy only."""
+
+
+@dataclass(frozen=True)
+class Culling:
+    """Which samples a training render may leave out of its differentiable pass, decided by a
+    pass of occupancy alone without gradients (as nerfacc's ``alpha_thre`` and
+    ``early_stop_eps``): a sample of alpha below ``alpha`` adds next to nothing to colour or
+    opacity and, through the sigmoid's slope, next to no gradient; one behind opaque matter
+    (transmittance below ``transmittance``) none at all."""
+
+    alpha: float = 1e-3
+    transmittance: float = 1e-3
 
 
 @dataclass
@@ -107,9 +120,34 @@ def _evaluate(fn: FieldFn, points: torch.Tensor, dirs: torch.Tensor, keep: torch
     return alpha, rgb, out, int(idx.numel())
 
 
+def cull_samples(fn: FieldFn, points: torch.Tensor, keep: torch.Tensor,
+                 culling: Culling) -> torch.Tensor:
+    """The samples worth a differentiable pass: ``keep`` less those of low alpha or behind
+    opaque matter (``Culling``), judged by occupancy alone without gradients.
+
+    Args:
+        points: [R, S, 3] samples along each ray, in order.
+        keep: [R, S] bool, the samples the grid leaves.
+    Returns:
+        [R, S] bool, a subset of ``keep``.
+    """
+    R, S = keep.shape
+    with torch.no_grad():
+        idx = keep.reshape(-1).nonzero()[:, 0]
+        alpha = torch.zeros(R * S, device=points.device, dtype=torch.float32)
+        if idx.numel():
+            occupancy = fn(points.reshape(-1, 3)[idx], None).occupancy.float()
+            alpha = alpha.index_put((idx,), occupancy)
+        alpha = alpha.reshape(R, S)
+        ones = torch.ones_like(alpha[:, :1])
+        trans = torch.cumprod(torch.cat([ones, 1.0 - alpha[:, :-1]], -1), -1)
+    return keep & (alpha > culling.alpha) & (trans > culling.transmittance)
+
+
 def render_rays(fn: FieldFn, rays_o: torch.Tensor, rays_d: torch.Tensor, n_samples: int,
                 radius: float, grid: SkipGrid | None, with_color: bool, stratified: bool,
-                background: torch.Tensor | None = None) -> RenderOutput:
+                background: torch.Tensor | None = None,
+                culling: Culling | None = None) -> RenderOutput:
     """Render rays through the fields.
 
     Args:
@@ -121,6 +159,8 @@ def render_rays(fn: FieldFn, rays_o: torch.Tensor, rays_d: torch.Tensor, n_sampl
         with_color: also composite colour.
         stratified: jitter samples (training) or take bin centres (rendering).
         background: [R, 3] or [3] colour behind the object (default white).
+        culling: leave samples of low alpha or behind opaque matter out of the pass
+            (``cull_samples``; None: every sample the grid leaves is evaluated).
     Returns:
         RenderOutput.
     """
@@ -131,6 +171,8 @@ def render_rays(fn: FieldFn, rays_o: torch.Tensor, rays_d: torch.Tensor, n_sampl
     keep = hit[:, None].expand(R, n_samples)
     if grid is not None:
         keep = keep & grid.contains(points.reshape(-1, 3)).reshape(R, n_samples)
+    if culling is not None:
+        keep = cull_samples(fn, points, keep, culling)
     dirs = rays_d[:, None].expand(R, n_samples, 3).reshape(-1, 3)
     alpha, rgb, out, n_evaluated = _evaluate(fn, points.reshape(-1, 3), dirs, keep.reshape(-1),
                                              with_color)

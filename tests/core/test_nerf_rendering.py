@@ -154,3 +154,51 @@ def test_deformation_bands_follow_their_own_setting() -> None:
     offset, correction = fields.deformation(torch.rand(7, 3) * 2 - 1)
     assert offset.shape == (7, 3) and correction.shape == (7,)
     assert torch.count_nonzero(offset) == 0 and torch.count_nonzero(correction) == 0
+
+
+def test_culling_by_hand_drops_faint_and_hidden_samples() -> None:
+    from cadnerf_core.nerf.volrend import Culling, cull_samples
+
+    # One ray of five samples: alpha 0, 0.0005 (faint), 0.5, 1 (opaque), 0.7 (behind it);
+    # transmittance before each: 1, 1, 0.9995, 0.49975, 0.
+    alpha = torch.tensor([0.0, 0.0005, 0.5, 1.0, 0.7])
+
+    def field(points: torch.Tensor, dirs: torch.Tensor | None) -> FieldOutputs:
+        return FieldOutputs(alpha[points[:, 0].long()], None, None, None)
+
+    points = torch.stack([torch.arange(5.0), torch.zeros(5), torch.zeros(5)], -1)[None]
+    keep = torch.tensor([[True, True, True, True, True]])
+    kept = cull_samples(field, points, keep, Culling(alpha=1e-3, transmittance=1e-3))
+    assert kept.tolist() == [[False, False, True, True, False]]
+    # Samples the grid skipped count as empty: nothing hides the last one then.
+    grid_kept = torch.tensor([[True, True, False, False, True]])
+    assert cull_samples(field, points, grid_kept, Culling()).tolist() \
+        == [[False, False, False, False, True]]
+
+
+def test_culled_rendering_matches_and_evaluates_fewer_samples() -> None:
+    from cadnerf_core.nerf.volrend import Culling
+
+    c2w = torch.from_numpy(orbit_pose(30.0, 20.0, 4.0)).float()
+    K = torch.tensor([[40.0, 0.0, 16.0], [0.0, 40.0, 16.0], [0.0, 0.0, 1.0]])
+    rays_o, rays_d = image_rays(c2w, K, 32, 32)
+
+    def soft(points: torch.Tensor, dirs: torch.Tensor | None) -> FieldOutputs:
+        occ = torch.sigmoid(20 * (0.5 - points.norm(dim=-1)))
+        return FieldOutputs(occ, None if dirs is None else (points + 1) / 2, None, None)
+
+    full = render_rays(soft, rays_o, rays_d, 48, 1.0, None, True, False)
+    culled = render_rays(soft, rays_o, rays_d, 48, 1.0, None, True, False, culling=Culling())
+    assert torch.allclose(culled.acc, full.acc, atol=0.05)
+    assert torch.allclose(culled.rgb, full.rgb, atol=0.05)  # type: ignore[arg-type]
+    assert culled.n_evaluated < full.n_evaluated / 2
+
+
+def test_display_grid_is_finer_and_within_the_training_grid() -> None:
+    coarse = grid_from_occupancy(lambda p: np.linalg.norm(p, axis=-1) < 0.5, 8, 1.0, 2)
+    fine = coarse.refined(lambda p: (p.norm(dim=-1) < 0.3).float(), 2, 0.5, dilation=1)
+    assert fine.resolution == 16
+    coarse_at_fine = coarse.contains(fine.cell_centres()).reshape((16,) * 3)
+    assert not (fine.occupied & ~coarse_at_fine).any()  # nothing training never sampled
+    assert fine.contains(torch.tensor([[0.0, 0.0, 0.0], [0.25, 0.0, 0.0]])).all()
+    assert fine.fraction() < coarse.fraction() / 2
