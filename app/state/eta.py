@@ -30,8 +30,8 @@ MEASURED_WEIGHT = 0.5  # exponential moving average of measured stage durations
 # its size.
 DEFAULT_STAGE_SECONDS: dict[str, dict[str, dict[str, float]]] = {
     "cpu": {
-        "preview": {"masks": 3, "retrieval": 10, "phase1": 6, "phase2": 20, "phase3": 150,
-                    "render": 10, "export": 10},
+        "preview": {"masks": 3, "retrieval": 10, "phase1": 3, "phase2": 33, "phase3": 110,
+                    "render": 28, "export": 9},
         "standard": {"masks": 4, "retrieval": 10, "phase1": 250, "phase2": 1500, "phase3": 4000,
                      "render": 120, "export": 90},
         "paper": {"masks": 3, "retrieval": 10, "phase1": 300, "phase2": 5000, "phase3": 15000,

@@ -94,12 +94,17 @@ class SkipGrid:
             occupancy_fn: points [P, 3] -> occupancy [P] in [0, 1].
         """
         fine = SkipGrid.full(self.resolution * factor, self.bound, self.occupied.device)
-        centres = fine.cell_centres()
-        vals = torch.cat([occupancy_fn(centres[i:i + chunk]).float()
-                          for i in range(0, centres.shape[0], chunk)])
-        occ = dilate((vals.reshape((fine.resolution,) * 3) > threshold).float(), dilation)
         coarse = self.occupied.repeat_interleave(factor, 0).repeat_interleave(factor, 1)
-        fine.occupied = occ.bool() & coarse.repeat_interleave(factor, 2)
+        coarse = coarse.repeat_interleave(factor, 2).reshape(-1)
+        # Only the fine cells inside occupied coarse ones are looked up: the rest stay empty.
+        idx = coarse.nonzero()[:, 0]
+        centres = fine.cell_centres()[idx]
+        vals = torch.zeros(coarse.shape[0], device=coarse.device)
+        if idx.numel():
+            vals[idx] = torch.cat([occupancy_fn(centres[i:i + chunk]).float()
+                                   for i in range(0, centres.shape[0], chunk)])
+        occ = dilate((vals.reshape((fine.resolution,) * 3) > threshold).float(), dilation)
+        fine.occupied = occ.bool() & coarse.reshape(occ.shape)
         return fine
 
 
