@@ -260,6 +260,7 @@ def run_demo(url: str, preset: str = "preview", views: int = 6, size: int = 160,
     photos = sorted((dataset / "images").glob("*.png"))
     client = JobClient(url, api_key=api_key)
     try:
+        submitted = time.monotonic()
         job = client.submit(photos, config={"preset": preset, "overrides": overrides or {}})
         typer.echo(f"demo job {job['id']}: {len(photos)} photos, preset {preset}")
         typer.echo(f"watch it at {url}/?job={job['id']}")
@@ -272,7 +273,8 @@ def run_demo(url: str, preset: str = "preview", views: int = 6, size: int = 160,
         orbit = client.download(job["id"], ORBIT_VIDEO, out / ORBIT_VIDEO)
         typer.echo(f"result (model, poses, metrics): {url}/v1/jobs/{job['id']}/result")
         typer.echo(f"orbit video: {url}/v1/jobs/{job['id']}/artifacts/{ORBIT_VIDEO}")
-        typer.echo(f"downloaded to {orbit}")
+        typer.echo(f"downloaded to {orbit} ({time.monotonic() - submitted:.0f} s after the "
+                   "photos were sent)")
         return final
     finally:
         client.close()

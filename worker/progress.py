@@ -106,5 +106,5 @@ class JobProgress:
             except redis.RedisError as exc:
                 self._redis_failed(now, exc)
         if not self._cancelled:
-            self._tick(now)  # the core checks on every step, and reports every fiftieth
+            self._tick(now)  # the core checks on every step, and reports about once a second
         return self._cancelled
