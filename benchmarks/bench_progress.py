@@ -109,8 +109,8 @@ def measure(mesh: str, fov: float, quick: bool, threads: int,
 def op_profile(job_dir: Path, library: Any, steps: int = 20, top: int = 8
                ) -> list[tuple[str, float, int]]:
     """``torch.profiler`` over ``steps`` phase-three steps of the finished job (its trained
-    state, its photos): the ``top`` operations by their own CPU time, as (name, share of the
-    steps' CPU time in %, calls a step)."""
+    state, its photos, poses learning as in the pose window): the ``top`` operations by
+    their own CPU time, as (name, share of the steps' CPU time in %, calls a step)."""
     import torch
     from torch.profiler import ProfilerActivity, profile
 
@@ -130,6 +130,7 @@ def op_profile(job_dir: Path, library: Any, steps: int = 20, top: int = 8
     poses = phases.adam(state.poses.optimizer_groups(config.phase3.pose_lr,
                                                      config.phase2.focal_lr),
                         config.phase3.pose_lr, cpu)
+    phases.refresh_fine_grid(state)  # as phase three's culled passes use it
     phases.phase3_step(state, data, optimizer, poses)  # warm-up
     with profile(activities=[ProfilerActivity.CPU]) as prof:
         for _ in range(steps):
@@ -193,8 +194,12 @@ def section(result: dict[str, Any], quick: bool) -> str:
 
 def run(quick: bool, library: Path | None = None) -> str:
     """``make bench``'s section."""
+    from benchmarks.bench_eval import EVAL_ROOT
     from benchmarks.bench_unseen import LIBRARY_DIR
 
+    if not (EVAL_ROOT / "meshes").is_dir():
+        return ("## A preview job: time per stage, progress and ETA\n\n"
+                "Not run: `../shared/eval` is absent.\n")
     return section(measure(MESH, FOV, quick, 2, library or LIBRARY_DIR), quick)
 
 

@@ -441,13 +441,13 @@ def run(quick: bool, names: list[str] | None = None, variants: list[str] | None 
         rows = list(done.values()) + run_queue(queue, work, device, workers, rows_file)
     else:
         library = load_library(LIBRARY_DIR)
-        threads = torch.get_num_threads()
+        previous = torch.get_num_threads()
         torch.set_num_threads(threads)  # 1 as bench_eval: no OpenMP oversubscription
         try:
             rows = [row for plan in plans
                     for row in run_rows(plan, library, work, device, shard, rows_file)]
         finally:
-            torch.set_num_threads(threads)
+            torch.set_num_threads(previous)
     seconds = time.perf_counter() - start
     where = (CPU_WHERE if device == "cpu" and workers == 1 and threads == 1
              else f"CPU, {threads} torch threads, one job at a time" if device == "cpu"

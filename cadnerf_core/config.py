@@ -80,7 +80,9 @@ class RenderConfig(_Frozen):
     cull_alpha: float = Field(default=1e-3, ge=0.0, lt=1.0)
     """Phase three leaves out of its differentiable pass the samples whose occupancy, looked
     up first without gradients, is below this or which lie behind opaque matter (as nerfacc's
-    ``alpha_thre``): they add next to nothing to a pixel or a gradient. 0: every sample."""
+    ``alpha_thre``): they add next to nothing to a pixel or a gradient. The offset and
+    correction regularisers then average over the samples kept. 0: every sample (``paper``,
+    whose regularisers average over every sample in the grid)."""
     chunk_rays: int = Field(default=0, ge=0, le=MAX_RAYS)
     """Rays per chunk when rendering images (memory bound, not a quality setting). 0: 65536 on
     a GPU (fewer, larger launches: a 512-px frame in 4 chunks, not 64), 4096 on the CPU."""
@@ -287,7 +289,8 @@ PRESETS: dict[str, PipelineConfig] = {
         "paper", image_size=256,
         field={"hidden": 256, "pos_freqs": 10, "dir_freqs": 4, "deform_hidden": 128,
                "deform_layers": 4, "color_hidden": 128},
-        render={"samples_per_ray": 128, "grid_resolution": 64, "grid_dilation": 3},
+        render={"samples_per_ray": 128, "grid_resolution": 64, "grid_dilation": 3,
+                "cull_alpha": 0.0},
         phase1={"steps": 2000, "batch_points": 16384, "lr": 5e-4},
         phase2={"steps": 10000, "rays": 2048, "pose_window": (0.75, 1.0), "anneal": (0.0, 0.5),
                 "train_density": False, "lambda_matches": 0.0},

@@ -42,7 +42,7 @@ REPORT_INTERVAL_S = 1.0
 class Progress:
     """Both callbacks together, with helpers that report and check in one call.
 
-    ``clock``: seconds (monotonic), for ``advance``'s interval; a test gives its own.
+    ``clock``: seconds (monotonic), for ``advance``'s interval.
     """
 
     def __init__(self, reporter: ProgressReporter | None = None,

@@ -198,6 +198,13 @@ class EtaModel:
         weights = [self.expected.get(s, 1.0) for s in order]
         start = sum(weights[:position]) / sum(weights)
         share = weights[position] / sum(weights)
+        last = self.last
+        if (part < 1.0 and last is not None and last.start >= start + share - 1e-9
+                and self.fraction >= start + share - 1e-9):
+            # The stage had reported its end and goes on with a count of its own (retrieval,
+            # then the start's fits): the bar keeps moving into the next stage.
+            stage_left = max((1.0 - last.part) * last.stage_seconds - (now - last.at), 0.0)
+            return self.fraction, stage_left + last.future_s
         self.fraction = max(self.fraction, min(start + share * part, 1.0))
         stage_seconds, future = self._plan(order, position, part, now)
         self.last = _Report(now, part, stage_seconds, future, start, share)
@@ -241,4 +248,4 @@ def _speed(measured: list[tuple[float, float]]) -> float:
     """Measured over planned seconds of (measured, planned) pairs (1 without any), bounded."""
     spent = sum(m for m, _ in measured)
     planned = sum(e for _, e in measured)
-    return min(max(spent / planned, 1e-3), 1e3) if planned > 0 and spent > 0 else 1.0
+    return min(max(spent / planned, 0.05), 100.0) if planned > 0 and spent > 0 else 1.0

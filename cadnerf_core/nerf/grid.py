@@ -85,13 +85,16 @@ class SkipGrid:
     @torch.no_grad()
     def refined(self, occupancy_fn: Callable[[torch.Tensor], torch.Tensor], factor: int,
                 threshold: float, dilation: int = 1, chunk: int = 65536) -> SkipGrid:
-        """A grid ``factor`` times finer for display: occupied where the learned occupancy
-        at a fine cell's centre exceeds ``threshold`` (dilated by ``dilation`` fine cells, for
-        what a centre misses) and this grid is occupied (what training never sampled stays
-        empty, as it rendered in training).
+        """A grid ``factor`` times finer (for display renders and culled training passes):
+        occupied where the learned occupancy at a fine cell's centre exceeds ``threshold``
+        (dilated by ``dilation`` fine cells, for what a centre misses) and this grid is
+        occupied (what training never sampled stays empty, as it rendered in training).
+        Where that finds nothing (a collapsed field), this grid's cells, each split.
 
         Args:
             occupancy_fn: points [P, 3] -> occupancy [P] in [0, 1].
+        Returns:
+            A grid of ``resolution * factor`` cells a side over the same bounds.
         """
         fine = SkipGrid.full(self.resolution * factor, self.bound, self.occupied.device)
         coarse = self.occupied.repeat_interleave(factor, 0).repeat_interleave(factor, 1)
@@ -104,7 +107,9 @@ class SkipGrid:
             vals[idx] = torch.cat([occupancy_fn(centres[i:i + chunk]).float()
                                    for i in range(0, centres.shape[0], chunk)])
         occ = dilate((vals.reshape((fine.resolution,) * 3) > threshold).float(), dilation)
-        fine.occupied = occ.bool() & coarse.reshape(occ.shape)
+        fine.occupied = coarse.reshape(occ.shape).clone()
+        if bool(occ.any()):
+            fine.occupied &= occ.bool()
         return fine
 
 

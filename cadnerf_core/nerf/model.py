@@ -54,7 +54,7 @@ class TrainedModel:
         when the configuration renders without one."""
         st = self.state
         rcfg = st.config.render
-        if not rcfg.use_grid or st.grid is None:
+        if not rcfg.use_grid:
             return None
         if self._render_grid is None:
             self._render_grid = st.grid.refined(

@@ -22,6 +22,7 @@ import torch
 import torch.nn.functional as F
 
 from cadnerf_core.config import Phase2Config, Phase3Config
+from cadnerf_core.nerf.blur import blur_images, target_blur
 from cadnerf_core.nerf.epipolar import epipolar_loss
 from cadnerf_core.nerf.fields import FieldOutputs
 from cadnerf_core.nerf.poses import in_window
@@ -355,34 +356,6 @@ def run_phase2(state: TrainState, data: TrainData, progress: Progress | None = N
         _report(progress, "phase2", step, cfg.steps)
     state.fields.density.requires_grad_(True)
     state.fields.set_anneal(1.0)
-
-
-def target_blur(step: int, total: int, window: tuple[float, float], blur: float) -> float:
-    """Phase three's target blur at ``step`` of ``total``: ``blur`` in the first third of the
-    pose ``window``, half of it in the second, a quarter in the last, 0 outside the window
-    (``Phase3Config.pose_blur``; same units as ``blur``)."""
-    start, end = window
-    if blur <= 0 or not in_window(step, total, window):
-        return 0.0
-    level = min(2, int(3 * (step / total - start) / (end - start)))
-    return blur / 2**level
-
-
-def blur_images(images: torch.Tensor, sigma: float) -> torch.Tensor:
-    """Gaussian blur (standard deviation ``sigma`` pixels, reflected borders) of [N, H, W, C]
-    images, separably. Returns a new [N, H, W, C] tensor (``images`` itself for sigma <= 0)."""
-    if sigma <= 0:
-        return images
-    n, height, width, channels = images.shape
-    # Three standard deviations, within what reflect padding allows.
-    radius = max(1, min(int(3 * sigma), height - 1, width - 1))
-    t = torch.arange(-radius, radius + 1, dtype=images.dtype, device=images.device)
-    k = torch.exp(-0.5 * (t / sigma) ** 2)
-    k = k / k.sum()
-    x = images.permute(0, 3, 1, 2).reshape(-1, 1, height, width)
-    x = F.conv2d(F.pad(x, (radius, radius, 0, 0), mode="reflect"), k.view(1, 1, 1, -1))
-    x = F.conv2d(F.pad(x, (0, 0, radius, radius), mode="reflect"), k.view(1, 1, -1, 1))
-    return x.reshape(n, channels, height, width).permute(0, 2, 3, 1).contiguous()
 
 
 def phase3_step(state: TrainState, data: TrainData, optimizer: torch.optim.Optimizer,

@@ -55,18 +55,21 @@ def silhouette_iou(opacity: np.ndarray, mask: np.ndarray) -> float:
 
 def fit_hypothesis(hypothesis: RetrievalResult, photos: Sequence[Any],
                    masks: Sequence[np.ndarray], library: Library, config: PipelineConfig,
-                   device: torch.device, learn_focal: bool) -> float:
+                   device: torch.device, learn_focal: bool,
+                   progress: Progress | None = None) -> float:
     """One hypothesis's score: the mean over ``hypothesis_seeds`` coarse fits
     (``coarse_fit``), each from its own seed, less ``discard_penalty`` per discarded photo
     (shared over all photos), as retrieval's own objective counts a discard.
 
     Args:
         photos, masks: every photo of the job (``intake.photos.Photo``) and its mask.
+        progress: checked for cancelling between the fits' steps (its reports go nowhere).
     """
     seeds = config.retrieval.hypothesis_seeds
     fits = [coarse_fit(hypothesis, photos, masks, library,
                        config.model_copy(update={"seed": (config.seed + SEED_STEP * k)
-                                                 % (MAX_SEED + 1)}), device, learn_focal)
+                                                 % (MAX_SEED + 1)}), device, learn_focal,
+                       progress)
             for k in range(seeds)]
     discarded = len(hypothesis.matches) - len(hypothesis.kept)
     penalty = config.retrieval.discard_penalty * discarded / len(hypothesis.matches)
@@ -75,9 +78,11 @@ def fit_hypothesis(hypothesis: RetrievalResult, photos: Sequence[Any],
 
 def coarse_fit(hypothesis: RetrievalResult, photos: Sequence[Any],
                masks: Sequence[np.ndarray], library: Library, config: PipelineConfig,
-               device: torch.device, learn_focal: bool) -> float:
+               device: torch.device, learn_focal: bool,
+               progress: Progress | None = None) -> float:
     """One coarse fit of a hypothesis (``coarse_config``, seeded by ``config.seed``): the mean
-    silhouette IoU over its kept photos at their refined poses."""
+    silhouette IoU over its kept photos at their refined poses (``progress``: its steps'
+    reports and cancel checks)."""
     from cadnerf_core.intake.photos import canonical_views
     from cadnerf_core.library.occupancy import sample_occupancy
     from cadnerf_core.nerf import phases
@@ -103,11 +108,11 @@ def coarse_fit(hypothesis: RetrievalResult, photos: Sequence[Any],
                           rng=np.random.default_rng(cfg.seed))
         state = TrainState.create(cfg, np.stack([m.c2w for m in kept]), device, grid,
                                   learn_focal)
-        phases.run_phase1(state, sampler)
+        phases.run_phase1(state, sampler, progress)
     else:
         state = TrainState.create(cfg, np.stack([m.c2w for m in kept]), device, None,
                                   learn_focal)
-    phases.run_phase2(state, data, None, sampler)
+    phases.run_phase2(state, data, progress, sampler)
     model = TrainedModel(state)
     with torch.no_grad():
         K_fit = state.poses.intrinsics(data.K).cpu().numpy()
@@ -153,10 +158,13 @@ def choose_start(retrieval: RetrievalResult, photos: Sequence[Any], masks: Seque
                                    direction_ambiguous=retrieval.direction_ambiguous,
                                    focal_known=retrieval.focal_known)
     scores, seconds = [], []
+    # The fits' own steps only check for cancelling (and so let the bar move between the
+    # stage's reports); their phases' counts are not the stage's.
+    checks = Progress(cancel=progress.cancel)
     for i, hypothesis in enumerate(candidates):
         start = time.perf_counter()
         scores.append(fit_hypothesis(hypothesis, photos, masks, library, config, device,
-                                     learn_focal))
+                                     learn_focal, checks))
         seconds.append(time.perf_counter() - start)
         log.info("start hypothesis %d: %s, direction %+d, retrieval score %.3f, fit %.3f", i,
                  hypothesis.model_id, hypothesis.direction, hypothesis.score, scores[-1])

@@ -46,7 +46,7 @@ class RenderOutput:
     depth: torch.Tensor  # [R] expected distance (where the ray stops)
     offset_norm: torch.Tensor  # [] mean ||o||_2 over evaluated samples (0 without G)
     correction_abs: torch.Tensor  # [] mean |c| over evaluated samples
-    n_evaluated: int  # samples the fields were evaluated at
+    n_evaluated: int  # samples of the differentiable pass (a culling pass's not counted)
 
 
 def ray_sphere(rays_o: torch.Tensor, rays_d: torch.Tensor,
@@ -151,7 +151,8 @@ def render_rays(fn: FieldFn, rays_o: torch.Tensor, rays_d: torch.Tensor, n_sampl
     """Render rays through the fields.
 
     Args:
-        fn: fields callable (points [P, 3], dirs [P, 3]) -> FieldOutputs; dirs may be ignored.
+        fn: fields callable (points [P, 3], dirs [P, 3] or None) -> FieldOutputs; dirs None
+            (the culling pass): occupancy only.
         rays_o, rays_d: [R, 3], unit directions.
         n_samples: samples per ray inside the bounding sphere.
         radius: bounding sphere radius.

@@ -22,7 +22,7 @@ from cadnerf_core.config import PipelineConfig
 from cadnerf_core.errors import JobCancelled
 from cadnerf_core.intake.crop import CropBox
 from cadnerf_core.mesh.renderer import MeshRenderer
-from cadnerf_core.nerf import phases
+from cadnerf_core.nerf import blur, phases
 from cadnerf_core.nerf.epipolar import match_terms
 from cadnerf_core.nerf.grid import SkipGrid, grid_from_occupancy
 from cadnerf_core.nerf.model import TrainedModel
@@ -241,24 +241,24 @@ def test_phase_two_trains_d_only_when_asked(train_density: bool) -> None:
 
 def test_target_blur_halves_at_each_third_of_the_pose_window() -> None:
     window = (0.0, 0.75)
-    blurs = [phases.target_blur(step, 120, window, 0.0625) for step in (0, 29, 30, 60, 89, 90)]
+    blurs = [blur.target_blur(step, 120, window, 0.0625) for step in (0, 29, 30, 60, 89, 90)]
     assert blurs == [0.0625, 0.0625, 0.03125, 0.015625, 0.015625, 0.0]
-    assert phases.target_blur(0, 120, (0.0, 0.0), 0.0625) == 0.0  # frozen poses: sharp
-    assert phases.target_blur(0, 120, window, 0.0) == 0.0
+    assert blur.target_blur(0, 120, (0.0, 0.0), 0.0625) == 0.0  # frozen poses: sharp
+    assert blur.target_blur(0, 120, window, 0.0) == 0.0
 
 
 def test_blur_images_is_a_normalised_gaussian_of_the_given_width() -> None:
     images = torch.zeros(1, 41, 41, 3)
     images[0, 20, 20] = 1.0
-    blurred = phases.blur_images(images, 2.0)
+    blurred = blur.blur_images(images, 2.0)
     assert blurred.shape == images.shape
     assert float(blurred.sum()) == pytest.approx(3.0, rel=1e-5)  # mass kept, per channel
     profile = blurred[0, 20, :, 0] / blurred[0, 20, :, 0].sum()
     offsets = torch.arange(41.0) - 20
     assert math.sqrt(float((profile * offsets**2).sum())) == pytest.approx(2.0, rel=0.02)
     flat = torch.full((2, 8, 8, 3), 0.7)
-    assert torch.allclose(phases.blur_images(flat, 20.0), flat)  # radius clipped to the image
-    assert phases.blur_images(images, 0.0) is images
+    assert torch.allclose(blur.blur_images(flat, 20.0), flat)  # radius clipped to the image
+    assert blur.blur_images(images, 0.0) is images
 
 
 def _template_bce(state: TrainState, mesh: trimesh.Trimesh) -> float:
