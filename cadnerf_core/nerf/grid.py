@@ -13,6 +13,10 @@ import numpy as np
 import torch
 import torch.nn.functional as F
 
+REFINE_FACTOR = 2
+"""How many times finer than training's the grids made from a learned field are
+(``SkipGrid.refined``): phase three's culled passes and display renders use them."""
+
 
 class SkipGrid:
     """A boolean grid ``occupied`` [G, G, G] (index order x, y, z) over [-bound, bound]^3."""

@@ -11,7 +11,7 @@ import torch
 
 from cadnerf_core.nerf.checkpoint import last_checkpoint, load_payload, restore_state
 from cadnerf_core.nerf.fields import FieldOutputs
-from cadnerf_core.nerf.grid import SkipGrid
+from cadnerf_core.nerf.grid import REFINE_FACTOR, SkipGrid
 from cadnerf_core.nerf.rays import image_rays
 from cadnerf_core.nerf.state import TrainState
 from cadnerf_core.nerf.volrend import march_rays
@@ -26,10 +26,6 @@ GPU_CHUNK_RAYS, CPU_CHUNK_RAYS = 65_536, 4096
 # a 256-px frame of a preview job's mug in 1.64 s against 2.01 s (2 cores, median of 5 rounds),
 # within 0.00075 a pixel. On a GPU each check is launches and a host sync: 8, as measured there.
 GPU_BLOCK, CPU_BLOCK = 8, 4
-# Display renders skip empty space on a grid this many times finer than training's, made once
-# from the trained field (``SkipGrid.refined``): training's grid is dilated so the shape can
-# grow, which a finished field no longer needs.
-RENDER_GRID_FACTOR = 2
 
 
 def resolve_device(device: str = "auto") -> torch.device:
@@ -50,15 +46,16 @@ class TrainedModel:
 
     @torch.inference_mode()
     def render_grid(self) -> SkipGrid | None:
-        """The skip grid of display renders (``RENDER_GRID_FACTOR``), made on first use; None
-        when the configuration renders without one."""
+        """The skip grid of display renders, ``REFINE_FACTOR`` times finer than training's and
+        made once from the trained field (training's grid is dilated so the shape can grow,
+        which a finished field no longer needs); None when the configuration has no grid."""
         st = self.state
         rcfg = st.config.render
         if not rcfg.use_grid:
             return None
         if self._render_grid is None:
             self._render_grid = st.grid.refined(
-                lambda p: st.fields.query(p, None).occupancy, RENDER_GRID_FACTOR,
+                lambda p: st.fields.query(p, None).occupancy, REFINE_FACTOR,
                 rcfg.grid_threshold)
         return self._render_grid
 

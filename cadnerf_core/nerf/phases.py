@@ -25,6 +25,7 @@ from cadnerf_core.config import Phase2Config, Phase3Config
 from cadnerf_core.nerf.blur import blur_images, target_blur
 from cadnerf_core.nerf.epipolar import epipolar_loss
 from cadnerf_core.nerf.fields import FieldOutputs
+from cadnerf_core.nerf.grid import REFINE_FACTOR
 from cadnerf_core.nerf.poses import in_window
 from cadnerf_core.nerf.rays import pixel_rays
 from cadnerf_core.nerf.state import TrainData, TrainState
@@ -202,9 +203,6 @@ def _maybe_update_grid(state: TrainState, step: int) -> None:
         refresh_fine_grid(state)
 
 
-FINE_GRID_FACTOR = 2  # the culled passes' grid against the training grid's cells
-
-
 @torch.no_grad()
 def refresh_fine_grid(state: TrainState) -> None:
     """``state.fine_grid`` remade from the learned field (``SkipGrid.refined``, one fine cell
@@ -213,7 +211,7 @@ def refresh_fine_grid(state: TrainState) -> None:
     needs and its mask loss still covers within a cell."""
     rcfg = state.config.render
     if rcfg.use_grid and rcfg.cull_alpha > 0:
-        state.fine_grid = state.grid.refined(_occupancy_fn(state), FINE_GRID_FACTOR,
+        state.fine_grid = state.grid.refined(_occupancy_fn(state), REFINE_FACTOR,
                                              rcfg.grid_threshold)
 
 
