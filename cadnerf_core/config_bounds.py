@@ -32,7 +32,7 @@ MAX_SAMPLES = 512  # samples per ray (``paper``: 128)
 MAX_LR = 1.0  # Adam steps this large already throw every weight away
 MAX_WEIGHT = 1000.0  # loss weights (``paper``: 10)
 MAX_SEED = 2**31 - 1  # numpy and torch take it on every platform
-MAX_MATCH_SIZE = 2048  # long side of the crops SIFT searches (default: 640)
+MAX_MATCH_SIZE = 2048  # long side of the crops features are found in
 MAX_POINT_WIDTH = 2**26
 """Most (points evaluated in one training pass) x (widest network): the activations a pass keeps
 for its backward pass, the memory that grows with a configuration (``benchmarks.bench_job_memory

@@ -1,4 +1,4 @@
-"""The config section of the SIFT matches between photos (``retrieval.matches``,
+"""The config section of the matches between photos (``retrieval.matches``,
 ``cadnerf_core.retrieval.matches``).
 
 Its own module so that ``config`` stays one screenful per section; ``config_retrieval`` nests it in
@@ -7,21 +7,27 @@ Its own module so that ``config`` stays one screenful per section; ``config_retr
 
 from __future__ import annotations
 
+from typing import Literal
+
 from pydantic import Field, model_validator
 
 from cadnerf_core.config_bounds import MAX_MATCH_SIZE, Frozen
 
 
 class MatchesConfig(Frozen):
-    """SIFT matches between the photos, and what retrieval takes from them."""
+    """Matches between the photos, and what retrieval and training take from them."""
 
     enabled: bool = True
     """Match the photos (needs them, not only masks) and let the turns between consecutive
     photos tell the walking direction; off, or with too few inliers (a texture-less object),
     retrieval runs on silhouettes and the texture cue alone."""
-    size: int = Field(default=640, ge=64, le=MAX_MATCH_SIZE)
+    method: Literal["xfeat", "sift"] = "xfeat"
+    """Features and matcher: "xfeat" (XFeat keypoints; LighterGlue between neighbours and
+    next-but-one in the walk, mutual nearest descriptors between the other pairs;
+    ``retrieval.learned``) or "sift" (SIFT with simulated tilts, ratio test)."""
+    size: int = Field(default=1024, ge=64, le=MAX_MATCH_SIZE)
     """Long side in pixels of the object's bounding-box crop features are found in (photos are
-    only shrunk): about 0.3 s a photo at 640 on a CPU core, whatever the photo's size."""
+    only shrunk, never enlarged)."""
     context: float = Field(default=0.0, ge=0.0, le=2.0)
     """Share of the object's box (its width and height) added on each side in which features
     are looked for too, with their own share (the object keeps all of its own): what stands
@@ -34,6 +40,9 @@ class MatchesConfig(Frozen):
     out: every new pair's turn is over ``nerf.epipolar.PRIOR_DEG`` from the starting cameras',
     so the loss leaves it out), so it is off (0: the object alone; keep 0 for a turntable,
     where the background does not turn with the object)."""
+    fuse: bool = True
+    """Fuse the retrieved cameras with the rotations the matched pairs measured before
+    training (rotation averaging anchored to the CAD model's frame; ``retrieval.fusion``)."""
     min_inliers: int = Field(default=20, ge=8, le=1000)
     """Fewest inliers of the essential matrix for a pair's relative rotation to be used."""
     threshold_px: float = Field(default=1.0, ge=0.1, le=10.0)

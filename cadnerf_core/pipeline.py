@@ -90,6 +90,10 @@ def run_intake(job_dir: Path, library: Library, config: PipelineConfig,
                          [p.rgb for p in photos], [p.focal_pixels for p in photos],
                          crop_size=config.image_size)
     progress.check()
+    if config.retrieval.matches.fuse and retrieval.pairs:
+        from cadnerf_core.retrieval.fusion import fuse_hypotheses
+
+        retrieval = fuse_hypotheses(retrieval, config.retrieval.matches.min_inliers)
     known = any(p.focal_pixels is not None for p in photos)
     retrieval = dataclasses.replace(retrieval, focal_known=known)
     if not known:

@@ -265,16 +265,24 @@ def vertical_turn_deg(R: np.ndarray) -> float:
 
 def verify_pair(i: int, j: int, a: Features, b: Features, K_a: np.ndarray, K_b: np.ndarray,
                 config: MatchesConfig) -> PairMatch:
-    """Match two photos' features and keep those the essential matrix explains.
+    """Match two photos' SIFT features (``mutual_matches``) and keep those the essential
+    matrix explains (``verify_matches``)."""
+    pairs = mutual_matches(a.descriptors, b.descriptors)
+    return verify_matches(i, j, a, b, pairs, K_a, K_b, config)
+
+
+def verify_matches(i: int, j: int, a: Features, b: Features, pairs: np.ndarray,
+                   K_a: np.ndarray, K_b: np.ndarray, config: MatchesConfig) -> PairMatch:
+    """Keep the matches between two photos that the essential matrix explains.
 
     Args:
         i, j: the photos' indices; a, b: their features.
+        pairs: [M, 2] int64 matched feature indices (into a, into b).
         K_a, K_b: [3, 3] their intrinsics in photo pixels (the focal length an estimate).
         config: ``threshold_px`` (RANSAC, in pixels of the searched crops) and ``min_inliers``.
     Returns:
         The pair's matches.
     """
-    pairs = mutual_matches(a.descriptors, b.descriptors)
     empty = np.zeros((0, 2, 2))
     if len(pairs) < max(8, config.min_inliers):
         return PairMatch(i, j, len(pairs), 0, None, None, None, empty)
@@ -285,7 +293,8 @@ def verify_pair(i: int, j: int, a: Features, b: Features, K_a: np.ndarray, K_b: 
     focal = float(np.mean([K_a[0, 0] * a.scale, K_b[0, 0] * b.scale]))
     threshold = config.threshold_px / focal
     cv2.setRNGSeed(0)  # RANSAC's samples: the same photos give the same answer
-    E, inlier = cv2.findEssentialMat(n_a, n_b, np.eye(3), cv2.RANSAC, RANSAC_PROB, threshold)
+    E, inlier = cv2.findEssentialMat(n_a, n_b, np.eye(3), cv2.USAC_MAGSAC, RANSAC_PROB,
+                                     threshold)
     if E is None or E.shape != (3, 3):
         return PairMatch(i, j, len(pairs), 0, None, None, None, empty)
     count, R, _, pose_mask = cv2.recoverPose(E, n_a, n_b, np.eye(3), mask=inlier.copy())
@@ -301,7 +310,9 @@ def verify_pair(i: int, j: int, a: Features, b: Features, K_a: np.ndarray, K_b: 
 
 def match_photos(images: Sequence[np.ndarray], masks: Sequence[np.ndarray],
                  intrinsics: Sequence[np.ndarray], config: MatchesConfig) -> list[PairMatch]:
-    """SIFT matches between every pair of photos, verified (``verify_pair``).
+    """Matches between every pair of photos, verified (``verify_matches``): XFeat features
+    matched by LighterGlue between the photos the walk makes close and by mutual nearest
+    descriptors between the others (``retrieval.learned``), or SIFT (``config.method``).
 
     Args:
         images: P photos [H_i, W_i, 3] float in [0, 1]; masks: P [H_i, W_i] bool.
@@ -310,11 +321,19 @@ def match_photos(images: Sequence[np.ndarray], masks: Sequence[np.ndarray],
     Returns:
         P * (P - 1) / 2 pairs, (0, 1), (0, 2), ... (an empty mask gives a photo no features).
     """
-    features = [detect(image, mask, config.size, config.context) if mask.any()
-                else NO_FEATURES
+    if config.method == "sift":
+        found = [detect(image, mask, config.size, config.context) if mask.any()
+                 else NO_FEATURES for image, mask in zip(images, masks, strict=True)]
+        return [verify_pair(i, j, found[i], found[j], intrinsics[i], intrinsics[j], config)
+                for i in range(len(found)) for j in range(i + 1, len(found))]
+    from cadnerf_core.retrieval import learned
+
+    features = [learned.detect(image, mask, config.size, config.context) if mask.any()
+                else learned.CropFeatures(NO_FEATURES.points, np.zeros((0, 64), np.float32))
                 for image, mask in zip(images, masks, strict=True)]
-    return [verify_pair(i, j, features[i], features[j], intrinsics[i], intrinsics[j], config)
-            for i in range(len(features)) for j in range(i + 1, len(features))]
+    indices = learned.match_indices(features, learned.close_pairs(len(features)))
+    return [verify_matches(i, j, features[i], features[j], pairs, intrinsics[i],
+                           intrinsics[j], config) for (i, j), pairs in indices.items()]
 
 
 def reindexed(pairs: Sequence[PairMatch], position: Sequence[int]) -> list[PairMatch]:

