@@ -156,6 +156,7 @@ def _warnings(retrieval: dict[str, Any], photos: list[PhotoResult],
     from cadnerf_core.config import direction_guess_hint  # torch-free by contract
     from cadnerf_core.config_retrieval import (
         FOCAL_UNKNOWN_WARNING,
+        MATCHES_FEW_WARNING,
         order_guess_warning,
         reorder_warning,
     )
@@ -173,4 +174,7 @@ def _warnings(retrieval: dict[str, Any], photos: list[PhotoResult],
                         f"{other}")
     if retrieval.get("focal_known") is False:
         warnings.append(FOCAL_UNKNOWN_WARNING)
+    fusion = retrieval.get("fusion")
+    if isinstance(fusion, dict) and not fusion.get("photos"):
+        warnings.append(MATCHES_FEW_WARNING)
     return warnings

@@ -135,6 +135,11 @@ def reconstruct(
         from cadnerf_core.config_retrieval import FOCAL_UNKNOWN_WARNING
 
         typer.echo(f"warning: {FOCAL_UNKNOWN_WARNING} (--focal-35mm)")
+    fusion = retrieval.get("fusion")
+    if isinstance(fusion, dict) and not fusion.get("photos"):
+        from cadnerf_core.config_retrieval import MATCHES_FEW_WARNING
+
+        typer.echo(f"warning: {MATCHES_FEW_WARNING}")
     typer.echo(f"results in {out.resolve()}: {ORBIT_VIDEO}, {MESH}, {POSES}, {VIEWS}/, "
                f"{MASKS}/")
 

@@ -50,6 +50,12 @@ FOCAL_UNKNOWN_WARNING = (
     "retrieval.focal_35mm (a phone's main lens: about 26)")
 """What a user is told when no photo's focal length was known (``focal_known`` False)."""
 
+MATCHES_FEW_WARNING = (
+    "the photos share too few matched points for their texture to place the cameras, so the "
+    "cameras come from silhouettes alone: take photos closer together (about 30 degrees apart) "
+    "of an object with some print, grain or texture, in sharp light")
+"""What a user is told when the photos' matches fused no camera (``fusion`` with no photos)."""
+
 
 class RetrievalConfig(_Frozen):
     """How the CAD model and the photos' poses are retrieved (``retrieval.retrieve.retrieve``)."""

@@ -46,7 +46,7 @@ from cadnerf_core.config import PipelineConfig, resolve_config
 from cadnerf_core.jobnames import *  # noqa: F403 - the names are part of this owner
 from cadnerf_core.jobnames import _NUMBERED
 
-SUBFOLDERS = (MASK_UPLOADS, SPARSE, INPUTS, MASKS, VIEWS, IMAGES, CHECKPOINTS, EVAL)
+SUBFOLDERS = (MASK_UPLOADS, SPARSE, INPUTS, MASKS, VIEWS, IMAGES, CHECKPOINTS, EVAL, MATCHES)
 """The folders inside a job folder (nested ones first), created on demand; the job folder
 itself never is."""
 
@@ -319,6 +319,26 @@ class JobFolder:
 
     # Rendered outputs, checkpoints, log.
 
+    # The photos' matches: a cache of the verified pairs, and a picture of each neighbouring pair.
+
+    def write_match_cache(self, arrays: dict[str, np.ndarray]) -> None:
+        """Store the verified pairs' arrays (``retrieval.pairs_io.to_arrays``)."""
+        with atomic_path(self.root / MATCH_CACHE) as tmp, tmp.open("wb") as stream:
+            np.savez(stream, **arrays)  # type: ignore[arg-type]
+
+    def read_match_cache(self) -> dict[str, np.ndarray] | None:
+        """The stored pairs' arrays, None when absent or unreadable."""
+        try:
+            with np.load(self.root / MATCH_CACHE, allow_pickle=False) as data:
+                return {name: data[name] for name in data.files}
+        except (OSError, ValueError):
+            return None
+
+    def write_match_picture(self, i: int, j: int, rgb: np.ndarray) -> None:
+        """Store the picture of photos ``i`` and ``j``'s matches (JPEG)."""
+        with atomic_path(self.root / match_picture_name(i, j)) as tmp:
+            Image.fromarray(rgb).save(tmp, format="JPEG", quality=85)
+
     def view_path(self, index: int) -> Path:
         """``views/NNN.png``: the photos' views at their refined poses, then new views."""
         return self.root / numbered_name(VIEWS, index)
@@ -357,7 +377,7 @@ class JobFolder:
         """Names of the downloadable files present: fixed files, then views, then used masks
         and their overlays."""
         names = [n for n in MEDIA_TYPES if (self.root / n).is_file()]
-        for folder in (VIEWS, MASKS, IMAGES):
+        for folder in (VIEWS, MASKS, MATCHES, IMAGES):
             if (self.root / folder).is_dir():
                 names += sorted(n for p in (self.root / folder).iterdir()
                                 if _NUMBERED.match(n := f"{folder}/{p.name}") and p.is_file())

@@ -15,6 +15,8 @@ INPUTS = "inputs"
 MASK_UPLOADS = f"{INPUTS}/masks"
 MASKS = "masks"
 VIEWS = "views"
+MATCHES = "matches"
+MATCH_CACHE = f"{MATCHES}/pairs.npz"
 CHECKPOINTS = "checkpoints"
 EVAL = "eval"
 CONFIG = "config.json"
@@ -59,6 +61,7 @@ OVERLAY_SIDE = 1024
 itself keeps the photo's size)."""
 
 _NUMBERED = re.compile(rf"^(?:{VIEWS}/\d{{3}}\.png|{MASKS}/\d{{3}}(?:\.png|{OVERLAY_SUFFIX})"
+                       rf"|{MATCHES}/\d{{3}}_\d{{3}}\.jpg"
                        rf"|{IMAGES}/\d{{3}}_[A-Za-z0-9_-]+\.(?:jpg|jpeg|png))$")
 BUNDLE_IMAGE_SUFFIXES = (".jpg", ".jpeg", ".png")
 """Photo types copied into ``images/`` as uploaded (every tool reads them); others become PNG."""
@@ -66,6 +69,11 @@ _PHOTO_INDEX = re.compile(r"^(\d{3})_")
 
 MaskSource = Literal["uploaded", "alpha", "learned", "grabcut"]
 """Where a photo's mask came from: an uploaded mask, the photo's alpha, background removal."""
+
+
+def match_picture_name(i: int, j: int) -> str:
+    """The name of the picture of photos ``i`` and ``j``'s matches (0-based indices)."""
+    return f"{MATCHES}/{i:03d}_{j:03d}.jpg"
 
 
 def safe_stem(filename: str) -> str:

@@ -21,7 +21,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from cadnerf_core.config import PipelineConfig
-from cadnerf_core.config_retrieval import FOCAL_UNKNOWN_WARNING
+from cadnerf_core.config_retrieval import FOCAL_UNKNOWN_WARNING, MATCHES_FEW_WARNING
 from cadnerf_core.errors import InputError
 from cadnerf_core.intake.crop import apply_crop
 from cadnerf_core.jobfolder import CONFIG, INPUTS, OVERLAY_SIDE, JobFolder
@@ -67,6 +67,8 @@ def run_intake(job_dir: Path, library: Library, config: PipelineConfig,
     from cadnerf_core.intake.masks import mask_overlay, photo_masks
     from cadnerf_core.intake.photos import load_photo, with_focal
     from cadnerf_core.intake.resize import downscaled, shrunk_mask
+    from cadnerf_core.retrieval.fusion import fuse_hypotheses
+    from cadnerf_core.retrieval.pairs_io import job_pairs
     from cadnerf_core.retrieval.retrieve import retrieve
 
     folder = JobFolder(job_dir)
@@ -86,14 +88,17 @@ def run_intake(job_dir: Path, library: Library, config: PipelineConfig,
         for warning in result.warnings:
             log.warning("%s", warning)
     photos = with_focal(photos, config.retrieval.focal_35mm)  # where EXIF says nothing
-    retrieval = retrieve(masks, names, library, config.retrieval, progress,
-                         [p.rgb for p in photos], [p.focal_pixels for p in photos],
-                         crop_size=config.image_size)
+    images, focals = [p.rgb for p in photos], [p.focal_pixels for p in photos]
+    pairs = job_pairs(folder, inputs, images, masks, focals, config.retrieval,
+                      config.masks.method)
     progress.check()
-    if config.retrieval.matches.fuse and retrieval.pairs:
-        from cadnerf_core.retrieval.fusion import fuse_hypotheses
-
+    retrieval = retrieve(masks, names, library, config.retrieval, progress, images, focals,
+                         crop_size=config.image_size, pairs=pairs)
+    progress.check()
+    if config.retrieval.matches.fuse and pairs is not None:
         retrieval = fuse_hypotheses(retrieval, config.retrieval.matches.min_inliers)
+        if not retrieval.fusion or not retrieval.fusion.get("photos"):
+            log.warning("%s", MATCHES_FEW_WARNING)
     known = any(p.focal_pixels is not None for p in photos)
     retrieval = dataclasses.replace(retrieval, focal_known=known)
     if not known:

@@ -183,8 +183,8 @@ def fuse(retrieval: RetrievalResult, pairs: Sequence[PairMatch],
         min_inliers: fewest inliers of a pair used (``MatchesConfig.min_inliers``).
     Returns:
         The retrieval with fused ``c2w`` (the other fields as retrieved), and what fusing did;
-        the retrieval unchanged and None when fewer than ``MIN_PHOTOS`` kept photos are
-        connected by usable pairs.
+        when fewer than ``MIN_PHOTOS`` kept photos are connected by usable pairs, the cameras
+        as retrieved (``fusion`` records no photos) and None.
     """
     kept = {m.index: m for m in retrieval.kept}
     edges = {(p.i, p.j): np.asarray(p.rotation) for p in pairs
@@ -195,7 +195,7 @@ def fuse(retrieval: RetrievalResult, pairs: Sequence[PairMatch],
     good = consistent_edges(edges)
     photos = _component(sorted(kept), sorted(good))
     if len(photos) < MIN_PHOTOS:
-        return retrieval, None
+        return dataclasses.replace(retrieval, fusion={"photos": [], "pairs": len(good)}), None
     slot = {photo: k for k, photo in enumerate(photos)}
     used = {(slot[i], slot[j]): edges[(i, j)] for i, j in good if i in slot and j in slot}
     used_w = {(slot[i], slot[j]): weights[(i, j)] for i, j in good if i in slot and j in slot}

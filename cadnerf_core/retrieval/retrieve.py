@@ -97,7 +97,8 @@ def retrieve(masks: Sequence[np.ndarray], names: Sequence[str], library: Library
              config: RetrievalConfig | None = None, progress: Progress | None = None,
              images: Sequence[np.ndarray] | None = None,
              focals: Sequence[float | None] | None = None,
-             crop_size: int | None = None) -> RetrievalResult:
+             crop_size: int | None = None,
+             pairs: list[PairMatch] | None = None) -> RetrievalResult:
     """Retrieve the CAD model and a library pose for every photo.
 
     Args:
@@ -115,13 +116,15 @@ def retrieve(masks: Sequence[np.ndarray], names: Sequence[str], library: Library
         crop_size: side in pixels of the canonical crop each match's ``K_canon`` and ``box``
             refer to: the job's ``image_size``, its NeRF's crops (None: the library's
             silhouette size; IoU is always computed at the library's size).
+        pairs: the photos' verified matches (``photo_pairs``) when already made (a job's
+            cache); None: matched here when ``config.matches`` asks for them.
     Returns:
         The RetrievalResult, its matches in the photos' given order; ``order`` says the
         walking order used.
     """
     config = config or RetrievalConfig()
     allowed = allowed_models(library, config.exclude_models)
-    seen = _look(masks, images, focals, library, config)
+    seen = _look(masks, images, focals, library, config, pairs)
     if config.order != "walk" and len(masks) > 3:  # three photos make one cycle either way
         choice = _order(seen, library, allowed, config, progress)
         walk = config.model_copy(update={"order": "walk"})
@@ -164,7 +167,7 @@ class _Seen:
 
 def _look(masks: Sequence[np.ndarray], images: Sequence[np.ndarray] | None,
           focals: Sequence[float | None] | None, library: Library,
-          config: RetrievalConfig) -> _Seen:
+          config: RetrievalConfig, known: list[PairMatch] | None = None) -> _Seen:
     """``_Seen`` of the photos: crops at the library's silhouette size; the appearance crops
     and the matches where the photos are given (the matches only for the DP, when enabled)."""
     spec = library.spec  # both silhouette sets share the crop size and margin
@@ -172,7 +175,7 @@ def _look(masks: Sequence[np.ndarray], images: Sequence[np.ndarray] | None,
     appearance = None if images is None else _appearance_crops(images, masks, boxes)
     pairs: list[PairMatch] = []
     if images is not None and config.solver == "dp" and config.matches.enabled:
-        pairs = photo_pairs(images, masks, focals, config)
+        pairs = known if known is not None else photo_pairs(images, masks, focals, config)
         log.info("matches: %d inliers over %d pairs", sum(p.inliers for p in pairs),
                  len(pairs))
     return _Seen([mask.shape[:2] for mask in masks], crops, boxes, appearance, pairs)

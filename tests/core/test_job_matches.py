@@ -1,0 +1,115 @@
+"""A job's matches: stored in the job folder and read back instead of matching again, a
+picture of each neighbouring pair among the artifacts, the cameras fused with them, and a
+warning when the photos share too little."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pytest
+import trimesh
+from PIL import Image
+
+from cadnerf_core.cameras import intrinsics_from_fov, orbit_pose
+from cadnerf_core.config_retrieval import MATCHES_FEW_WARNING
+from cadnerf_core.jobfolder import JobFolder
+from cadnerf_core.progress import Progress
+from tests.configs import tiny_config
+
+pytestmark = pytest.mark.usefixtures("one_torch_thread")
+
+SIZE = 192
+
+
+def _ball(textured: bool) -> trimesh.Trimesh:
+    mesh = trimesh.creation.icosphere(subdivisions=5, radius=0.8)
+    rng = np.random.default_rng(3)
+    grey = rng.integers(30, 230, len(mesh.vertices)) if textured \
+        else np.full(len(mesh.vertices), 150)
+    colours = np.stack([grey, grey, grey, np.full_like(grey, 255)], axis=1).astype(np.uint8)
+    mesh.visual = trimesh.visual.ColorVisuals(mesh, vertex_colors=colours)
+    return mesh
+
+
+def _job(job_dir: Path, textured: bool, **overrides: Any) -> JobFolder:
+    from cadnerf_core.mesh.renderer import MeshRenderer
+
+    renderer = MeshRenderer(_ball(textured))
+    K = intrinsics_from_fov(40.0, SIZE)
+    folder = JobFolder(job_dir)
+    for i in range(5):
+        shot = renderer.render(K, orbit_pose(30.0 * i, 20.0, 3.0), SIZE, SIZE)
+        rgba = np.dstack([(shot.rgb * 255).astype(np.uint8), shot.mask.astype(np.uint8) * 255])
+        Image.fromarray(rgba, "RGBA").save(folder.new_photo_path(i, "p", "png"))
+    folder.write_config(tiny_config(**overrides))
+    return folder
+
+
+def _intake(job_dir: Path, library: Any) -> Any:
+    from cadnerf_core.pipeline import read_job_config, run_intake
+
+    return run_intake(job_dir, library, read_job_config(job_dir), Progress())
+
+
+def test_matches_are_kept_pictured_and_fused(tmp_path: Path, tiny_library: Any,
+                                             monkeypatch: pytest.MonkeyPatch) -> None:
+    from cadnerf_core.retrieval import retrieve
+
+    folder = _job(tmp_path, textured=True)
+    intake = _intake(tmp_path, tiny_library)
+    data = folder.read_retrieval()
+    assert data is not None
+    with_rotation = [p for p in data["photo_pairs"] if p["turn_deg"] is not None]
+    assert len(with_rotation) >= 4
+    assert len(data["fusion"]["photos"]) >= 3
+    assert all("c2w_retrieved" in m for m in data["matches"]
+               if m["index"] in data["fusion"]["photos"])
+    assert intake.retrieval.fusion == data["fusion"]
+    pictures = [n for n in folder.artifacts() if n.startswith("matches/")]
+    assert pictures == ["matches/000_001.jpg", "matches/000_004.jpg", "matches/001_002.jpg",
+                        "matches/002_003.jpg", "matches/003_004.jpg"]
+    with Image.open(folder.file("matches/000_001.jpg")) as picture:
+        assert picture.height == 480 and picture.width == 2 * 480
+    assert "matches/pairs.npz" not in folder.artifacts()  # kept, not offered
+
+    def fail(*args: Any, **kwargs: Any) -> None:
+        raise AssertionError("the stored matches must be read, not made again")
+
+    monkeypatch.setattr(retrieve, "photo_pairs", fail)
+    again = _intake(tmp_path, tiny_library)
+    assert [p.to_json() for p in again.retrieval.pairs] == \
+        [p.to_json() for p in intake.retrieval.pairs]
+    folder.write_config(tiny_config(retrieval={"hypotheses": 1, "matches": {"size": 512}}))
+    with pytest.raises(AssertionError, match="stored matches"):
+        _intake(tmp_path, tiny_library)  # other settings: matched again
+
+
+def test_photos_sharing_nothing_train_on_silhouettes_and_say_so(tmp_path: Path,
+                                                                 tiny_library: Any) -> None:
+    from app.results import _warnings
+
+    folder = _job(tmp_path, textured=False)
+    intake = _intake(tmp_path, tiny_library)
+    data = folder.read_retrieval()
+    assert data is not None and data["fusion"]["photos"] == []
+    assert all("c2w_retrieved" not in m for m in data["matches"])
+    assert all(np.array_equal(m.c2w, np.array(d["c2w"]))
+               for m, d in zip(intake.retrieval.matches, data["matches"], strict=True))
+    assert MATCHES_FEW_WARNING in _warnings(data, [], [])
+
+
+def test_matching_off_neither_fuses_nor_warns(tmp_path: Path, tiny_library: Any) -> None:
+    from app.results import _warnings
+
+    folder = _job(tmp_path, textured=True,
+                  retrieval={"hypotheses": 1, "matches": {"enabled": False}})
+    _intake(tmp_path, tiny_library)
+    data = folder.read_retrieval()
+    assert data is not None and "fusion" not in data and "photo_pairs" not in data
+    assert MATCHES_FEW_WARNING not in _warnings(data, [], [])
+    assert not (tmp_path / "matches").exists()
+    assert json.loads((tmp_path / "config.json").read_text())["retrieval"]["matches"][
+        "enabled"] is False
