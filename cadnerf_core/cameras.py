@@ -39,6 +39,14 @@ def intrinsics_from_fov(fov_x_deg: float, width: int, height: int | None = None)
     return np.array([[focal, 0.0, width / 2.0], [0.0, focal, height / 2.0], [0.0, 0.0, 1.0]])
 
 
+def scale_focal(K: np.ndarray, factor: float) -> np.ndarray:
+    """``K`` [3, 3] with its focal lengths times ``factor``, the principal point kept."""
+    out = np.array(K, dtype=np.float64, copy=True)
+    out[0, 0] *= factor
+    out[1, 1] *= factor
+    return out
+
+
 def fov_from_intrinsics(K: np.ndarray, width: int) -> float:
     """Horizontal field of view in radians of ``K`` for an image ``width`` pixels wide."""
     return float(2.0 * math.atan(0.5 * width / K[0, 0]))

@@ -95,11 +95,12 @@ def run_intake(job_dir: Path, library: Library, config: PipelineConfig,
     retrieval = retrieve(masks, names, library, config.retrieval, progress, images, focals,
                          crop_size=config.image_size, pairs=pairs)
     progress.check()
+    known = any(p.focal_pixels is not None for p in photos)
     if config.retrieval.matches.fuse and pairs is not None:
-        retrieval = fuse_hypotheses(retrieval, config.retrieval.matches.min_inliers)
+        retrieval = fuse_hypotheses(retrieval, config.retrieval.matches.min_inliers,
+                                    search_focal=not known)
         if not retrieval.fusion or not retrieval.fusion.get("photos"):
             log.warning("%s", MATCHES_FEW_WARNING)
-    known = any(p.focal_pixels is not None for p in photos)
     retrieval = dataclasses.replace(retrieval, focal_known=known)
     if not known:
         log.warning("%s", FOCAL_UNKNOWN_WARNING)
@@ -306,10 +307,12 @@ def with_focal_scale(retrieval: RetrievalResult, data: TrainData,
     """The retrieval's cameras and the training crops' intrinsics with their focal lengths
     times the learned ``scale`` (``Phase2Config.focal_bound``), so every view, the orbit and
     ``poses.json`` / ``transforms.json`` use the refined focal length."""
+    from cadnerf_core.cameras import scale_focal
+
     if scale == 1.0:
         return retrieval, data
-    factor = np.diag([scale, scale, 1.0])
-    matches = [dataclasses.replace(m, K_canon=factor @ m.K_canon, K_photo=factor @ m.K_photo)
+    matches = [dataclasses.replace(m, K_canon=scale_focal(m.K_canon, scale),
+                                   K_photo=scale_focal(m.K_photo, scale))
                for m in retrieval.matches]
     K = data.K.clone()
     K[:, 0, 0] *= scale

@@ -24,11 +24,12 @@ import logging
 from collections.abc import Sequence
 from dataclasses import dataclass
 
+import cv2
 import numpy as np
 
-from cadnerf_core.cameras import rotation_angle_deg
+from cadnerf_core.cameras import rotation_angle_deg, scale_focal
 from cadnerf_core.retrieval.matches import PairMatch
-from cadnerf_core.retrieval.result import RetrievalResult
+from cadnerf_core.retrieval.result import PhotoMatch, RetrievalResult
 
 log = logging.getLogger(__name__)
 
@@ -44,6 +45,10 @@ degrees, average out best in a plain mean)."""
 ITERATIONS = 50
 MIN_PHOTOS = 3
 """Fewest photos a connected set of pairs must hold to be fused."""
+FOCAL_FACTORS = tuple(float(f) for f in np.geomspace(0.5, 2.0, 13))
+"""Factors on the retrieved focal length tried where no photo's own is known."""
+FOCAL_MARGIN_DEG = 1.0
+"""How much nearer the retrieved cameras another focal length must fuse them to be taken."""
 
 
 @dataclass(frozen=True)
@@ -51,19 +56,22 @@ class Fusion:
     """What fusing did: ``photos`` moved (kept photos' indices as given), ``pairs`` used,
     ``dropped`` pairs disagreeing with triangles, the median angle in degrees each fused camera
     moved from its retrieved one (``moved_deg``) and the median angle the matches' rotations
-    disagree with the fused ones (``residual_deg``)."""
+    disagree with the fused ones (``residual_deg``); ``focal_factor``: what the retrieved focal
+    length was multiplied by (``focal_factor``; 1 where the photos' own is known)."""
 
     photos: list[int]
     pairs: int
     dropped: int
     moved_deg: float
     residual_deg: float
+    focal_factor: float = 1.0
 
     def to_json(self) -> dict[str, object]:
         """JSON-ready summary."""
         return {"photos": self.photos, "pairs": self.pairs, "dropped": self.dropped,
                 "moved_deg": round(self.moved_deg, 2),
-                "residual_deg": round(self.residual_deg, 2)}
+                "residual_deg": round(self.residual_deg, 2),
+                "focal_factor": round(self.focal_factor, 4)}
 
 
 def project_rotation(M: np.ndarray) -> np.ndarray:
@@ -173,29 +181,26 @@ def anchor(relative: np.ndarray, retrieved: np.ndarray) -> np.ndarray:
     return G
 
 
-def fuse(retrieval: RetrievalResult, pairs: Sequence[PairMatch],
-         min_inliers: int) -> tuple[RetrievalResult, Fusion | None]:
-    """The retrieval with its kept photos' cameras fused with the pairs' rotations.
+@dataclass(frozen=True)
+class _Solved:
+    """One solution: the photos fused (as given), their world-to-camera rotations, the pairs
+    used (slots into ``photos``) and how far each camera moved from its retrieved one."""
 
-    Args:
-        retrieval: the retrieved cameras (photos indexed as given).
-        pairs: verified matches between the photos (as given), with rotations where known.
-        min_inliers: fewest inliers of a pair used (``MatchesConfig.min_inliers``).
-    Returns:
-        The retrieval with fused ``c2w`` (the other fields as retrieved), and what fusing did;
-        when fewer than ``MIN_PHOTOS`` kept photos are connected by usable pairs, the cameras
-        as retrieved (``fusion`` records no photos) and None.
-    """
-    kept = {m.index: m for m in retrieval.kept}
-    edges = {(p.i, p.j): np.asarray(p.rotation) for p in pairs
-             if p.rotation is not None and p.inliers >= min_inliers
-             and p.i in kept and p.j in kept}
-    weights = {(p.i, p.j): min(1.0, p.inliers / (4.0 * min_inliers)) for p in pairs
-               if (p.i, p.j) in edges}
+    photos: list[int]
+    rotations: np.ndarray
+    used: dict[tuple[int, int], np.ndarray]
+    moved: np.ndarray
+    dropped: int
+
+
+def _solve(kept: dict[int, PhotoMatch], edges: dict[tuple[int, int], np.ndarray],
+           weights: dict[tuple[int, int], float]) -> _Solved | None:
+    """Averaging and anchor over the pairs triangles do not contradict; None when they connect
+    fewer than ``MIN_PHOTOS`` photos."""
     good = consistent_edges(edges)
     photos = _component(sorted(kept), sorted(good))
     if len(photos) < MIN_PHOTOS:
-        return dataclasses.replace(retrieval, fusion={"photos": [], "pairs": len(good)}), None
+        return None
     slot = {photo: k for k, photo in enumerate(photos)}
     used = {(slot[i], slot[j]): edges[(i, j)] for i, j in good if i in slot and j in slot}
     used_w = {(slot[i], slot[j]): weights[(i, j)] for i, j in good if i in slot and j in slot}
@@ -203,9 +208,110 @@ def fuse(retrieval: RetrievalResult, pairs: Sequence[PairMatch],
     relative = average_rotations(len(photos), used, used_w, retrieved)
     fused = relative @ anchor(relative, retrieved)
     moved = rotation_angle_deg(np.swapaxes(fused, 1, 2) @ retrieved)
-    residual = [_angle(R @ fused[i] @ fused[j].T) for (i, j), R in used.items()]
+    return _Solved(photos, fused, used, moved, len(edges) - len(good))
+
+
+def _fundamentals(pairs: Sequence[PairMatch]) -> dict[tuple[int, int], np.ndarray]:
+    """The fundamental matrix of each pair with a rotation, fitted to its inliers (least
+    median of squares; they are verified already)."""
+    out = {}
+    for p in pairs:
+        if p.rotation is None or len(p.points) < 8:
+            continue
+        F, _ = cv2.findFundamentalMat(p.points[:, 0], p.points[:, 1], cv2.FM_LMEDS)
+        if F is not None and F.shape == (3, 3):
+            out[(p.i, p.j)] = F
+    return out
+
+
+def _rotations_at(pairs: Sequence[PairMatch], fundamentals: dict[tuple[int, int], np.ndarray],
+                  intrinsics: dict[int, np.ndarray]) -> dict[tuple[int, int], np.ndarray]:
+    """Each pair's rotation under the given intrinsics (``E = K_j^T F K_i``)."""
+    out = {}
+    for p in pairs:
+        F = fundamentals.get((p.i, p.j))
+        if F is None or p.i not in intrinsics or p.j not in intrinsics:
+            continue
+        K_a, K_b = intrinsics[p.i], intrinsics[p.j]
+        n_a = cv2.undistortPoints(p.points[:, 0].reshape(-1, 1, 2), K_a, None).reshape(-1, 2)
+        n_b = cv2.undistortPoints(p.points[:, 1].reshape(-1, 1, 2), K_b, None).reshape(-1, 2)
+        _, R, _, _ = cv2.recoverPose(K_b.T @ F @ K_a, n_a, n_b, np.eye(3))
+        out[(p.i, p.j)] = R
+    return out
+
+
+def focal_factor(retrieval: RetrievalResult, pairs: Sequence[PairMatch],
+                 min_inliers: int) -> tuple[float, float, float]:
+    """The factor on the retrieved focal length (``FOCAL_FACTORS``) whose pair rotations, fused,
+    sit nearest the retrieved cameras; 1 unless it beats the retrieved focal length by
+    ``FOCAL_MARGIN_DEG``.
+
+    Two photos' matches tell their relative rotation only with the focal length: on photos
+    taken round an object (optical axes meeting at it) the epipolar geometry of each pair
+    hardly constrains it, and too long a focal length shrinks every turn. The retrieved cameras
+    know the turns roughly, from the silhouettes, so the focal length whose rigid set of
+    cameras needs the least moving to sit on them is the one the photos and the silhouettes
+    agree on.
+
+    Returns:
+        The factor, and the median angle the cameras moved at it and at factor 1 (degrees).
+    """
+    kept = {m.index: m for m in retrieval.kept}
+    usable = [p for p in pairs if p.inliers >= min_inliers and p.i in kept and p.j in kept]
+    fundamentals = _fundamentals(usable)
+    weights = {(p.i, p.j): min(1.0, p.inliers / (4.0 * min_inliers)) for p in usable}
+    moved = {}
+    for factor in sorted({1.0, *FOCAL_FACTORS}):
+        intrinsics = {i: scale_focal(m.K_photo, factor) for i, m in kept.items()}
+        solved = _solve(kept, _rotations_at(usable, fundamentals, intrinsics), weights)
+        if solved is not None:
+            moved[factor] = float(np.median(solved.moved))
+    if 1.0 not in moved:
+        return 1.0, float("nan"), float("nan")
+    best = min(moved, key=lambda f: moved[f])
+    if moved[best] > moved[1.0] - FOCAL_MARGIN_DEG:
+        best = 1.0
+    return best, moved[best], moved[1.0]
+
+
+def fuse(retrieval: RetrievalResult, pairs: Sequence[PairMatch],
+         min_inliers: int, search_focal: bool = False) -> tuple[RetrievalResult, Fusion | None]:
+    """The retrieval with its kept photos' cameras fused with the pairs' rotations.
+
+    Args:
+        retrieval: the retrieved cameras (photos indexed as given).
+        pairs: verified matches between the photos (as given), with rotations where known.
+        min_inliers: fewest inliers of a pair used (``MatchesConfig.min_inliers``).
+        search_focal: no photo's focal length is known: the pairs' rotations are taken at the
+            focal length ``focal_factor`` finds, which every camera then gets; else at the
+            retrieved one (the photos' own).
+    Returns:
+        The retrieval with fused ``c2w`` (the other fields as retrieved, but the focal length),
+        and what fusing did; when fewer than ``MIN_PHOTOS`` kept photos are connected by usable
+        pairs, the cameras as retrieved (``fusion`` records no photos) and None.
+    """
+    kept = {m.index: m for m in retrieval.kept}
+    usable = [p for p in pairs if p.rotation is not None and p.inliers >= min_inliers
+              and p.i in kept and p.j in kept]
+    weights = {(p.i, p.j): min(1.0, p.inliers / (4.0 * min_inliers)) for p in usable}
+    factor = 1.0
+    if search_focal:
+        factor, _, _ = focal_factor(retrieval, usable, min_inliers)
+        edges = _rotations_at(usable, _fundamentals(usable),
+                              {i: scale_focal(m.K_photo, factor) for i, m in kept.items()})
+    else:
+        edges = {(p.i, p.j): np.asarray(p.rotation) for p in usable}
+    solved = _solve(kept, edges, weights)
+    if solved is None:
+        return dataclasses.replace(retrieval, fusion={"photos": [], "pairs": len(edges)}), None
+    slot = {photo: k for k, photo in enumerate(solved.photos)}
+    fused = solved.rotations
+    residual = [_angle(R @ fused[i] @ fused[j].T) for (i, j), R in solved.used.items()]
     matches = []
     for m in retrieval.matches:
+        if factor != 1.0:
+            m = dataclasses.replace(m, K_photo=scale_focal(m.K_photo, factor),
+                                    K_canon=scale_focal(m.K_canon, factor))
         if m.index not in slot:
             matches.append(m)
             continue
@@ -213,16 +319,41 @@ def fuse(retrieval: RetrievalResult, pairs: Sequence[PairMatch],
         c2w[:3, :3] = fused[slot[m.index]].T
         c2w[:3, 3] = -np.linalg.norm(m.c2w[:3, 3]) * c2w[:3, 2]  # looking at the centre
         matches.append(dataclasses.replace(m, c2w=c2w, c2w_retrieved=m.c2w))
-    summary = Fusion(photos, len(used), len(edges) - len(good), float(np.median(moved)),
-                     float(np.median(residual)) if residual else 0.0)
+    summary = Fusion(solved.photos, len(solved.used), solved.dropped,
+                     float(np.median(solved.moved)),
+                     float(np.median(residual)) if residual else 0.0, factor)
     log.info("fused %d cameras with %d pairs' rotations (%d dropped): moved %.1f deg "
-             "(median), pairs within %.1f deg", len(photos), summary.pairs, summary.dropped,
-             summary.moved_deg, summary.residual_deg)
+             "(median), pairs within %.1f deg; focal length x%.2f", len(solved.photos),
+             summary.pairs, summary.dropped, summary.moved_deg, summary.residual_deg, factor)
     return dataclasses.replace(retrieval, matches=matches, fusion=summary.to_json()), summary
 
 
-def fuse_hypotheses(retrieval: RetrievalResult, min_inliers: int) -> RetrievalResult:
-    """``fuse`` applied to the retrieval and to each of its alternatives, with its own pairs."""
-    fused, _ = fuse(retrieval, retrieval.pairs, min_inliers)
-    others = [fuse(a, retrieval.pairs, min_inliers)[0] for a in retrieval.alternatives]
+def fuse_hypotheses(retrieval: RetrievalResult, min_inliers: int,
+                    search_focal: bool = False) -> RetrievalResult:
+    """``fuse`` applied to the retrieval and to each of its alternatives, with its own pairs
+    (``search_focal``: the focal length found on the retrieval serves them all)."""
+    fused, summary = fuse(retrieval, retrieval.pairs, min_inliers, search_focal)
+    factor = 1.0 if summary is None else summary.focal_factor
+    others = []
+    for other in retrieval.alternatives:
+        if factor != 1.0:
+            other = dataclasses.replace(other, matches=[
+                dataclasses.replace(m, K_photo=scale_focal(m.K_photo, factor),
+                                    K_canon=scale_focal(m.K_canon, factor))
+                for m in other.matches])
+        others.append(_fuse_at(other, retrieval.pairs, min_inliers) if search_focal
+                      else fuse(other, retrieval.pairs, min_inliers)[0])
     return dataclasses.replace(fused, alternatives=others)
+
+
+def _fuse_at(retrieval: RetrievalResult, pairs: Sequence[PairMatch],
+             min_inliers: int) -> RetrievalResult:
+    """``fuse`` with the pairs' rotations taken at the retrieval's own focal length."""
+    kept = {m.index: m for m in retrieval.kept}
+    usable = [p for p in pairs if p.rotation is not None and p.inliers >= min_inliers
+              and p.i in kept and p.j in kept]
+    rotations = _rotations_at(usable, _fundamentals(usable),
+                              {i: m.K_photo for i, m in kept.items()})
+    at_focal = [dataclasses.replace(p, rotation=rotations[(p.i, p.j)]) for p in usable
+                if (p.i, p.j) in rotations]
+    return fuse(retrieval, at_focal, min_inliers)[0]

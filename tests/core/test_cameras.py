@@ -141,3 +141,12 @@ def test_pose_errors_report_a_known_rotation_error() -> None:
     rot, trans = pose_errors(pred, gt)
     np.testing.assert_allclose(rot, 5.0, atol=1e-6)
     np.testing.assert_allclose(trans, 0.0, atol=1e-9)
+
+
+def test_scaling_the_focal_length_keeps_the_principal_point() -> None:
+    from cadnerf_core.cameras import scale_focal
+
+    K = np.array([[100.0, 0.0, 64.0], [0.0, 110.0, 48.0], [0.0, 0.0, 1.0]])
+    scaled = scale_focal(K, 1.5)
+    assert np.allclose(scaled, [[150.0, 0.0, 64.0], [0.0, 165.0, 48.0], [0.0, 0.0, 1.0]])
+    assert K[0, 0] == 100.0  # a copy

@@ -4,16 +4,19 @@ change nothing."""
 
 from __future__ import annotations
 
+import dataclasses
+
 import cv2
 import numpy as np
 import pytest
 
-from cadnerf_core.cameras import orbit_pose, rotation_angle_deg
+from cadnerf_core.cameras import orbit_pose, project, rotation_angle_deg, scale_focal
 from cadnerf_core.intake.crop import CropBox
 from cadnerf_core.retrieval.fusion import (
     anchor,
     average_rotations,
     consistent_edges,
+    focal_factor,
     fuse,
     fuse_hypotheses,
 )
@@ -154,3 +157,43 @@ def test_discarded_photos_keep_their_cameras_and_alternatives_are_fused() -> Non
     assert fused.matches[5].c2w_retrieved is None
     assert fused.fusion is not None and 5 not in fused.fusion["photos"]
     assert fused.alternatives[0].fusion is not None
+
+
+def _projected_pairs(truth: np.ndarray, K: np.ndarray) -> list[PairMatch]:
+    """Pairs whose inliers are points on a ball projected by the true cameras (``K``), their
+    rotations left as the matcher would give them (any: they are refitted)."""
+    rng = np.random.default_rng(5)
+    ball = rng.normal(size=(400, 3))
+    ball = 0.8 * ball / np.linalg.norm(ball, axis=1, keepdims=True)
+    pairs = []
+    for i in range(N):
+        for j in (i + 1, i + 2):
+            if j >= N:
+                continue
+            seen = [(ball - truth[k, :3, 3]) @ truth[k, :3, 2] for k in (i, j)]
+            facing = [(ball @ (truth[k, :3, 3] / np.linalg.norm(truth[k, :3, 3]))) > 0.2
+                      for k in (i, j)]
+            keep = facing[0] & facing[1] & (seen[0] > 0) & (seen[1] > 0)
+            points = np.stack([project(ball[keep], K, truth[k]) for k in (i, j)], axis=1)
+            pairs.append(PairMatch(i, j, len(points), len(points), 0.1, 0.0,
+                                   _relative(truth, i, j), points))
+    return pairs
+
+
+def test_an_unknown_focal_length_is_the_one_that_fuses_nearest_the_retrieved_cameras() -> None:
+    truth = _truth()
+    K_true = np.array([[420.0, 0.0, 128.0], [0.0, 420.0, 128.0], [0.0, 0.0, 1.0]])
+    retrieval = _retrieval(_noisy(truth, 5.0), [])
+    K_guess = scale_focal(K_true, 0.6)  # silhouettes told a wider field of view
+    retrieval = dataclasses.replace(retrieval, matches=[
+        dataclasses.replace(m, K_photo=K_guess, K_canon=K_guess) for m in retrieval.matches])
+    pairs = _projected_pairs(truth, K_true)
+    factor, at_best, at_one = focal_factor(retrieval, pairs, 20)
+    assert factor == pytest.approx(1.0 / 0.6, rel=0.1)
+    assert at_best < at_one
+    fused, summary = fuse(retrieval, pairs, 20, search_focal=True)
+    assert summary is not None and summary.focal_factor == factor
+    assert fused.matches[0].K_photo[0, 0] == pytest.approx(0.6 * 420.0 * factor)
+    assert fused.matches[0].K_photo[0, 2] == 128.0  # the principal point stays
+    poses = np.stack([m.c2w for m in fused.matches])
+    assert np.median(_errors(poses, truth)) < 4.0
