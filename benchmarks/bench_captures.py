@@ -1,4 +1,4 @@
-"""Real captures with reference cameras: how far each stage's cameras end from the truth.
+"""Real captures and textured synthetic walks: how far each stage's cameras end from the truth.
 
 Each capture of ``../shared/eval/captures`` (6-10 frames round a real object, reference
 cameras from the capture's own calibration or a COLMAP/Bundler reconstruction over many
@@ -11,11 +11,16 @@ of the retrieved cameras (library views), the started ones (what training starts
 chosen hypothesis, fused) and the refined ones; the focal length's error against the
 reference (the photos carry no EXIF); training PSNR; seconds.
 
-QUICK: not run (16 whole jobs, about 45 minutes on 2 cores).
+The textured synthetic walks (``textured_walks``: the evaluation set's textured meshes on a
+textured floor, 768 x 576 through a phone's lens, its focal length given as a phone's EXIF
+would) run the same way; their rows also say whether the refined walk went round the wrong
+way (``textured_walks.mirrored``).
 
-Usage: ``python -m benchmarks.bench_captures [--captures NAME ...] [--variants ...]
-[--rows FILE]`` prints the section; ``--rows`` keeps each finished job's row in a JSON file
-and skips jobs already there (a long run can be resumed).
+QUICK: not run (26 whole jobs, about 80 minutes on 2 cores).
+
+Usage: ``python -m benchmarks.bench_captures [--sets real textured] [--captures NAME ...]
+[--variants ...] [--rows FILE]`` prints the section; ``--rows`` keeps each finished job's row
+in a JSON file and skips jobs already there (a long run can be resumed).
 """
 
 from __future__ import annotations
@@ -27,7 +32,7 @@ import shutil
 import sys
 import tempfile
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -61,6 +66,8 @@ class Capture:
     masks: list[Path] | None
     c2w: np.ndarray
     focal: np.ndarray | None
+    overrides: dict[str, Any] = field(default_factory=dict)
+    """Configuration values the job gets besides the preset's and the variant's."""
 
 
 def load_capture(name: str) -> Capture:
@@ -79,6 +86,16 @@ def load_capture(name: str) -> Capture:
     return Capture(name, photos, masks if all(m.is_file() for m in masks) else None,
                    np.array([f["c2w"] for f in frames], dtype=np.float64),
                    np.array([f["K"][0][0] for f in frames], dtype=np.float64))
+
+
+def textured_capture(name: str, work: Path) -> Capture:
+    """A textured synthetic walk of mesh ``name`` (``textured_walks``), rendered into ``work``,
+    its focal length given as a phone's EXIF gives it."""
+    from benchmarks.textured_walks import phone_focal_35mm, render_walk
+
+    photos, masks, c2w = render_walk(name, work / name)
+    return Capture(name, photos, masks, c2w, None,
+                   {"retrieval.focal_35mm": round(phone_focal_35mm(), 2)})
 
 
 def capture_names() -> list[str]:
@@ -105,7 +122,8 @@ def run_capture(capture: Capture, library: Any, variant: str) -> dict[str, Any]:
     try:
         stage_inputs(capture.photos, capture.masks, job)
         JobFolder(job).write_config(resolve_config(
-            PRESET, {**exclude_overrides(capture.name), **VARIANTS[variant]}))
+            PRESET, {**exclude_overrides(capture.name), **capture.overrides,
+                     **VARIANTS[variant]}))
         start = time.perf_counter()
         run_job(job, library, device="cpu")
         seconds = time.perf_counter() - start
@@ -126,7 +144,10 @@ def run_capture(capture: Capture, library: Any, variant: str) -> dict[str, Any]:
     if capture.focal is not None:
         focal = float(np.median(cams.K_photo[:, 0, 0] / capture.focal[cams.kept] - 1.0))
     pairs = [p for p in retrieval.get("photo_pairs", []) if p.get("turn_deg") is not None]
+    from benchmarks.textured_walks import mirrored
+
     return {"capture": capture.name, "variant": variant, "model": cams.model_id,
+            "mirrored": mirrored(cams.refined, truth),
             "kept": len(cams.kept), "photos": len(capture.photos),
             "retrieved": median(retrieved), "started": median(cams.retrieved),
             "refined": median(cams.refined), "focal": focal,
@@ -134,62 +155,95 @@ def run_capture(capture: Capture, library: Any, variant: str) -> dict[str, Any]:
             "pairs": len(pairs), "fused": len((retrieval.get("fusion") or {}).get("photos", []))}
 
 
+def _mirrored(row: dict[str, Any]) -> str:
+    return "" if "mirrored" not in row else ("yes" if row["mirrored"] else "no")
+
+
 def table(rows: list[dict[str, Any]]) -> list[str]:
     """The per-job table and the acceptance lines."""
     lines = ["| capture | variant | model | kept | retrieved (deg) | started (deg) | "
-             "refined (deg) | focal error | PSNR (dB) | pairs with a rotation | fused | "
-             "seconds |", "|---|---|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|"]
+             "refined (deg) | mirrored | focal error | PSNR (dB) | pairs with a rotation | "
+             "fused | seconds |", "|---|---|---|---:|---:|---:|---:|---|---:|---:|---:|---:|---:|"]
     for r in rows:
         focal = "" if r["focal"] is None else f"{100 * r['focal']:+.0f} %"
         lines.append(f"| {r['capture']} | {r['variant']} | {r['model']} | "
                      f"{r['kept']}/{r['photos']} | {r['retrieved']:.1f} | {r['started']:.1f} | "
-                     f"**{r['refined']:.1f}** | {focal} | {r['psnr']:.2f} | {r['pairs']} | "
-                     f"{r['fused']} | {r['seconds']:.0f} |")
+                     f"**{r['refined']:.1f}** | {_mirrored(r)} | "
+                     f"{focal} | {r['psnr']:.2f} | {r['pairs']} | {r['fused']} | "
+                     f"{r['seconds']:.0f} |")
     lines.append("")
     for variant in VARIANTS:
         textured = [r["refined"] for r in rows if r["variant"] == variant
                     and r["capture"] not in UNTEXTURED]
         if textured:
+            flipped = sum(bool(r.get("mirrored")) for r in rows if r["variant"] == variant)
             lines.append(f"- {variant}: median refined rotation error over the {len(textured)} "
-                         f"textured captures **{np.median(textured):.1f} deg**.")
+                         f"textured captures **{np.median(textured):.1f} deg**; mirrored "
+                         f"walks: {flipped}.")
     return lines
 
 
-def run(quick: bool, library_dir: Path = LIBRARY_DIR, names: list[str] | None = None,
-        variants: list[str] | None = None, rows_file: Path | None = None) -> str:
-    """Run the benchmark. Returns its markdown section."""
-    head = ["## Real captures: cameras against reference cameras", "",
-            f"Command: `python -m benchmarks.bench_captures{' --quick' if quick else ''}`", ""]
-    names = names or capture_names()
-    if not names:
-        return "\n".join([*head, "Not run: `../shared/eval/captures` is absent.", ""])
-    if quick:
-        return "\n".join([*head, "Not run in QUICK: 16 whole jobs (about 45 minutes on 2 "
-                          "cores); run without `--quick`.", ""])
-    from cadnerf_core.library.format import load_library
+SETS = ("real", "textured")
 
-    library = load_library(library_dir)
+
+def _rows(captures: list[Capture], library: Any, variants: list[str], tag: str,
+          rows_file: Path | None) -> list[dict[str, Any]]:
+    """Each capture's job under each variant (rows already in ``rows_file`` kept)."""
     rows: list[dict[str, Any]] = []
     if rows_file is not None and rows_file.is_file():
         rows = json.loads(rows_file.read_text())
-    for name in names:
-        capture = load_capture(name)
-        for variant in variants or list(VARIANTS):
-            if any(r["capture"] == name and r["variant"] == variant for r in rows):
+    for capture in captures:
+        for variant in variants:
+            if any(r["capture"] == capture.name and r["variant"] == variant
+                   and r.get("set", "real") == tag for r in rows):
                 continue
-            log.info("%s, %s", name, variant)
-            rows.append(run_capture(capture, library, variant))
+            log.info("%s (%s), %s", capture.name, tag, variant)
+            rows.append({**run_capture(capture, library, variant), "set": tag})
             if rows_file is not None:
                 rows_file.write_text(json.dumps(rows, indent=1))
-    rows = [r for r in rows if r["capture"] in names]
-    return "\n".join([
-        *head, f"Preset `{PRESET}` on a CPU, every capture's look-alikes left out (none in "
-        "the library). Rotation errors: median over the kept photos after similarity "
-        "alignment of the camera centres; retrieved: the library views; started: the "
-        "cameras training starts from (the chosen hypothesis, fused with the matches' "
-        "rotations); refined: after training. Focal error: the job's focal length against "
-        "the reference (no photo carries EXIF). The espresso reference is the set's coarse "
-        "metadata (azimuth, elevation).", "", *table(rows), ""])
+    names = {c.name for c in captures}
+    return [r for r in rows if r["capture"] in names and r.get("set", "real") == tag
+            and r["variant"] in variants]
+
+
+def run(quick: bool, library_dir: Path = LIBRARY_DIR, names: list[str] | None = None,
+        variants: list[str] | None = None, rows_file: Path | None = None,
+        sets: list[str] | None = None) -> str:
+    """Run the benchmark. Returns its markdown section."""
+    head = ["## Cameras on real captures and textured walks", "",
+            f"Command: `python -m benchmarks.bench_captures{' --quick' if quick else ''}`", ""]
+    if not EVAL_ROOT.is_dir():
+        return "\n".join([*head, "Not run: `../shared/eval` is absent.", ""])
+    if quick:
+        return "\n".join([*head, "Not run in QUICK: 26 whole jobs (about 80 minutes on 2 "
+                          "cores); run without `--quick`.", ""])
+    from benchmarks.textured_walks import TEXTURED
+    from cadnerf_core.library.format import load_library
+
+    library = load_library(library_dir)
+    variants = variants or list(VARIANTS)
+    sets = sets or list(SETS)
+    out = list(head)
+    if "real" in sets:
+        captures = [load_capture(n) for n in names or capture_names()
+                    if n not in TEXTURED]
+        out += [f"### Real captures\n\nPreset `{PRESET}` on a CPU, every capture's look-alikes "
+                "left out (none in the library). Rotation errors: median over the kept photos "
+                "after similarity alignment of the camera centres; retrieved: the library "
+                "views; started: the cameras training starts from (the chosen hypothesis, fused "
+                "with the matches' rotations); refined: after training. Focal error: the job's "
+                "focal length against the reference (no photo carries EXIF). The espresso "
+                "reference is the set's coarse metadata (azimuth, elevation); its photos carry "
+                "EXIF.", "", *table(_rows(captures, library, variants, "real", rows_file)), ""]
+    if "textured" in sets:
+        with tempfile.TemporaryDirectory(prefix="bench_textured_") as work:
+            captures = [textured_capture(n, Path(work)) for n in names or TEXTURED
+                        if n in TEXTURED]
+            rows = _rows(captures, library, variants, "textured", rows_file)
+        out += ["### Textured synthetic walks\n\n8 photos at 768 x 576 through a 65 degree "
+                "lens (27 mm EXIF) round each textured mesh on a tiled floor, the mesh's "
+                "look-alikes left out of the library; columns as above.", "", *table(rows), ""]
+    return "\n".join(out)
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -200,10 +254,12 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--captures", nargs="*", default=None)
     parser.add_argument("--variants", nargs="*", default=None, choices=list(VARIANTS))
     parser.add_argument("--rows", type=Path, default=None)
+    parser.add_argument("--sets", nargs="*", default=None, choices=list(SETS))
     args = parser.parse_args(argv)
     logging.basicConfig(level=logging.INFO,
                         format="%(asctime)s %(levelname)s %(name)s: %(message)s")
-    sys.stdout.write(run(args.quick, args.library, args.captures, args.variants, args.rows))
+    sys.stdout.write(run(args.quick, args.library, args.captures, args.variants, args.rows,
+                         args.sets))
     return 0
 
 
