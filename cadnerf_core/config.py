@@ -142,7 +142,7 @@ class Phase2Config(_Frozen):
     focal_lr: float = Field(default=1e-2, gt=0.0, le=MAX_LR)
     """Adam learning rate of the focal factor's logit (``focal_bound``), in either phase."""
     lambda_matches: float = Field(default=0.01, ge=0.0, le=MAX_WEIGHT)
-    """Weight of the epipolar loss of the photos' SIFT matches on the poses in phase two's pose
+    """Weight of the epipolar loss of the photos' matches on the poses in phase two's pose
     window (``nerf.epipolar``: robust Sampson distance in crop pixels, per camera; 0: off).
     Nothing changes for an object with too few matches (a texture-less one)."""
 

@@ -178,8 +178,8 @@ class RetrievalConfig(_Frozen):
     left out, so the figures say how the method does on objects the library has not seen).
     Ids the library lacks are an error when the job runs."""
     matches: MatchesConfig = Field(default_factory=MatchesConfig)
-    """SIFT matches between the photos: the walking direction where the object has texture,
-    and which photos neighbour each other when their order is searched."""
+    """Matches between the photos: the walking direction and the cameras' relative rotations
+    where the object has texture, and which photos neighbour each other in a searched order."""
 
     @model_validator(mode="after")
     def _check_excluded(self) -> RetrievalConfig:

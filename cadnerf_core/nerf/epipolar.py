@@ -1,6 +1,6 @@
 """The photos' shared points as a loss on the cameras: the Sampson epipolar error.
 
-Retrieval's SIFT matches (``retrieval.matches``) are points two photos see of the same spot on
+Retrieval's matches (``retrieval.matches``) are points two photos see of the same spot on
 the object. Two cameras explain a match when the point in one photo lies on the epipolar line
 the other photo's point draws through it. The Sampson error is the first-order distance (in
 pixels) of a match from satisfying that; unlike a reprojection through rendered depth (SPARF),
@@ -119,7 +119,7 @@ def disagreement_deg(pair: PairMatch, c2w_i: np.ndarray, c2w_j: np.ndarray) -> f
 
 
 def _to_crop(points: np.ndarray, box: CropBox) -> np.ndarray:
-    """Photo pixels [K, 2] (SIFT's: pixel centres at integers) -> crop coordinates [K, 2] in
+    """Photo pixels [K, 2] (pixel centres at integers) -> crop coordinates [K, 2] in
     the intrinsics' convention (pixel centres at +0.5, ``rays.pixel_rays``)."""
     return (points + 0.5 - np.array([box.x0, box.y0])) * box.scale
 

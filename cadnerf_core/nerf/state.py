@@ -25,7 +25,7 @@ class TrainData:
     # [N, H, W] float in [0, 1]: each pixel's weight in the silhouette losses (0 where its
     # mask is in doubt); None: every pixel weighs 1.
     weights: torch.Tensor | None = None
-    # The photos' SIFT matches in crop pixels, for the epipolar loss on the poses; None: too
+    # The photos' matches in crop pixels, for the epipolar loss on the poses; None: too
     # few (a texture-less object) or matching off.
     matches: MatchTerms | None = None
 

@@ -97,7 +97,7 @@ class RetrievalResult:
     """The hypotheses a short silhouette fit compared (model, direction, retrieval score, fit
     score), in retrieval's order, when there were several; this result is the best fit's."""
     pairs: list[PairMatch] = field(default_factory=list)
-    """The SIFT matches between every pair of photos, the photos numbered as given, with their
+    """The verified matches between every pair of photos, the photos numbered as given, with their
     inliers' pixels (training's epipolar loss reads them); written to ``retrieval.json`` as
     ``photo_pairs`` (``matches.PairMatch.to_json``: photos i and j, mutual matches, inliers,
     inlier ratio, median Sampson error in pixels, turn about the vertical axis); empty when

@@ -79,7 +79,7 @@ def _appearance_crops(images: Sequence[np.ndarray], masks: Sequence[np.ndarray],
 def photo_pairs(images: Sequence[np.ndarray], masks: Sequence[np.ndarray],
                 focals: Sequence[float | None] | None,
                 config: RetrievalConfig) -> list[PairMatch]:
-    """SIFT matches between every pair of photos (``matches.match_photos``), each photo's
+    """Verified matches between every pair of photos (``matches.match_photos``), each photo's
     camera centred, its focal length its own where known, else the median of the known ones,
     else ``FOCAL_GUESS``. Returns the ``matches.PairMatch`` list."""
     known = [f for f in focals or [] if f is not None]
@@ -315,7 +315,7 @@ class _Photos:
     focals: Sequence[float | None] | None
     crop_size: int  # side of the crop that K_canon and box refer to
     allowed: np.ndarray  # [M'] library indices of the models that may be chosen
-    pairs: list[PairMatch]  # the SIFT matches between photo pairs
+    pairs: list[PairMatch]  # the verified matches between photo pairs
     steps: np.ndarray | None  # [P] measured turn (degrees) from photo p - 1 to p, or NaN
 
 

@@ -1,5 +1,5 @@
-"""SIFT matches between photos: the turn between two rendered photos of a textured ball, and
-nothing from a plain one."""
+"""Matches between photos (XFeat with LighterGlue by default, SIFT on request): the turn
+between two rendered photos of a textured ball, and nothing from a plain one."""
 
 from __future__ import annotations
 
@@ -15,6 +15,7 @@ from cadnerf_core.cameras import intrinsics_from_fov, orbit_pose
 from cadnerf_core.config import MatchesConfig, RetrievalConfig
 from cadnerf_core.mesh.renderer import MeshRenderer
 from cadnerf_core.retrieval.matches import (
+    Features,
     PairMatch,
     detect,
     match_photos,
@@ -52,10 +53,11 @@ def _intrinsics(n: int) -> list[np.ndarray]:
     return [intrinsics_from_fov(FOV, SIZE)] * n
 
 
-@pytest.mark.parametrize("turn", [25.0, -25.0])
-def test_the_turn_between_two_photos_has_its_sign_and_about_its_size(turn: float) -> None:
+@pytest.mark.parametrize(("turn", "method"), [(25.0, "xfeat"), (-25.0, "xfeat"), (25.0, "sift")])
+def test_the_turn_between_two_photos_has_its_sign_and_about_its_size(turn: float,
+                                                                     method: str) -> None:
     images, masks = _photos(_ball(True), [40.0, 40.0 + turn])
-    (pair,) = match_photos(images, masks, _intrinsics(2), MatchesConfig())
+    (pair,) = match_photos(images, masks, _intrinsics(2), MatchesConfig(method=method))
     assert pair.inliers >= MatchesConfig().min_inliers
     assert pair.turn_deg is not None
     assert abs(pair.turn_deg - turn) < 5.0
@@ -191,3 +193,41 @@ def test_only_walking_sized_turns_that_mostly_agree_count() -> None:
     assert walk_evidence(three_to_one[1:], 6, config) == 0.0  # two to one: split
     far = PairMatch(0, 2, 50, 40, 0.2, 60.0, None, np.zeros((0, 2, 2)))
     assert walk_evidence([far], 6, config) == 0.0  # not consecutive
+
+
+def test_lighterglue_matches_the_close_pairs_and_nearest_descriptors_the_rest(
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    from cadnerf_core.retrieval import learned
+
+    # Five photos round a loop: every pair is within two steps.
+    assert learned.close_pairs(5) == {(i, j) for i in range(5) for j in range(i + 1, 5)}
+    assert learned.close_pairs(6) == {(0, 1), (1, 2), (2, 3), (3, 4), (4, 5), (0, 5), (0, 2),
+                                      (1, 3), (2, 4), (3, 5), (0, 4), (1, 5)}
+    used: dict[tuple[int, int], str] = {}
+    features = [learned.CropFeatures(np.full((3, 2), float(k)), np.eye(3, 64, dtype=np.float32))
+                for k in range(6)]
+
+    def glue(a: Any, b: Any) -> np.ndarray:
+        used[(int(a.points[0, 0]), int(b.points[0, 0]))] = "glue"
+        return np.zeros((0, 2), np.int64)
+
+    def mutual(a: Any, b: Any) -> np.ndarray:
+        used[(int(a.points[0, 0]), int(b.points[0, 0]))] = "mutual"
+        return np.zeros((0, 2), np.int64)
+
+    monkeypatch.setattr(learned, "match_glue", glue)
+    monkeypatch.setattr(learned, "match_mutual", mutual)
+    found = learned.match_indices(features, learned.close_pairs(6))
+    assert list(found) == [(i, j) for i in range(6) for j in range(i + 1, 6)]
+    assert {e for e, how in used.items() if how == "glue"} == learned.close_pairs(6)
+    assert {e for e, how in used.items() if how == "mutual"} == {(0, 3), (1, 4), (2, 5)}
+
+
+def test_mutual_nearest_descriptors_need_agreement_and_similarity() -> None:
+    from cadnerf_core.retrieval.learned import match_mutual
+
+    a = np.eye(4, 8, dtype=np.float32)
+    b = np.eye(4, 8, dtype=np.float32)[[2, 0, 3, 1]]
+    b[3] = np.eye(1, 8, 7, dtype=np.float32)  # b's last matches nothing in a
+    found = match_mutual(Features(np.zeros((4, 2)), a), Features(np.zeros((4, 2)), b))
+    assert found.tolist() == [[0, 1], [2, 0], [3, 2]]
