@@ -10,6 +10,8 @@ One job is one folder, written by the app at upload (or the CLI), then by the pi
     masks/NNN_overlay.jpg     a picture of that mask over the photo, to look at
     masks.json                per photo: name, mask source (uploaded, alpha, learned, grabcut),
                               warnings, and the mask and overlay file names
+    matches/pairs.npz         the photos' verified matches (read back when the job runs again)
+    matches/NNN_MMM.jpg       a picture of neighbouring photos NNN and MMM's matches
     retrieval.json            model, matches and discarded photos (the retrieval stage)
     poses.json, transforms.json, metrics.json
     views/NNN.png, orbit.mp4, orbit.gif, mesh.glb, mesh.obj, mesh.mtl, mesh_texture.png,
