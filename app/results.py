@@ -157,6 +157,7 @@ def _warnings(retrieval: dict[str, Any], photos: list[PhotoResult],
     from cadnerf_core.config_retrieval import (
         FOCAL_UNKNOWN_WARNING,
         MATCHES_FEW_WARNING,
+        focal_guessed,
         order_guess_warning,
         reorder_warning,
     )
@@ -172,7 +173,7 @@ def _warnings(retrieval: dict[str, Any], photos: list[PhotoResult],
                                                         else "cw"}}})
         warnings.append(f"{direction_guess_hint(direction)}: resubmit with the config field "
                         f"{other}")
-    if retrieval.get("focal_known") is False:
+    if focal_guessed(retrieval):
         warnings.append(FOCAL_UNKNOWN_WARNING)
     fusion = retrieval.get("fusion")
     if isinstance(fusion, dict) and not fusion.get("photos"):

@@ -131,7 +131,9 @@ def reconstruct(
 
         typer.echo(f"warning: {direction_guess_hint(int(retrieval.get('direction', 1)))} "
                    "(--walk)")
-    if retrieval.get("focal_known") is False:
+    from cadnerf_core.config_retrieval import focal_guessed
+
+    if focal_guessed(retrieval):
         from cadnerf_core.config_retrieval import FOCAL_UNKNOWN_WARNING
 
         typer.echo(f"warning: {FOCAL_UNKNOWN_WARNING} (--focal-35mm)")

@@ -43,6 +43,11 @@ class MatchesConfig(Frozen):
     fuse: bool = True
     """Fuse the retrieved cameras with the rotations the matched pairs measured before
     training (rotation averaging anchored to the CAD model's frame; ``retrieval.fusion``)."""
+    mapper: bool = True
+    """Where COLMAP's incremental mapper registers every photo from the matches, with a small
+    reprojection error and a plausible lens (``retrieval.mapper``), start training from its
+    cameras (and focal length, where EXIF lacks it), carried into the CAD model's frame;
+    elsewhere from the fused retrieved cameras."""
     min_inliers: int = Field(default=20, ge=8, le=1000)
     """Fewest inliers of the essential matrix for a pair's relative rotation to be used."""
     threshold_px: float = Field(default=1.0, ge=0.1, le=10.0)

@@ -4,7 +4,7 @@ Torch-free, like the rest of the config."""
 
 from __future__ import annotations
 
-from typing import Literal
+from typing import Any, Literal
 
 from pydantic import Field, model_validator
 
@@ -48,7 +48,16 @@ FOCAL_UNKNOWN_WARNING = (
     "focal length was worth 1.1 dB and 3 degrees on average (docs/bench_unseen_full.md); "
     "upload the files your phone wrote, or resubmit with the config field "
     "retrieval.focal_35mm (a phone's main lens: about 26)")
-"""What a user is told when no photo's focal length was known (``focal_known`` False)."""
+"""What a user is told when no photo's focal length was known (``focal_known`` False) and the
+photos' matches did not measure it (``focal_guessed``)."""
+
+
+def focal_guessed(retrieval: dict[str, Any]) -> bool:
+    """Whether a job's ``retrieval.json`` says its focal length is a guess: no photo carried it
+    and the cameras did not start from the mapper, which measures it."""
+    fusion = retrieval.get("fusion")
+    mapped = isinstance(fusion, dict) and fusion.get("start") == "mapper"
+    return retrieval.get("focal_known") is False and not mapped
 
 MATCHES_FEW_WARNING = (
     "the photos share too few matched points for their texture to place the cameras, so the "

@@ -21,7 +21,11 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from cadnerf_core.config import PipelineConfig
-from cadnerf_core.config_retrieval import FOCAL_UNKNOWN_WARNING, MATCHES_FEW_WARNING
+from cadnerf_core.config_retrieval import (
+    FOCAL_UNKNOWN_WARNING,
+    MATCHES_FEW_WARNING,
+    focal_guessed,
+)
 from cadnerf_core.errors import InputError
 from cadnerf_core.intake.crop import apply_crop
 from cadnerf_core.jobfolder import CONFIG, INPUTS, OVERLAY_SIDE, JobFolder
@@ -67,7 +71,6 @@ def run_intake(job_dir: Path, library: Library, config: PipelineConfig,
     from cadnerf_core.intake.masks import mask_overlay, photo_masks
     from cadnerf_core.intake.photos import load_photo, with_focal
     from cadnerf_core.intake.resize import downscaled, shrunk_mask
-    from cadnerf_core.retrieval.fusion import fuse_hypotheses
     from cadnerf_core.retrieval.pairs_io import job_pairs
     from cadnerf_core.retrieval.retrieve import retrieve
 
@@ -96,19 +99,42 @@ def run_intake(job_dir: Path, library: Library, config: PipelineConfig,
                          crop_size=config.image_size, pairs=pairs)
     progress.check()
     known = any(p.focal_pixels is not None for p in photos)
-    if config.retrieval.matches.fuse and pairs is not None:
-        retrieval = fuse_hypotheses(retrieval, config.retrieval.matches.min_inliers,
-                                    search_focal=not known)
-        if not retrieval.fusion or not retrieval.fusion.get("photos"):
-            log.warning("%s", MATCHES_FEW_WARNING)
+    if pairs is not None:
+        retrieval = with_matches(retrieval, pairs, photos, config, known)
     retrieval = dataclasses.replace(retrieval, focal_known=known)
-    if not known:
+    if focal_guessed(retrieval.to_json()):
         log.warning("%s", FOCAL_UNKNOWN_WARNING)
     folder.write_retrieval(retrieval.to_json())
     if len(retrieval.kept) < 2:
         raise InputError("fewer than two photos could be matched to the retrieved model",
                          item=INPUTS, hint="use 3 to 10 photos walking around the object")
     return Intake(names, photos, masks, retrieval, [result.doubt for result in found])
+
+
+def with_matches(retrieval: RetrievalResult, pairs: list[Any], photos: list[Any],
+                 config: PipelineConfig, focal_known: bool) -> RetrievalResult:
+    """The retrieved cameras (and their hypotheses) started from what the photos' matches
+    tell: the mapper's cameras where it registers every photo (``retrieval.mapper``), else the
+    retrieved cameras fused with the pairs' rotations (``retrieval.fusion``); unchanged when
+    neither is asked for. Warns when the matches placed no camera."""
+    from cadnerf_core.retrieval.fusion import fuse_hypotheses, place_hypotheses
+    from cadnerf_core.retrieval.mapper import accept, map_photos
+
+    matches = config.retrieval.matches
+    if matches.mapper:
+        sizes = [(p.rgb.shape[1], p.rgb.shape[0]) for p in photos]
+        start = photos[0].focal_pixels if focal_known else None
+        focal = float(start or retrieval.matches[0].K_photo[0, 0])
+        mapped = map_photos(pairs, sizes, focal, focal_known, matches.min_inliers)
+        if accept(mapped, max(sizes[0])):
+            assert mapped is not None
+            return place_hypotheses(retrieval, mapped, focal_known)
+    if not matches.fuse:
+        return retrieval
+    retrieval = fuse_hypotheses(retrieval, matches.min_inliers, search_focal=not focal_known)
+    if not retrieval.fusion or not retrieval.fusion.get("photos"):
+        log.warning("%s", MATCHES_FEW_WARNING)
+    return retrieval
 
 
 def training_data(intake: Intake, config: PipelineConfig, margin: float,

@@ -28,6 +28,7 @@ import cv2
 import numpy as np
 
 from cadnerf_core.cameras import rotation_angle_deg, scale_focal
+from cadnerf_core.retrieval.mapper import Mapped
 from cadnerf_core.retrieval.matches import PairMatch
 from cadnerf_core.retrieval.result import PhotoMatch, RetrievalResult
 
@@ -357,3 +358,58 @@ def _fuse_at(retrieval: RetrievalResult, pairs: Sequence[PairMatch],
     at_focal = [dataclasses.replace(p, rotation=rotations[(p.i, p.j)]) for p in usable
                 if (p.i, p.j) in rotations]
     return fuse(retrieval, at_focal, min_inliers)[0]
+
+
+def place(retrieval: RetrievalResult, mapped: Mapped,
+          focal_known: bool) -> RetrievalResult:
+    """The retrieval with its kept photos' cameras the mapper's, carried into the CAD model's
+    frame: turned by the rotation that best carries them onto the retrieved cameras
+    (``anchor``), then scaled and moved so that their centres sit nearest the retrieved
+    cameras' positions (each at its retrieved distance from the centre, looking along its
+    mapped axis); unless ``focal_known``, every camera takes the mapper's focal length."""
+    kept = [m for m in retrieval.kept if m.index in mapped.photos]
+    if len(kept) < MIN_PHOTOS:
+        return retrieval
+    row = {photo: k for k, photo in enumerate(mapped.photos)}
+    mapped_w = np.stack([mapped.c2w[row[m.index], :3, :3].T for m in kept])
+    retrieved_w = np.stack([m.c2w[:3, :3].T for m in kept])
+    G = anchor(mapped_w, retrieved_w)
+    rotations = mapped_w @ G  # world-to-camera in the CAD frame
+    centres = np.stack([G.T @ mapped.c2w[row[m.index], :3, 3] for m in kept])
+    targets = np.stack([-np.linalg.norm(m.c2w[:3, 3]) * R[2] for m, R in zip(kept, rotations,
+                                                                             strict=True)])
+    spread = centres - centres.mean(axis=0)
+    scale = float(np.sum(spread * (targets - targets.mean(axis=0))) / np.sum(spread * spread))
+    shift = targets.mean(axis=0) - scale * centres.mean(axis=0)
+    factor = 1.0 if focal_known else mapped.focal / float(retrieval.matches[0].K_photo[0, 0])
+    placed = {m.index: k for k, m in enumerate(kept)}
+    matches = []
+    for m in retrieval.matches:
+        if factor != 1.0:
+            m = dataclasses.replace(m, K_photo=scale_focal(m.K_photo, factor),
+                                    K_canon=scale_focal(m.K_canon, factor))
+        if m.index not in placed:
+            matches.append(m)
+            continue
+        k = placed[m.index]
+        c2w = np.eye(4)
+        c2w[:3, :3] = rotations[k].T
+        c2w[:3, 3] = scale * centres[k] + shift
+        matches.append(dataclasses.replace(m, c2w=c2w, c2w_retrieved=m.c2w))
+    moved = rotation_angle_deg(np.swapaxes(rotations, 1, 2) @ retrieved_w)
+    summary = {"photos": sorted(placed), "start": "mapper", "points": mapped.points,
+               "reprojection_px": round(mapped.reprojection_px, 3),
+               "moved_deg": round(float(np.median(moved)), 2),
+               "focal_factor": round(factor, 4)}
+    return dataclasses.replace(retrieval, matches=matches, fusion=summary)
+
+
+def place_hypotheses(retrieval: RetrievalResult, mapped: Mapped,
+                     focal_known: bool) -> RetrievalResult:
+    """``place`` applied to the retrieval and to each of its alternatives."""
+    placed = place(retrieval, mapped, focal_known)
+    others = [place(a, mapped, focal_known) for a in retrieval.alternatives]
+    log.info("started from the mapper's cameras (%d points, %.2f px; moved %.1f deg from the "
+             "retrieved ones)", mapped.points, mapped.reprojection_px,
+             float((placed.fusion or {}).get("moved_deg", 0.0)))
+    return dataclasses.replace(placed, alternatives=others)

@@ -1,0 +1,155 @@
+"""Geometry first: COLMAP's incremental mapper on the photos' verified matches.
+
+Where the photos share enough texture, structure from motion gives every camera to a degree or
+better and the focal length to a few percent, which silhouettes against a library model cannot.
+The verified pairs become a COLMAP database (each photo's inlier keypoints, the pairs' inlier
+matches, their geometry marked verified); ``pycolmap.incremental_mapping`` registers the
+photos, triangulates the points the matches share over three and more photos, and bundle
+adjusts. Its cameras are accepted only when the mapper registers every photo given in one
+model with a small reprojection error and a plausible lens (``accept``); the job then starts
+from them, carried into the CAD model's frame by ``fusion.place`` (the rotation that fits
+the retrieved cameras best, the centres moved onto the retrieved cameras' look-at positions).
+Elsewhere (photos 45 degrees and more apart, little texture) the fused retrieved cameras stay.
+"""
+
+from __future__ import annotations
+
+import logging
+import tempfile
+from collections.abc import Sequence
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from cadnerf_core.retrieval.matches import PairMatch
+
+log = logging.getLogger(__name__)
+
+MAX_REPROJECTION_PX = 2.0
+"""Largest mean reprojection error of an accepted reconstruction, in photo pixels."""
+MAX_RADIAL = 0.5
+"""Largest radial distortion (SIMPLE_RADIAL's k) of an accepted reconstruction: more is a lens
+no phone has, the mapper explaining a wrong geometry."""
+FOCAL_RANGE = (0.3, 5.0)
+"""Plausible focal lengths per pixel of the photo's long side (about 11 to 118 degrees across)."""
+
+
+@dataclass(frozen=True)
+class Mapped:
+    """The mapper's cameras: ``c2w [P, 4, 4]`` (OpenCV axes, its own frame and scale) of photos
+    ``photos`` (as given, all of those asked for), the shared ``focal`` in photo pixels (of the
+    first photo's size), ``points`` triangulated and ``reprojection_px``."""
+
+    photos: list[int]
+    c2w: np.ndarray
+    focal: float
+    radial: float
+    points: int
+    reprojection_px: float
+
+
+def _keypoints(pairs: Sequence[PairMatch], n_photos: int
+               ) -> tuple[list[np.ndarray], dict[tuple[int, int], np.ndarray]]:
+    """Each photo's keypoints (the distinct inlier points of its pairs: a feature matched in
+    several pairs has the same coordinates in each, so tracks join) and each pair's matches as
+    keypoint indices."""
+    index: list[dict[tuple[float, float], int]] = [{} for _ in range(n_photos)]
+
+    def key(photo: int, point: np.ndarray) -> int:
+        table = index[photo]
+        return table.setdefault((float(point[0]), float(point[1])), len(table))
+
+    matches = {}
+    for p in pairs:
+        matches[(p.i, p.j)] = np.array([[key(p.i, a), key(p.j, b)] for a, b in p.points],
+                                       dtype=np.uint32).reshape(-1, 2)
+    points = [np.array(list(table), dtype=np.float64).reshape(-1, 2) for table in index]
+    return points, matches
+
+
+def map_photos(pairs: Sequence[PairMatch], sizes: Sequence[tuple[int, int]],
+               focal: float, focal_known: bool, min_inliers: int) -> Mapped | None:
+    """Run the incremental mapper on the verified pairs.
+
+    Args:
+        pairs: verified matches (photos as given) with their inlier points.
+        sizes: (width, height) of each photo; all the photos share one camera (the size of the
+            first: photos of other sizes are not mapped).
+        focal: the focal length in pixels to start from (the photos' own when known).
+        focal_known: keep it fixed (EXIF) rather than refine it.
+        min_inliers: fewest inliers of a pair given to the mapper.
+    Returns:
+        The mapper's cameras of every photo, or None when it did not register them all in one
+        model.
+    """
+    import pycolmap
+
+    n = len(sizes)
+    if n < 3 or any(tuple(s) != tuple(sizes[0]) for s in sizes):
+        return None
+    usable = [p for p in pairs if p.inliers >= min_inliers and p.rotation is not None]
+    if not usable:
+        return None
+    keypoints, matches = _keypoints(usable, n)
+    width, height = sizes[0]
+    pycolmap.logging.minloglevel = 2  # warnings and errors only
+    with tempfile.TemporaryDirectory(prefix="cadnerf_mapper_") as work:
+        database = Path(work) / "database.db"
+        db = pycolmap.Database.open(str(database))
+        camera = pycolmap.Camera(model="SIMPLE_RADIAL", width=width, height=height,
+                                 params=[focal, width / 2.0, height / 2.0, 0.0])
+        camera.has_prior_focal_length = focal_known
+        camera_id = db.write_camera(camera)
+        sensor = pycolmap.sensor_t(pycolmap.SensorType.CAMERA, camera_id)
+        rig = pycolmap.Rig()
+        rig.add_ref_sensor(sensor)
+        rig_id = db.write_rig(rig)
+        image_ids = []
+        for k in range(n):
+            image_id = db.write_image(pycolmap.Image(name=f"{k:03d}", camera_id=camera_id))
+            frame = pycolmap.Frame()
+            frame.rig_id = rig_id
+            frame.add_data_id(pycolmap.data_t(sensor, image_id))
+            db.write_frame(frame)
+            # COLMAP's pixel centres are at half-integers, ours at integers.
+            db.write_keypoints(image_id, (keypoints[k] + 0.5).astype(np.float32))
+            image_ids.append(image_id)
+        for (i, j), found in matches.items():
+            db.write_matches(image_ids[i], image_ids[j], found)
+            geometry = pycolmap.TwoViewGeometry()
+            geometry.config = pycolmap.TwoViewGeometryConfiguration.CALIBRATED
+            geometry.inlier_matches = found
+            db.write_two_view_geometry(image_ids[i], image_ids[j], geometry)
+        db.close()
+        options = pycolmap.IncrementalPipelineOptions()
+        options.ba_refine_focal_length = not focal_known
+        options.num_threads = 2
+        models = pycolmap.incremental_mapping(str(database), work, str(Path(work) / "sparse"),
+                                              options)
+    if not models:
+        return None
+    model = max(models.values(), key=lambda m: m.num_reg_images())
+    if model.num_reg_images() != n:
+        log.info("mapper: %d of %d photos registered", model.num_reg_images(), n)
+        return None
+    c2w = np.zeros((n, 4, 4))
+    for image in model.images.values():
+        world_to_camera = np.eye(4)
+        pose = image.cam_from_world
+        world_to_camera[:3, :4] = (pose() if callable(pose) else pose).matrix()
+        c2w[int(image.name)] = np.linalg.inv(world_to_camera)
+    params = next(iter(model.cameras.values())).params
+    return Mapped(list(range(n)), c2w, float(params[0]), float(params[3]),
+                  int(model.num_points3D()), float(model.compute_mean_reprojection_error()))
+
+
+def accept(mapped: Mapped | None, long_side: int) -> bool:
+    """Whether the mapper's cameras are trusted: every photo registered (``map_photos``), a
+    reprojection error under ``MAX_REPROJECTION_PX``, little radial distortion, a plausible
+    focal length."""
+    if mapped is None:
+        return False
+    low, high = FOCAL_RANGE
+    return (mapped.reprojection_px <= MAX_REPROJECTION_PX and abs(mapped.radial) <= MAX_RADIAL
+            and low * long_side <= mapped.focal <= high * long_side)
