@@ -117,7 +117,7 @@ def with_matches(retrieval: RetrievalResult, pairs: list[Any], photos: list[Any]
     tell: the mapper's cameras where it registers every photo (``retrieval.mapper``), else the
     retrieved cameras fused with the pairs' rotations (``retrieval.fusion``); unchanged when
     neither is asked for. Warns when the matches placed no camera."""
-    from cadnerf_core.retrieval.fusion import fuse_hypotheses, place_hypotheses
+    from cadnerf_core.retrieval.fusion import fuse_hypotheses, pairs_at_focal, place_hypotheses
     from cadnerf_core.retrieval.mapper import accept, map_photos
 
     matches = config.retrieval.matches
@@ -128,13 +128,14 @@ def with_matches(retrieval: RetrievalResult, pairs: list[Any], photos: list[Any]
         mapped = map_photos(pairs, sizes, focal, focal_known, matches.min_inliers)
         if accept(mapped, max(sizes[0])):
             assert mapped is not None
-            return place_hypotheses(retrieval, mapped, focal_known)
+            placed = place_hypotheses(retrieval, mapped, focal_known)
+            return placed if focal_known else pairs_at_focal(placed)
     if not matches.fuse:
         return retrieval
     retrieval = fuse_hypotheses(retrieval, matches.min_inliers, search_focal=not focal_known)
     if not retrieval.fusion or not retrieval.fusion.get("photos"):
         log.warning("%s", MATCHES_FEW_WARNING)
-    return retrieval
+    return retrieval if focal_known else pairs_at_focal(retrieval)
 
 
 def training_data(intake: Intake, config: PipelineConfig, margin: float,

@@ -413,3 +413,16 @@ def place_hypotheses(retrieval: RetrievalResult, mapped: Mapped,
              "retrieved ones)", mapped.points, mapped.reprojection_px,
              float((placed.fusion or {}).get("moved_deg", 0.0)))
     return dataclasses.replace(placed, alternatives=others)
+
+
+def pairs_at_focal(retrieval: RetrievalResult) -> RetrievalResult:
+    """The retrieval (and its alternatives) with each pair's rotation taken again at the
+    cameras' focal length (``K_photo``): matched where no photo told it, the pairs' rotations
+    were measured at a guess, and training compares them with its starting cameras."""
+    intrinsics = {m.index: m.K_photo for m in retrieval.matches}
+    usable = [p for p in retrieval.pairs if p.rotation is not None]
+    rotations = _rotations_at(usable, _fundamentals(usable), intrinsics)
+    pairs = [dataclasses.replace(p, rotation=rotations[(p.i, p.j)])
+             if (p.i, p.j) in rotations else p for p in retrieval.pairs]
+    others = [dataclasses.replace(a, pairs=pairs) for a in retrieval.alternatives]
+    return dataclasses.replace(retrieval, pairs=pairs, alternatives=others)

@@ -19,6 +19,7 @@ from cadnerf_core.retrieval.fusion import (
     focal_factor,
     fuse,
     fuse_hypotheses,
+    pairs_at_focal,
 )
 from cadnerf_core.retrieval.matches import PairMatch
 from cadnerf_core.retrieval.result import PhotoMatch, RetrievalResult
@@ -197,3 +198,18 @@ def test_an_unknown_focal_length_is_the_one_that_fuses_nearest_the_retrieved_cam
     assert fused.matches[0].K_photo[0, 2] == 128.0  # the principal point stays
     poses = np.stack([m.c2w for m in fused.matches])
     assert np.median(_errors(poses, truth)) < 4.0
+
+
+def test_pairs_measured_at_a_guessed_focal_length_are_measured_again_at_the_found_one() -> None:
+    truth = _truth()
+    K_true = np.array([[420.0, 0.0, 128.0], [0.0, 420.0, 128.0], [0.0, 0.0, 1.0]])
+    guessed = [dataclasses.replace(p, rotation=np.eye(3)) for p in _projected_pairs(truth, K_true)]
+    retrieval = _retrieval(truth, guessed)
+    retrieval = dataclasses.replace(retrieval, matches=[
+        dataclasses.replace(m, K_photo=K_true) for m in retrieval.matches],
+        alternatives=[_retrieval(truth, guessed)])
+    again = pairs_at_focal(retrieval)
+    for p in again.pairs:
+        assert rotation_angle_deg((np.asarray(p.rotation).T
+                                   @ _relative(truth, p.i, p.j))[None])[0] < 0.5
+    assert again.alternatives[0].pairs == again.pairs
