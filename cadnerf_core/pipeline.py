@@ -125,7 +125,10 @@ def with_matches(retrieval: RetrievalResult, pairs: list[Any], photos: list[Any]
         sizes = [(p.rgb.shape[1], p.rgb.shape[0]) for p in photos]
         start = photos[0].focal_pixels if focal_known else None
         focal = float(start or retrieval.matches[0].K_photo[0, 0])
+        clock = time.perf_counter()
         mapped = map_photos(pairs, sizes, focal, focal_known, matches.min_inliers)
+        log.info("mapper: %s in %.1f s", "accepted" if accept(mapped, max(sizes[0]))
+                 else "not used", time.perf_counter() - clock)
         if accept(mapped, max(sizes[0])):
             assert mapped is not None
             placed = place_hypotheses(retrieval, mapped, focal_known)
