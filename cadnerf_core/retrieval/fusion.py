@@ -182,6 +182,22 @@ def anchor(relative: np.ndarray, retrieved: np.ndarray) -> np.ndarray:
     return G
 
 
+def _scaled(matches: Sequence[PhotoMatch], factor: float) -> list[PhotoMatch]:
+    """The matches with their focal lengths times ``factor``."""
+    if factor == 1.0:
+        return list(matches)
+    return [dataclasses.replace(m, K_photo=scale_focal(m.K_photo, factor),
+                                K_canon=scale_focal(m.K_canon, factor)) for m in matches]
+
+
+def _moved(matches: Sequence[PhotoMatch], cameras: dict[int, np.ndarray]) -> list[PhotoMatch]:
+    """The matches with the given photos' cameras (c2w by photo index), their retrieved ones
+    kept in ``c2w_retrieved``."""
+    return [m if m.index not in cameras
+            else dataclasses.replace(m, c2w=cameras[m.index], c2w_retrieved=m.c2w)
+            for m in matches]
+
+
 @dataclass(frozen=True)
 class _Solved:
     """One solution: the photos fused (as given), their world-to-camera rotations, the pairs
@@ -305,21 +321,16 @@ def fuse(retrieval: RetrievalResult, pairs: Sequence[PairMatch],
     solved = _solve(kept, edges, weights)
     if solved is None:
         return dataclasses.replace(retrieval, fusion={"photos": [], "pairs": len(edges)}), None
-    slot = {photo: k for k, photo in enumerate(solved.photos)}
     fused = solved.rotations
     residual = [_angle(R @ fused[i] @ fused[j].T) for (i, j), R in solved.used.items()]
-    matches = []
-    for m in retrieval.matches:
-        if factor != 1.0:
-            m = dataclasses.replace(m, K_photo=scale_focal(m.K_photo, factor),
-                                    K_canon=scale_focal(m.K_canon, factor))
-        if m.index not in slot:
-            matches.append(m)
-            continue
-        c2w = m.c2w.copy()
-        c2w[:3, :3] = fused[slot[m.index]].T
-        c2w[:3, 3] = -np.linalg.norm(m.c2w[:3, 3]) * c2w[:3, 2]  # looking at the centre
-        matches.append(dataclasses.replace(m, c2w=c2w, c2w_retrieved=m.c2w))
+    cameras = {}
+    for photo, rotation in zip(solved.photos, fused, strict=True):
+        c2w = np.eye(4)
+        c2w[:3, :3] = rotation.T
+        # At its retrieved distance, looking at the centre.
+        c2w[:3, 3] = -np.linalg.norm(kept[photo].c2w[:3, 3]) * c2w[:3, 2]
+        cameras[photo] = c2w
+    matches = _moved(_scaled(retrieval.matches, factor), cameras)
     summary = Fusion(solved.photos, len(solved.used), solved.dropped,
                      float(np.median(solved.moved)),
                      float(np.median(residual)) if residual else 0.0, factor)
@@ -337,11 +348,7 @@ def fuse_hypotheses(retrieval: RetrievalResult, min_inliers: int,
     factor = 1.0 if summary is None else summary.focal_factor
     others = []
     for other in retrieval.alternatives:
-        if factor != 1.0:
-            other = dataclasses.replace(other, matches=[
-                dataclasses.replace(m, K_photo=scale_focal(m.K_photo, factor),
-                                    K_canon=scale_focal(m.K_canon, factor))
-                for m in other.matches])
+        other = dataclasses.replace(other, matches=_scaled(other.matches, factor))
         others.append(_fuse_at(other, retrieval.pairs, min_inliers) if search_focal
                       else fuse(other, retrieval.pairs, min_inliers)[0])
     return dataclasses.replace(fused, alternatives=others)
@@ -382,22 +389,15 @@ def place(retrieval: RetrievalResult, mapped: Mapped,
     scale = float(np.sum(spread * (targets - targets.mean(axis=0))) / np.sum(spread * spread))
     shift = targets.mean(axis=0) - scale * centres.mean(axis=0)
     factor = 1.0 if focal_known else mapped.focal / float(retrieval.matches[0].K_photo[0, 0])
-    placed = {m.index: k for k, m in enumerate(kept)}
-    matches = []
-    for m in retrieval.matches:
-        if factor != 1.0:
-            m = dataclasses.replace(m, K_photo=scale_focal(m.K_photo, factor),
-                                    K_canon=scale_focal(m.K_canon, factor))
-        if m.index not in placed:
-            matches.append(m)
-            continue
-        k = placed[m.index]
+    cameras = {}
+    for m, rotation, centre in zip(kept, rotations, centres, strict=True):
         c2w = np.eye(4)
-        c2w[:3, :3] = rotations[k].T
-        c2w[:3, 3] = scale * centres[k] + shift
-        matches.append(dataclasses.replace(m, c2w=c2w, c2w_retrieved=m.c2w))
+        c2w[:3, :3] = rotation.T
+        c2w[:3, 3] = scale * centre + shift
+        cameras[m.index] = c2w
+    matches = _moved(_scaled(retrieval.matches, factor), cameras)
     moved = rotation_angle_deg(np.swapaxes(rotations, 1, 2) @ retrieved_w)
-    summary = {"photos": sorted(placed), "start": "mapper", "points": mapped.points,
+    summary = {"photos": sorted(cameras), "start": "mapper", "points": mapped.points,
                "reprojection_px": round(mapped.reprojection_px, 3),
                "moved_deg": round(float(np.median(moved)), 2),
                "focal_factor": round(factor, 4)}

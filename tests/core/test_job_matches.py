@@ -10,7 +10,6 @@ from typing import Any
 
 import numpy as np
 import pytest
-import trimesh
 from PIL import Image
 
 from cadnerf_core.cameras import intrinsics_from_fov, orbit_pose
@@ -18,20 +17,11 @@ from cadnerf_core.config_retrieval import MATCHES_FEW_WARNING
 from cadnerf_core.jobfolder import JobFolder
 from cadnerf_core.progress import Progress
 from tests.configs import tiny_config
+from tests.core.test_matches import _ball
 
 pytestmark = pytest.mark.usefixtures("one_torch_thread")
 
 SIZE = 192
-
-
-def _ball(textured: bool) -> trimesh.Trimesh:
-    mesh = trimesh.creation.icosphere(subdivisions=5, radius=0.8)
-    rng = np.random.default_rng(3)
-    grey = rng.integers(30, 230, len(mesh.vertices)) if textured \
-        else np.full(len(mesh.vertices), 150)
-    colours = np.stack([grey, grey, grey, np.full_like(grey, 255)], axis=1).astype(np.uint8)
-    mesh.visual = trimesh.visual.ColorVisuals(mesh, vertex_colors=colours)
-    return mesh
 
 
 def _job(job_dir: Path, textured: bool, **overrides: Any) -> JobFolder:
