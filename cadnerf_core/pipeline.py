@@ -304,6 +304,11 @@ def run_job(job_dir: Path, library: Library, progress: Progress | None = None,
         intake = robust_start(job_dir, intake, library, config, dev, learn_focal, progress,
                               recorded)
         start_s = time.perf_counter() - start - intake_s
+        if (intake.retrieval.fusion or {}).get("start") == "mapper":
+            # The mapper's bundle adjustment fits every match; the silhouettes of a library
+            # model that only resembles the object would pull its cameras off.
+            config = config.model_copy(update={"optimise_poses": False})
+            learn_focal = False
         data = training_data(intake, config, library.spec.margin, dev)
         state, extra = train(job_dir, library, intake.retrieval, data, config, dev, progress,
                              learn_focal)
