@@ -124,7 +124,7 @@ class RetrievalConfig(_Frozen):
     the colours' turn of the real espresso photos 0.98) from which the start's hypotheses
     (``hypotheses``) walking against it are not fitted: their short silhouette fits cannot
     tell a walk from its mirror image (the espresso photos' mirrored walk fitted 0.010 IoU
-    better and ended 162 degrees off; ``bench_real``). 0: every hypothesis is fitted."""
+    better and ended 162 degrees off). 0: every hypothesis is fitted."""
     ambiguity_margin: float = Field(default=0.05, ge=0.0, le=100.0)
     """DP, "auto" only: a best walk that leads the other direction's best by less than this
     (summed IoU), with no texture evidence, flags ``direction_ambiguous`` and a warning."""
