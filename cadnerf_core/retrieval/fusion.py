@@ -373,10 +373,12 @@ def place(retrieval: RetrievalResult, mapped: Mapped,
     frame: turned by the rotation that best carries them onto the retrieved cameras
     (``anchor``), then scaled and moved so that their centres sit nearest the retrieved
     cameras' positions (each at its retrieved distance from the centre, looking along its
-    mapped axis); unless ``focal_known``, every camera takes the mapper's focal length."""
+    mapped axis); unless ``focal_known``, every camera takes the mapper's focal length. A kept
+    photo the mapper did not register is discarded (training leaves it out)."""
     kept = [m for m in retrieval.kept if m.index in mapped.photos]
     if len(kept) < MIN_PHOTOS:
         return retrieval
+    unplaced = {m.index for m in retrieval.kept} - set(mapped.photos)
     row = {photo: k for k, photo in enumerate(mapped.photos)}
     mapped_w = np.stack([mapped.c2w[row[m.index], :3, :3].T for m in kept])
     retrieved_w = np.stack([m.c2w[:3, :3].T for m in kept])
@@ -395,12 +397,13 @@ def place(retrieval: RetrievalResult, mapped: Mapped,
         c2w[:3, :3] = rotation.T
         c2w[:3, 3] = scale * centre + shift
         cameras[m.index] = c2w
-    matches = _moved(_scaled(retrieval.matches, factor), cameras)
+    matches = [dataclasses.replace(m, discarded=True) if m.index in unplaced else m
+               for m in _moved(_scaled(retrieval.matches, factor), cameras)]
     moved = rotation_angle_deg(np.swapaxes(rotations, 1, 2) @ retrieved_w)
     summary = {"photos": sorted(cameras), "start": "mapper", "points": mapped.points,
                "reprojection_px": round(mapped.reprojection_px, 3),
                "moved_deg": round(float(np.median(moved)), 2),
-               "focal_factor": round(factor, 4)}
+               "focal_factor": round(factor, 4), "unplaced": sorted(unplaced)}
     return dataclasses.replace(retrieval, matches=matches, fusion=summary)
 
 

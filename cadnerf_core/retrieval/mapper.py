@@ -6,7 +6,8 @@ The verified pairs become a COLMAP database (each photo's inlier keypoints, the 
 matches, their geometry marked verified); ``pycolmap.incremental_mapping`` registers the
 photos, triangulates the points the matches share over three and more photos, and bundle
 adjusts. Its cameras are accepted only when the mapper registers every photo given in one
-model with a small reprojection error and a plausible lens (``accept``); the job then starts
+model (but ``MAX_UNREGISTERED``, which the job then leaves out) with a small reprojection
+error and a plausible lens (``accept``); the job then starts
 from them, carried into the CAD model's frame by ``fusion.place`` (the rotation that fits
 the retrieved cameras best, the centres moved onto the retrieved cameras' look-at positions).
 Elsewhere (photos 45 degrees and more apart, little texture) the fused retrieved cameras stay.
@@ -31,6 +32,9 @@ MAX_REPROJECTION_PX = 2.0
 MAX_RADIAL = 0.5
 """Largest radial distortion (SIMPLE_RADIAL's k) of an accepted reconstruction: more is a lens
 no phone has, the mapper explaining a wrong geometry."""
+MAX_UNREGISTERED = 1
+"""Most photos the mapper may leave out for its cameras to be used (the job then leaves them
+out of training too, and says so)."""
 FOCAL_RANGE = (0.3, 5.0)
 """Plausible focal lengths per pixel of the photo's long side (about 11 to 118 degrees across)."""
 
@@ -38,7 +42,7 @@ FOCAL_RANGE = (0.3, 5.0)
 @dataclass(frozen=True)
 class Mapped:
     """The mapper's cameras: ``c2w [P, 4, 4]`` (OpenCV axes, its own frame and scale) of photos
-    ``photos`` (as given, all of those asked for), the shared ``focal`` in photo pixels (of the
+    ``photos`` (as given: those it registered), the shared ``focal`` in photo pixels (of the
     first photo's size), ``points`` triangulated and ``reprojection_px``."""
 
     photos: list[int]
@@ -80,8 +84,8 @@ def map_photos(pairs: Sequence[PairMatch], sizes: Sequence[tuple[int, int]],
         focal_known: keep it fixed (EXIF) rather than refine it.
         min_inliers: fewest inliers of a pair given to the mapper.
     Returns:
-        The mapper's cameras of every photo, or None when it did not register them all in one
-        model.
+        The mapper's cameras of the photos it registered in its largest model, or None when it
+        left out more than ``MAX_UNREGISTERED``.
     """
     import pycolmap
 
@@ -130,17 +134,20 @@ def map_photos(pairs: Sequence[PairMatch], sizes: Sequence[tuple[int, int]],
     if not models:
         return None
     model = max(models.values(), key=lambda m: m.num_reg_images())
-    if model.num_reg_images() != n:
-        log.info("mapper: %d of %d photos registered", model.num_reg_images(), n)
+    log.info("mapper: %d of %d photos registered", model.num_reg_images(), n)
+    if model.num_reg_images() < max(3, n - MAX_UNREGISTERED):
         return None
-    c2w = np.zeros((n, 4, 4))
-    for image in model.images.values():
+    photos, cameras = [], []
+    for image in sorted(model.images.values(), key=lambda image: int(image.name)):
+        if not image.has_pose:
+            continue
         world_to_camera = np.eye(4)
         pose = image.cam_from_world
         world_to_camera[:3, :4] = (pose() if callable(pose) else pose).matrix()
-        c2w[int(image.name)] = np.linalg.inv(world_to_camera)
+        photos.append(int(image.name))
+        cameras.append(np.linalg.inv(world_to_camera))
     params = next(iter(model.cameras.values())).params
-    return Mapped(list(range(n)), c2w, float(params[0]), float(params[3]),
+    return Mapped(photos, np.stack(cameras), float(params[0]), float(params[3]),
                   int(model.num_points3D()), float(model.compute_mean_reprojection_error()))
 
 

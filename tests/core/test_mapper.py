@@ -112,3 +112,17 @@ def test_the_start_takes_the_mapped_cameras_into_the_cad_frame() -> None:
     assert all(m.c2w_retrieved is not None for m in placed.matches)
     kept_focal = place(retrieval, mapped, focal_known=True)
     assert kept_focal.matches[0].K_photo[0, 0] == 400.0
+
+
+def test_one_photo_the_mapper_leaves_out_is_left_out_of_training() -> None:
+    truth = _truth()
+    pairs = [p for p in _pairs(truth) if N - 1 not in (p.i, p.j)]  # the last photo shares nothing
+    mapped = map_photos(pairs, [SIZE] * N, K_TRUE[0, 0], True, 20)
+    assert mapped is not None and mapped.photos == list(range(N - 1))
+    assert np.median(pose_errors(mapped.c2w, truth[:-1])[0]) < 1.0
+    matches = [PhotoMatch(k, f"p{k}", k, 0.0, 0.0, 0.9, False, c2w, K_TRUE,
+                          CropBox(0, 0, 480, 128), K_TRUE) for k, c2w in enumerate(truth)]
+    placed = place(RetrievalResult("m", "c", [], matches, "dp", 1, 1.0), mapped, True)
+    assert [m.discarded for m in placed.matches] == [False] * (N - 1) + [True]
+    assert placed.fusion is not None and placed.fusion["unplaced"] == [N - 1]
+    assert np.array_equal(placed.matches[-1].c2w, truth[-1])
