@@ -44,6 +44,8 @@ ANCHOR_OUTLIER_DEG = 45.0
 retrieved on the wrong side is 90 to 180 degrees off; retrieval's common errors, 10 to 30
 degrees, average out best in a plain mean)."""
 ITERATIONS = 50
+OUTLIER_DEG = 10.0
+"""A pair whose rotation the averaged cameras miss by more than this is left out."""
 MIN_PHOTOS = 3
 """Fewest photos a connected set of pairs must hold to be fused."""
 FOCAL_FACTORS = tuple(float(f) for f in np.geomspace(0.5, 2.0, 13))
@@ -215,17 +217,29 @@ def _solve(kept: dict[int, PhotoMatch], edges: dict[tuple[int, int], np.ndarray]
     """Averaging and anchor over the pairs triangles do not contradict; None when they connect
     fewer than ``MIN_PHOTOS`` photos."""
     good = consistent_edges(edges)
-    photos = _component(sorted(kept), sorted(good))
-    if len(photos) < MIN_PHOTOS:
+    for _ in range(ITERATIONS):
+        photos = _component(sorted(kept), sorted(good))
+        if len(photos) < MIN_PHOTOS:
+            return None
+        slot = {photo: k for k, photo in enumerate(photos)}
+        pairs = [(i, j) for i, j in sorted(good) if i in slot and j in slot]
+        used = {(slot[i], slot[j]): edges[(i, j)] for i, j in pairs}
+        used_w = {(slot[i], slot[j]): weights[(i, j)] for i, j in pairs}
+        retrieved = np.stack([kept[p].c2w[:3, :3].T for p in photos])  # world-to-camera
+        relative = average_rotations(len(photos), used, used_w, retrieved)
+        # Pairs the solution cannot explain are wrong (a symmetric object's other side, a
+        # repeated print): left out, and the rest solved again.
+        wrong = {(i, j) for i, j in pairs
+                 if _angle(edges[(i, j)] @ relative[slot[i]] @ relative[slot[j]].T)
+                 > OUTLIER_DEG}
+        if not wrong:
+            break
+        good -= wrong
+    else:
         return None
-    slot = {photo: k for k, photo in enumerate(photos)}
-    used = {(slot[i], slot[j]): edges[(i, j)] for i, j in good if i in slot and j in slot}
-    used_w = {(slot[i], slot[j]): weights[(i, j)] for i, j in good if i in slot and j in slot}
-    retrieved = np.stack([kept[p].c2w[:3, :3].T for p in photos])  # world-to-camera
-    relative = average_rotations(len(photos), used, used_w, retrieved)
     fused = relative @ anchor(relative, retrieved)
     moved = rotation_angle_deg(np.swapaxes(fused, 1, 2) @ retrieved)
-    return _Solved(photos, fused, used, moved, len(edges) - len(good))
+    return _Solved(photos, fused, used, moved, len(edges) - len(pairs))
 
 
 def _fundamentals(pairs: Sequence[PairMatch]) -> dict[tuple[int, int], np.ndarray]:

@@ -213,3 +213,22 @@ def test_pairs_measured_at_a_guessed_focal_length_are_measured_again_at_the_foun
         assert rotation_angle_deg((np.asarray(p.rotation).T
                                    @ _relative(truth, p.i, p.j))[None])[0] < 0.5
     assert again.alternatives[0].pairs == again.pairs
+
+
+def test_pairs_the_averaged_cameras_cannot_explain_are_left_out() -> None:
+    truth = _truth()
+    rng = np.random.default_rng(4)
+    pairs = []
+    for p in _walk_pairs(truth):
+        if (p.i + p.j) % 3 == 0:  # a third of the pairs: a random wrong rotation
+            turn = cv2.Rodrigues(rng.normal(size=3))[0]
+            p = dataclasses.replace(p, rotation=turn @ np.asarray(p.rotation))
+        pairs.append(p)
+    fused, summary = fuse(_retrieval(_noisy(truth, 10.0), []), pairs, 20)
+    assert summary is not None and summary.residual_deg < 1.0
+    assert summary.pairs + summary.dropped == len(pairs)
+    poses = np.stack([m.c2w for m in fused.matches])
+    kept = summary.photos
+    for i, j in zip(kept[:-1], kept[1:], strict=True):
+        assert rotation_angle_deg((_relative(poses, i, j).T @ _relative(truth, i, j))[None])[
+            0] < 1.0
