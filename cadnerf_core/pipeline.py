@@ -93,7 +93,7 @@ def run_intake(job_dir: Path, library: Library, config: PipelineConfig,
     photos = with_focal(photos, config.retrieval.focal_35mm)  # where EXIF says nothing
     images, focals = [p.rgb for p in photos], [p.focal_pixels for p in photos]
     pairs = job_pairs(folder, inputs, images, masks, focals, config.retrieval,
-                      config.masks.method)
+                      config.masks.method, progress.check)
     progress.check()
     retrieval = retrieve(masks, names, library, config.retrieval, progress, images, focals,
                          crop_size=config.image_size, pairs=pairs)

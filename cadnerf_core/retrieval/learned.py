@@ -18,7 +18,7 @@ reads, is matched by mutual nearest descriptors.
 from __future__ import annotations
 
 import threading
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from typing import Any
 
@@ -165,13 +165,16 @@ def close_pairs(n_photos: int) -> set[tuple[int, int]]:
     return close
 
 
-def match_indices(features: Sequence[CropFeatures], glued: set[tuple[int, int]]
-                  ) -> dict[tuple[int, int], np.ndarray]:
+def match_indices(features: Sequence[CropFeatures], glued: set[tuple[int, int]],
+                  check: Callable[[], None] | None = None) -> dict[tuple[int, int], np.ndarray]:
     """Matches of every pair (i < j): LighterGlue for those in ``glued``, mutual nearest
-    descriptors for the rest. Returns {(i, j): [M, 2] int64}."""
+    descriptors for the rest (``check`` called before each pair). Returns {(i, j): [M, 2]
+    int64}."""
     out = {}
     for i in range(len(features)):
         for j in range(i + 1, len(features)):
+            if check is not None:
+                check()
             matcher = match_glue if (i, j) in glued else match_mutual
             out[(i, j)] = matcher(features[i], features[j])
     return out

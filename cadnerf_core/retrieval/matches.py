@@ -21,7 +21,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from typing import Any
 
@@ -309,7 +309,8 @@ def verify_matches(i: int, j: int, a: Features, b: Features, pairs: np.ndarray,
 
 
 def match_photos(images: Sequence[np.ndarray], masks: Sequence[np.ndarray],
-                 intrinsics: Sequence[np.ndarray], config: MatchesConfig) -> list[PairMatch]:
+                 intrinsics: Sequence[np.ndarray], config: MatchesConfig,
+                 check: Callable[[], None] | None = None) -> list[PairMatch]:
     """Matches between every pair of photos, verified (``verify_matches``): XFeat features
     matched by LighterGlue between the photos the walk makes close and by mutual nearest
     descriptors between the others (``retrieval.learned``), or SIFT (``config.method``).
@@ -318,9 +319,11 @@ def match_photos(images: Sequence[np.ndarray], masks: Sequence[np.ndarray],
         images: P photos [H_i, W_i, 3] float in [0, 1]; masks: P [H_i, W_i] bool.
         intrinsics: P [3, 3] intrinsics in photo pixels (focal lengths may be estimates).
         config: the matching settings.
+        check: called between photos and between pairs (raises to cancel the job).
     Returns:
         P * (P - 1) / 2 pairs, (0, 1), (0, 2), ... (an empty mask gives a photo no features).
     """
+    check = check or (lambda: None)
     if config.method == "sift":
         found = [detect(image, mask, config.size, config.context) if mask.any()
                  else NO_FEATURES for image, mask in zip(images, masks, strict=True)]
@@ -328,10 +331,13 @@ def match_photos(images: Sequence[np.ndarray], masks: Sequence[np.ndarray],
                 for i in range(len(found)) for j in range(i + 1, len(found))]
     from cadnerf_core.retrieval import learned
 
-    features = [learned.detect(image, mask, config.size, config.context) if mask.any()
-                else learned.CropFeatures(NO_FEATURES.points, np.zeros((0, 64), np.float32))
-                for image, mask in zip(images, masks, strict=True)]
-    indices = learned.match_indices(features, learned.close_pairs(len(features)))
+    features = []
+    for image, mask in zip(images, masks, strict=True):
+        check()
+        features.append(learned.detect(image, mask, config.size, config.context) if mask.any()
+                        else learned.CropFeatures(NO_FEATURES.points,
+                                                  np.zeros((0, 64), np.float32)))
+    indices = learned.match_indices(features, learned.close_pairs(len(features)), check)
     return [verify_matches(i, j, features[i], features[j], pairs, intrinsics[i],
                            intrinsics[j], config) for (i, j), pairs in indices.items()]
 

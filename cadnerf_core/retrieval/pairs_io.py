@@ -7,7 +7,7 @@ import hashlib
 import json
 import logging
 import time
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from typing import TYPE_CHECKING, Any
 
 import cv2
@@ -104,7 +104,8 @@ def neighbour_pairs(pairs: Sequence[PairMatch], order: Sequence[int]) -> list[Pa
 
 def job_pairs(folder: JobFolder, inputs: Sequence[InputPhoto], images: Sequence[np.ndarray],
               masks: Sequence[np.ndarray], focals: Sequence[float | None],
-              config: RetrievalConfig, mask_method: str) -> list[PairMatch] | None:
+              config: RetrievalConfig, mask_method: str,
+              check: Callable[[], None] | None = None) -> list[PairMatch] | None:
     """The photos' verified matches for a job: read from the job folder when stored for the
     same photos, settings and focal lengths, else matched (``retrieve.photo_pairs``), stored,
     and each neighbouring pair's picture written. None when the job does not match photos
@@ -122,7 +123,7 @@ def job_pairs(folder: JobFolder, inputs: Sequence[InputPhoto], images: Sequence[
         log.info("matches: read %d pairs from the job folder", len(pairs))
         return pairs
     start = time.perf_counter()
-    pairs = photo_pairs(images, masks, focals, config)
+    pairs = photo_pairs(images, masks, focals, config, check)
     log.info("matches: %d photos, %d pairs, %d with a rotation, in %.1f s", len(images),
              len(pairs), sum(p.rotation is not None for p in pairs),
              time.perf_counter() - start)

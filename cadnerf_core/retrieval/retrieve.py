@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import dataclasses
 import logging
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, TypeVar
 
@@ -78,7 +78,8 @@ def _appearance_crops(images: Sequence[np.ndarray], masks: Sequence[np.ndarray],
 
 def photo_pairs(images: Sequence[np.ndarray], masks: Sequence[np.ndarray],
                 focals: Sequence[float | None] | None,
-                config: RetrievalConfig) -> list[PairMatch]:
+                config: RetrievalConfig,
+                check: Callable[[], None] | None = None) -> list[PairMatch]:
     """Verified matches between every pair of photos (``matches.match_photos``), each photo's
     camera centred, its focal length its own where known, else the median of the known ones,
     else ``FOCAL_GUESS``. Returns the ``matches.PairMatch`` list."""
@@ -90,7 +91,7 @@ def photo_pairs(images: Sequence[np.ndarray], masks: Sequence[np.ndarray],
         focal = own or (float(np.median(known)) if known else FOCAL_GUESS * max(height, width))
         intrinsics.append(np.array([[focal, 0.0, width / 2.0], [0.0, focal, height / 2.0],
                                     [0.0, 0.0, 1.0]]))
-    return match_photos(images, masks, intrinsics, config.matches)
+    return match_photos(images, masks, intrinsics, config.matches, check)
 
 
 def retrieve(masks: Sequence[np.ndarray], names: Sequence[str], library: Library,
