@@ -127,10 +127,10 @@ def with_matches(retrieval: RetrievalResult, pairs: list[Any], photos: list[Any]
         focal = float(start or retrieval.matches[0].K_photo[0, 0])
         clock = time.perf_counter()
         mapped = map_photos(pairs, sizes, focal, focal_known, matches.min_inliers)
-        log.info("mapper: %s in %.1f s", "accepted" if accept(mapped, max(sizes[0]))
-                 else "not used", time.perf_counter() - clock)
-        if accept(mapped, max(sizes[0])):
-            assert mapped is not None
+        trusted = accept(mapped, max(sizes[0]))
+        log.info("mapper: %s in %.1f s", "accepted" if trusted else "not used",
+                 time.perf_counter() - clock)
+        if trusted and mapped is not None:
             placed = place_hypotheses(retrieval, mapped, focal_known)
             return placed if focal_known else pairs_at_focal(placed)
     if not matches.fuse:
