@@ -35,6 +35,9 @@ log = logging.getLogger(__name__)
 SERVE_FILE = "serve.json"  # beside the embedded Redis's data: the pids of a running serve
 PARENT_PID_ENV = "CADNERF_SERVE_PID"  # set for serve's worker: the pid it must die with
 _PR_SET_PDEATHSIG = 1
+CHILD_STOP_S = 8.0
+"""Seconds a supervised worker gets to hand its job back and exit before it is killed (it
+exits on its own within ``worker.shutdown.STOP_DEADLINE_S``; serve's whole stop stays in 10 s)."""
 
 
 def free_port() -> int:
@@ -258,7 +261,14 @@ class Supervisor:
             self.restarts += 1
             self._spawn()
 
-    def stop(self, timeout_s: float = 20.0) -> None:
+    def request_stop(self) -> None:
+        """Stop watching and ask the child to finish (SIGTERM) without waiting for it."""
+        self._stop.set()
+        process = self.process
+        if process is not None and process.poll() is None:
+            process.terminate()
+
+    def stop(self, timeout_s: float = CHILD_STOP_S) -> None:
         """Stop watching, ask the child to finish (SIGTERM), kill it after ``timeout_s``."""
         self._stop.set()
         process = self.process

@@ -36,6 +36,7 @@ from app.state import (
     stage_work,
 )
 from app.uploads import lay_out
+from cadnerf_core.jobfolder import StorageError
 
 log = logging.getLogger(__name__)
 
@@ -110,7 +111,9 @@ async def submit(request: Request, settings: Settings, store: JobStore, producer
     """Receive, validate and store an upload as a new job folder, then queue it.
 
     The upload is built in a staging folder inside the data root and renamed into place only
-    once complete, so a rejected or interrupted upload leaves no half job folder.
+    once complete, so a rejected or interrupted upload leaves no half job folder. With object
+    storage the folder then goes to the store before the job is queued, and only the store
+    keeps it.
 
     Args:
         request: the multipart request.
@@ -128,6 +131,7 @@ async def submit(request: Request, settings: Settings, store: JobStore, producer
         raise limit_error(refusal)
     staging = settings.data_root / f"{TMP_PREFIX}{uuid.uuid4().hex}"
     limits = UploadLimits(settings.max_file_bytes, settings.max_total_bytes, settings.max_photos)
+    job_id = ""
     try:
         settings.data_root.mkdir(parents=True, exist_ok=True)
         staging.mkdir()
@@ -138,8 +142,11 @@ async def submit(request: Request, settings: Settings, store: JobStore, producer
         spec = await run_in_threadpool(lay_out, form, staging, settings, preset)
         job_id = str(uuid.uuid4())
         os.rename(staging, store.job_dir(job_id))
+        await run_in_threadpool(store.storage.push, job_id, store.job_dir(job_id))
     except OSError as exc:
         shutil.rmtree(staging, ignore_errors=True)
+        if job_id:
+            await run_in_threadpool(store.remove_folder, job_id)
         raise storage_error(exc) from None
     except BaseException:
         shutil.rmtree(staging, ignore_errors=True)
@@ -148,6 +155,7 @@ async def submit(request: Request, settings: Settings, store: JobStore, producer
                        owner=owner, created_at=time.time(), webhook_url=spec.webhook_url,
                        work=stage_work(spec.config))
     await run_in_threadpool(_store_and_enqueue, store, producer, record)
+    store.storage.release(store.job_dir(job_id))  # with object storage: the store has it
     return record
 
 
@@ -168,6 +176,10 @@ def limit_error(refusal: Refusal) -> ApiError:
 def storage_error(exc: OSError) -> ApiError:
     """507 when the job storage is full, else 503 (the storage is missing or broken)."""
     log.error("job storage error: %s", exc)
+    if isinstance(exc, StorageError):  # the object store: its details are for the operator
+        return ApiError(503, "storage_unavailable", "the job storage cannot be reached",
+                        hint="try again later; the operator has to check the object store",
+                        headers={"Retry-After": "30"})
     if exc.errno in (errno.ENOSPC, errno.EDQUOT):
         return ApiError(507, "storage_full", "the server has no room left to store the upload",
                         hint="try again later, or send smaller photos",
@@ -183,7 +195,7 @@ def _store_and_enqueue(store: JobStore, producer: Celery, record: JobRecord) -> 
         store.create(record)
     except redis.RedisError as exc:
         log.error("could not store job %s: %s", record.id, exc)
-        shutil.rmtree(store.job_dir(record.id), ignore_errors=True)
+        store.remove_folder(record.id)
         with contextlib.suppress(redis.RedisError):  # whatever part of the record got in
             store.delete(record)
         raise store_unavailable() from None
@@ -242,7 +254,7 @@ def cleanup(store: JobStore, retention_s: float, now: float | None = None) -> in
     for job_id in _oldest_first(store):
         record = store.get(job_id)  # re-seeds Redis when it lost the job
         if record is None:
-            removed += _remove_orphan(store.job_dir(job_id), now, retention_s)
+            removed += _remove_orphan(store, job_id, now, retention_s)
             continue
         reference = record.finished_at or record.created_at
         if record.state != JobState.running and now - reference > retention_s:
@@ -263,13 +275,14 @@ def _oldest_first(store: JobStore) -> list[str]:
     return sorted(store.iter_job_ids(), key=created)
 
 
-def _remove_orphan(folder: Path, now: float, retention_s: float) -> int:
-    try:
-        age = now - folder.stat().st_mtime
-    except OSError:
+def _remove_orphan(store: JobStore, job_id: str, now: float, retention_s: float) -> int:
+    """Remove data no record owns: at once when the job was deleted (what a late writer left),
+    else once it is older than the retention period."""
+    written = store.last_written(job_id)
+    if written is None:
         return 0
-    if age > retention_s:
-        shutil.rmtree(folder, ignore_errors=True)
+    if store.tombstoned(job_id) or now - written > retention_s:
+        store.remove_folder(job_id)
         return 1
     return 0
 

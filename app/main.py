@@ -26,6 +26,7 @@ from app.state import (
     Settings,
     SettingsError,
     load_settings,
+    open_checked_storage,
 )
 
 log = logging.getLogger(__name__)
@@ -111,6 +112,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
 
     Raises:
         SettingsError: a bad setting, or no Redis URL (``cadnerf serve`` provides one).
+        StorageError: the job store cannot be used (its message says which and what to do).
     """
     settings = settings or load_settings()
     if not settings.redis_url:
@@ -120,7 +122,8 @@ def create_app(settings: Settings | None = None) -> FastAPI:
                   description="Camera poses, novel views, an orbit video and a mesh from 3-10 "
                               "ordered photos (CAD-NeRF).")
     app.state.settings = settings
-    app.state.store = JobStore.open(settings.redis_url, settings.data_root)
+    app.state.store = JobStore.open(settings.redis_url, settings.data_root,
+                                    open_checked_storage(settings))
     app.state.reader = AsyncJobReader(settings.redis_url, settings.device)
     app.state.producer = make_producer(settings)
     install_handlers(app)

@@ -7,6 +7,7 @@ the job folder (no ``..``, no symbolic links leading out).
 from __future__ import annotations
 
 import json
+import logging
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
@@ -14,10 +15,35 @@ from urllib.parse import quote
 
 from app.errors import ApiError
 from app.schemas import JobResult, ModelRef, PhotoResult
-from app.state import JobRecord
-from cadnerf_core.jobfolder import JobFolder, MaskRecord, media_type
+from app.state import JobRecord, JobState, JobStore
+from cadnerf_core.jobfolder import JobFolder, MaskRecord, StorageError, media_type
 
-__all__ = ["artifact_path", "list_artifacts", "media_type", "read_result"]
+log = logging.getLogger(__name__)
+
+__all__ = ["artifact_path", "list_artifacts", "media_type", "read_result", "results_folder"]
+
+
+def results_folder(store: JobStore, record: JobRecord) -> Path:
+    """The folder on this machine holding a succeeded job's results.
+
+    With object storage they are fetched from the store the first time (a succeeded job's
+    files never change), so range requests, ETags and ``results.zip`` are served from a
+    local file as on one machine.
+
+    Raises:
+        ApiError: 503 when the store cannot be reached.
+    """
+    folder = store.job_dir(record.id)
+    if record.state != JobState.succeeded:
+        return folder
+    try:
+        store.storage.fetch_results(record.id, folder)
+    except StorageError as exc:
+        log.error("job %s: results not fetched: %s", record.id, exc)
+        raise ApiError(503, "storage_unavailable", "the job storage cannot be reached",
+                       hint="try again later; the operator has to check the object store",
+                       headers={"Retry-After": "30"}) from None
+    return folder
 
 
 def artifact_path(job_dir: Path, name: str) -> Path:

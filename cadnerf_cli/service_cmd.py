@@ -10,6 +10,7 @@ import tempfile
 import threading
 import time
 import warnings
+from collections.abc import Callable
 from pathlib import Path
 from types import FrameType
 from typing import TYPE_CHECKING, Any
@@ -34,6 +35,18 @@ def _settings_or_exit() -> Settings:
         raise typer.Exit(2) from None
 
 
+def _storage_or_exit(settings: Settings) -> None:
+    """Stop with the store's own message when the job store cannot be used."""
+    from app.state import open_checked_storage
+    from cadnerf_core.jobfolder import StorageError
+
+    try:
+        open_checked_storage(settings)
+    except StorageError as exc:
+        typer.echo(f"error: {exc}", err=True)
+        raise typer.Exit(2) from None
+
+
 def serve(host: str = typer.Option("127.0.0.1", help="Address to listen on."),
           port: int = typer.Option(8000, help="Port to listen on."),
           demo: bool = typer.Option(False, "--demo", help="Run the demo once the API is up."),
@@ -43,17 +56,17 @@ def serve(host: str = typer.Option("127.0.0.1", help="Address to listen on."),
           ) -> None:
     """Run the API; without CADNERF_REDIS_URL also an embedded Redis and one worker.
 
-    SIGTERM or SIGINT (docker stop, systemd, Ctrl-C) stops the API, then the worker, then the
-    embedded Redis (saved), so nothing is left running.
+    SIGTERM or SIGINT (docker stop, systemd, Ctrl-C) stops the API and, at the same moment,
+    the worker (its running job goes back to the queue), then the embedded Redis (saved), all
+    within 10 s, so nothing is left running and no job is lost.
     """
-    import uvicorn
-
     from app.main import create_app
 
     verbose = verbose or logging.getLogger().level <= logging.DEBUG  # `cadnerf -v serve`
     if not verbose:  # the service's address, the demo and warnings only
         _quiet_logging()
     settings = _settings_or_exit()
+    _storage_or_exit(settings)
     _exit_on_signals()
     embedded: EmbeddedRedis | None = None
     supervisor: Supervisor | None = None
@@ -68,15 +81,37 @@ def serve(host: str = typer.Option("127.0.0.1", help="Address to listen on."),
                        f"jobs in {settings.data_root}")
         threading.Thread(target=_when_ready, args=(url, demo_preset if demo else None),
                          daemon=True).start()
-        # uvicorn handles the signals while it runs, then re-raises them: our handler turns
-        # that into SystemExit, which runs the clean-up below. limit_concurrency is the last
-        # resort on open connections; upload time limits and the upload cap live in the app
-        # (app.multipart), since uvicorn has no request-body timeout.
-        uvicorn.run(create_app(settings), host=host, port=port,
-                    log_level="info" if verbose else "warning", access_log=verbose,
-                    limit_concurrency=settings.max_connections or None)
+        # uvicorn handles the signals while it runs (the worker is told at once), then
+        # re-raises them: our handler turns that into SystemExit, which runs the clean-up
+        # below. limit_concurrency is the last resort on open connections; upload time limits
+        # and the upload cap live in the app (app.multipart), since uvicorn has no
+        # request-body timeout.
+        _serve_api(create_app(settings), host, port, verbose, settings.max_connections,
+                   on_stop=supervisor.request_stop if supervisor is not None else None)
     finally:
         _stop_backends(supervisor, embedded)
+
+
+API_STOP_S = 2.0
+"""Seconds the API gives open requests (a poll, a download) to finish once asked to stop."""
+
+
+def _serve_api(app: Any, host: str, port: int, verbose: bool, max_connections: int,
+               on_stop: Callable[[], None] | None) -> None:
+    """Run uvicorn until a stop signal; ``on_stop`` is called the moment one arrives."""
+    import uvicorn
+
+    class Server(uvicorn.Server):
+        def handle_exit(self, sig: int, frame: FrameType | None) -> None:
+            if on_stop is not None:
+                on_stop()
+            super().handle_exit(sig, frame)
+
+    config = uvicorn.Config(app, host=host, port=port,
+                            log_level="info" if verbose else "warning", access_log=verbose,
+                            limit_concurrency=max_connections or None,
+                            timeout_graceful_shutdown=int(API_STOP_S))
+    Server(config).run()
 
 
 def _quiet_logging() -> None:
@@ -199,7 +234,11 @@ def worker(loglevel: str = typer.Option("INFO", help="Celery log level."),
            quiet: bool = typer.Option(False, "--quiet", help="No banner, no superuser "
                                       "warning, warnings and errors only (as under serve).")
            ) -> None:
-    """Run one Celery worker (solo pool, concurrency 1, queue `cadnerf`)."""
+    """Run one Celery worker (solo pool, concurrency 1, queue `cadnerf`).
+
+    SIGTERM or SIGINT: the running job stops at its next step and goes back to the queue (it
+    resumes from its last checkpoint), and the worker exits within 10 s.
+    """
     from celery.exceptions import SecurityWarning
 
     from app.embedded import die_with_parent
@@ -212,6 +251,7 @@ def worker(loglevel: str = typer.Option("INFO", help="Celery log level."),
                    err=True)
         raise typer.Exit(2)
     die_with_parent()  # under `cadnerf serve`: never outlive it, even killed with -9
+    _storage_or_exit(settings)
     celery = create_celery(settings)
     options = ["worker", "--pool", "solo", "--concurrency", "1", "--queues", QUEUE,
                "--loglevel", "WARNING" if quiet else loglevel,

@@ -23,8 +23,10 @@ One job is one folder, written by the app at upload (or the CLI), then by the pi
     checkpoints/phaseN.pt, log.txt, eval/ (held-out renders of an evaluation)
 
 Inputs (photos and uploaded masks) are never downloadable; the masks the job used are.
-``state.json`` belongs to the service's job state, not to this module. Everything here is
-light (stdlib, pydantic, numpy, Pillow): the API imports it.
+``state.json`` belongs to the service's job state, not to this module. Where the folder's bytes
+live (this machine, or S3-compatible object storage of which folders are scratch copies) is
+``jobstorage``'s, re-exported here. Everything here is light (stdlib, pydantic, numpy, Pillow;
+boto3 only once object storage is used): the API imports it.
 """
 
 # ruff: noqa: F405 - the names come from jobnames, part of this owner
@@ -47,6 +49,15 @@ from pydantic import BaseModel, ConfigDict
 from cadnerf_core.config import PipelineConfig, resolve_config
 from cadnerf_core.jobnames import *  # noqa: F403 - the names are part of this owner
 from cadnerf_core.jobnames import _NUMBERED
+from cadnerf_core.jobstorage import (  # noqa: F401 - where the bytes live, part of this owner
+    JobStorage,
+    LocalStorage,
+    S3Storage,
+    StorageError,
+    Transfer,
+    folder_bytes,
+    open_storage,
+)
 
 SUBFOLDERS = (MASK_UPLOADS, SPARSE, INPUTS, MASKS, VIEWS, IMAGES, CHECKPOINTS, EVAL, MATCHES)
 """The folders inside a job folder (nested ones first), created on demand; the job folder

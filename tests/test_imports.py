@@ -35,6 +35,7 @@ def test_the_service_never_imports_torch(code: str) -> None:
     modules = _modules_after(code)
     assert "torch" not in _top(modules)
     light = {"cadnerf_core.config", "cadnerf_core.jobfolder", "cadnerf_core.jobnames",
+             "cadnerf_core.jobstorage",
              "cadnerf_core.progress", "cadnerf_core.errors", "cadnerf_core.config_bounds",
              "cadnerf_core.config_retrieval", "cadnerf_core.config_matches",
              "cadnerf_core.intake",

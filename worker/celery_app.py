@@ -7,10 +7,18 @@ import logging
 from typing import Any
 
 from celery import Celery
-from celery.signals import worker_ready, worker_shutdown
+from celery.signals import worker_ready, worker_shutdown, worker_shutting_down
 
-from app.state import QUEUE, SEND_RETRY_POLICY, TASK_NAME, Settings, celery_config
+from app.state import (
+    QUEUE,
+    SEND_RETRY_POLICY,
+    TASK_NAME,
+    Settings,
+    celery_config,
+    open_checked_storage,
+)
 from worker.liveness import Liveness, worker_name
+from worker.shutdown import request_stop
 
 log = logging.getLogger(__name__)
 
@@ -23,11 +31,15 @@ def create_celery(settings: Settings) -> Celery:
 
     Returns:
         A Celery app with the ``cadnerf.run_job`` task registered.
+
+    Raises:
+        StorageError: the job store cannot be used (checked here, before any job is taken).
     """
     celery = Celery("cadnerf", include=["worker.tasks"])
     celery.conf.update(celery_config(settings))
     celery.conf.update(worker_concurrency=1, task_queues=None, task_create_missing_queues=True)
     celery.conf.cadnerf_settings = settings
+    celery.conf.cadnerf_storage = open_checked_storage(settings)
     _connect_signals(celery, settings)
     return celery
 
@@ -39,7 +51,7 @@ def _connect_signals(celery: Celery, settings: Settings) -> None:
         celery.send_task(TASK_NAME, args=[job_id], queue=QUEUE, retry=True,
                          retry_policy=SEND_RETRY_POLICY)
 
-    liveness = Liveness(settings, name, send)
+    liveness = Liveness(settings, name, send, storage=celery.conf.cadnerf_storage)
     celery.conf.cadnerf_liveness = liveness  # the task claims its jobs through it
 
     @worker_ready.connect(weak=False)
@@ -47,6 +59,10 @@ def _connect_signals(celery: Celery, settings: Settings) -> None:
         _preload_library(settings)
         liveness.start()  # heartbeat, claims, and re-queueing jobs of dead workers
         log.info("worker %s ready on queue %s", name, QUEUE)
+
+    @worker_shutting_down.connect(weak=False)
+    def _stopping(**_: Any) -> None:  # SIGTERM or SIGINT: the running job goes back in time
+        request_stop(liveness)
 
     @worker_shutdown.connect(weak=False)
     def _shutdown(**_: Any) -> None:

@@ -18,6 +18,7 @@ from typing import Any
 import redis
 
 from app.state import HEARTBEAT_EVERY_S, ORPHAN_GRACE_S, JobStore, OrphanWatch, Settings
+from cadnerf_core.jobfolder import JobStorage
 from worker.runner import device_kind
 
 log = logging.getLogger(__name__)
@@ -34,13 +35,15 @@ class Liveness:
     Args:
         settings: deployment settings (Redis URL, data root).
         name: the heartbeat name recorded on the jobs this worker runs.
-        send: queues a job id again (an orphan of a dead worker).
+        send: queues a job id again (an orphan of a dead worker, a job handed back).
         startup_watch_s: how long after start-up to look for orphaned jobs.
+        storage: where the job data lives (state.json of the jobs it recovers).
     """
 
     def __init__(self, settings: Settings, name: str, send: Callable[[str], Any],
-                 startup_watch_s: float = 3 * ORPHAN_GRACE_S) -> None:
-        self.store = JobStore.open(settings.redis_url, settings.data_root)
+                 startup_watch_s: float = 3 * ORPHAN_GRACE_S,
+                 storage: JobStorage | None = None) -> None:
+        self.store = JobStore.open(settings.redis_url, settings.data_root, storage)
         self.device_setting = settings.device
         self.name = name
         self.send = send
@@ -72,6 +75,19 @@ class Liveness:
             self.store.claims.release(job_id, self.name)
         except redis.RedisError as exc:  # it expires by itself
             log.warning("could not release the claim on job %s: %s", job_id, exc)
+
+    def abandon(self) -> None:
+        """The process must end now: hand the held job back to the queue and queue its
+        wake-up again (best effort: else the job's claim lapses and recovery re-queues it)."""
+        with self._lock:
+            job = self._job
+        try:
+            if job is not None and self.store.hand_back(job, self.name):
+                self.send(job)
+                log.warning("job %s handed back to the queue", job)
+        except Exception as exc:
+            log.error("could not hand job %s back: %s", job, exc)
+        self.stop()
 
     def _loop(self) -> None:
         # The device tells the API which preset to offer by default (app.state.serving);

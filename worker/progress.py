@@ -29,8 +29,11 @@ class JobProgress:
                  deadline: float | None = None,
                  celery_update: Callable[[dict[str, Any]], None] | None = None,
                  throttle_s: float = 0.5, mirror_every_s: float = 5.0, retry_s: float = 2.0,
-                 tick_s: float = 2.0, clock: Callable[[], float] = time.monotonic) -> None:
+                 tick_s: float = 2.0, clock: Callable[[], float] = time.monotonic,
+                 stopping: Callable[[], bool] | None = None) -> None:
         self.tick_s = tick_s
+        self.stopping = stopping
+        self.interrupted = False
         self.store = store
         self.job_id = job_id
         self.eta = eta
@@ -93,7 +96,11 @@ class JobProgress:
                     self.job_id, exc, self.retry_s)
 
     def cancelled(self) -> bool:
-        """True when the job was cancelled (Redis flag) or ran past its soft time limit."""
+        """True when the job was cancelled (Redis flag), ran past its soft time limit, or the
+        worker is stopping (``interrupted``: the job goes back to the queue)."""
+        if self.stopping is not None and self.stopping():
+            self.interrupted = True
+            return True
         now = self.clock()
         if self.deadline is not None and time.time() > self.deadline:
             self.timed_out = True

@@ -28,8 +28,10 @@ from app.state import (
     stage_work,
     unscaled,
 )
-from cadnerf_core.jobfolder import CONFIG, INPUTS, MASKS, JobFolder, photo_index
+from cadnerf_core.jobfolder import CONFIG, INPUTS, MASKS, JobFolder, StorageError, photo_index
 from worker.progress import JobProgress
+from worker.scratch import Scratch
+from worker.shutdown import STOPPING
 from worker.webhook import send_webhook
 
 if TYPE_CHECKING:
@@ -38,6 +40,7 @@ if TYPE_CHECKING:
 log = logging.getLogger(__name__)
 
 DEFERRED = "deferred"  # queued jobs wait for their owner's running ones: the message comes back
+HANDED_BACK = "handed_back"  # the worker is stopping: the job is queued again, its message too
 UPLOAD_FIELDS = {INPUTS: "images", MASKS: "masks", CONFIG: "config"}  # job folder entry -> form
 TIME_LIMIT_HINT = "choose a faster preset, or ask the operator for a longer time limit"
 
@@ -163,50 +166,65 @@ def _execute_claimed(job_id: str, settings: Settings, store: JobStore,
     taken = record.state == JobState.running and record.worker == worker  # by take_next
     if not taken and not store.start(job_id, worker, started):  # cancelled or deleted meanwhile
         return {"id": job_id, "state": "skipped", "error": None}
-    state, error, detail = _run(record, settings, store, started, celery_update)
-    return _finish(store, settings, record, state, error, detail=detail)
+    try:
+        outcome = _run(record, settings, store, started, celery_update)
+        if outcome is None:
+            return _hand_back(store, job_id, worker)
+        state, error, detail = outcome
+        return _finish(store, settings, record, state, error, detail=detail)
+    finally:
+        store.storage.release(store.job_dir(job_id))
+
+
+def _hand_back(store: JobStore, job_id: str, worker: str) -> dict[str, Any]:
+    """The worker is stopping: the job goes back to the front of the queue, to resume from its
+    last checkpoint on the next worker (the task sends its wake-up again)."""
+    handed = store.hand_back(job_id, worker)
+    log.warning("job %s: this worker is stopping; the job %s", job_id,
+                "goes back to the queue" if handed else "changed meanwhile and is left as it is")
+    return {"id": job_id, "state": HANDED_BACK if handed else "skipped", "error": None}
 
 
 def _run(record: JobRecord, settings: Settings, store: JobStore, started: float,
-         celery_update: Callable[[dict[str, Any]], None] | None) -> Outcome:
-    from cadnerf_core.errors import CadNerfError, InputError, JobCancelled, LibraryError
+         celery_update: Callable[[dict[str, Any]], None] | None) -> Outcome | None:
+    """Fetch the job's files, run it, write everything back; the outcome, or None when the
+    worker is stopping (the job was interrupted, its files written back)."""
+    folder = store.job_dir(record.id)
+    scratch = Scratch(store.storage, record.id, folder, lambda: _gone(store, record.id))
+    try:
+        scratch.fetch()
+    except OSError as exc:
+        return _failure(exc, record, folder, settings)
+    return _run_here(record, settings, store, started, celery_update, scratch)
+
+
+def _run_here(record: JobRecord, settings: Settings, store: JobStore, started: float,
+              celery_update: Callable[[dict[str, Any]], None] | None,
+              scratch: Scratch) -> Outcome | None:
+    from cadnerf_core.errors import JobCancelled
     from cadnerf_core.pipeline import run_job
     from cadnerf_core.progress import Progress
 
     device = device_kind(settings.device)
-    work = record.work or _job_work(store.job_dir(record.id))
+    work = record.work or _job_work(scratch.folder)
     eta = EtaModel(store.history.expected(record.preset, device, work))
     adapter = JobProgress(store, record.id, eta, celery_update=celery_update,
-                          deadline=started + settings.job_soft_time_limit_s)
+                          deadline=started + settings.job_soft_time_limit_s,
+                          stopping=STOPPING.is_set)
     watchdog = _hard_limit_watchdog(store, record, settings.job_hard_time_limit_s)
     try:
-        run_job(store.job_dir(record.id), get_library(str(settings.library_dir)),
-                Progress(adapter, adapter.cancelled), settings.device,
+        run_job(scratch.folder, get_library(str(settings.library_dir)),
+                Progress(scratch.reporting(adapter), adapter.cancelled), settings.device,
                 mask_model=settings.mask_model)
+        scratch.write_back()  # every artifact is in the store before the job is done
     except JobCancelled:
-        if adapter.timed_out:
-            message = f"the job ran past its time limit of {settings.job_soft_time_limit_s} s"
-            return JobState.failed, message, ErrorDetail(code="time_limit", message=message,
-                                                         hint=TIME_LIMIT_HINT)
-        return JobState.cancelled, None, None
-    except InputError as exc:
-        error, detail = input_error(str(exc), exc.item, exc.hint, record,
-                                    store.job_dir(record.id))
-        return JobState.failed, error, detail
-    except LibraryError as exc:
-        return JobState.failed, str(exc), ErrorDetail(code="library_error", message=str(exc),
-                                                      hint="the operator has to check the library")
-    except CadNerfError as exc:
-        return JobState.failed, str(exc), ErrorDetail(code="job_failed", message=str(exc))
-    except OSError as exc:
-        log.exception("job %s: storage error", record.id)
-        detail = _storage_detail(exc, store.job_dir(record.id))
-        return JobState.failed, _storage_message(exc, store.job_dir(record.id)), detail
+        if adapter.interrupted:
+            scratch.write_back(quiet=True)
+            return None
+        return _cancelled(adapter.timed_out, settings)
     except Exception as exc:
-        log.exception("job %s failed", record.id)
-        message = f"internal error ({type(exc).__name__})"
-        return JobState.failed, f"{message}; see the worker log", ErrorDetail(
-            code="internal", message=message, hint="the error was logged in the worker log")
+        scratch.write_back(quiet=True)  # the log and what was made, for the operator
+        return _failure(exc, record, scratch.folder, settings)
     finally:
         watchdog.cancel()
     try:
@@ -214,6 +232,50 @@ def _run(record: JobRecord, settings: Settings, store: JobStore, started: float,
     except redis.RedisError as exc:  # only the ETA of later jobs suffers
         log.warning("could not record stage times: %s", exc)
     return JobState.succeeded, None, None
+
+
+def _gone(store: JobStore, job_id: str) -> bool:
+    """Whether the job was cancelled or deleted (False while Redis cannot tell)."""
+    try:
+        return store.cancel_requested(job_id)
+    except redis.RedisError:
+        return False
+
+
+def _cancelled(timed_out: bool, settings: Settings) -> Outcome:
+    """A job stopped by a cancel, or by its soft time limit (then it failed)."""
+    if timed_out:
+        message = f"the job ran past its time limit of {settings.job_soft_time_limit_s} s"
+        return JobState.failed, message, ErrorDetail(code="time_limit", message=message,
+                                                     hint=TIME_LIMIT_HINT)
+    return JobState.cancelled, None, None
+
+
+def _failure(exc: Exception, record: JobRecord, folder: Path, settings: Settings) -> Outcome:
+    """The failed outcome of an exception out of the pipeline, in words for the user."""
+    from cadnerf_core.errors import CadNerfError, InputError, LibraryError
+
+    if isinstance(exc, InputError):
+        error, detail = input_error(str(exc), exc.item, exc.hint, record, folder)
+        return JobState.failed, error, detail
+    if isinstance(exc, LibraryError):
+        return JobState.failed, str(exc), ErrorDetail(code="library_error", message=str(exc),
+                                                      hint="the operator has to check the library")
+    if isinstance(exc, CadNerfError):
+        return JobState.failed, str(exc), ErrorDetail(code="job_failed", message=str(exc))
+    if isinstance(exc, StorageError):
+        log.error("job %s: the job store failed: %s", record.id, exc)
+        message = "the job's storage could not be reached"
+        return JobState.failed, f"{message}; submit the job again later", ErrorDetail(
+            code="storage_error", message=message, hint="the operator has to check the object "
+            "store; submit the job again later")
+    if isinstance(exc, OSError):
+        log.exception("job %s: storage error", record.id)
+        return JobState.failed, _storage_message(exc, folder), _storage_detail(exc, folder)
+    log.error("job %s failed", record.id, exc_info=exc)
+    message = f"internal error ({type(exc).__name__})"
+    return JobState.failed, f"{message}; see the worker log", ErrorDetail(
+        code="internal", message=message, hint="the error was logged in the worker log")
 
 
 def _job_work(folder: Path) -> dict[str, float]:

@@ -18,7 +18,8 @@ DEFER_S = 5  # a deferred wake-up comes back after this (a running job of its ow
 def run_job(self: Task, job_id: str) -> dict[str, Any]:
     """Run the job whose folder is ``<data root>/<job_id>``; returns its final state."""
     settings: Settings = self.app.conf.cadnerf_settings
-    store = JobStore.open(settings.redis_url, settings.data_root)
+    store = JobStore.open(settings.redis_url, settings.data_root,
+                          getattr(self.app.conf, "cadnerf_storage", None))
 
     def celery_update(meta: dict[str, Any]) -> None:
         self.update_state(state=PROGRESS_STATE, meta=meta)
@@ -30,4 +31,6 @@ def run_job(self: Task, job_id: str) -> dict[str, Any]:
         store.close()
     if outcome["state"] == runner.DEFERRED:  # keep the wake-up: a queued job still needs it
         raise self.retry(countdown=DEFER_S, max_retries=None)
+    if outcome["state"] == runner.HANDED_BACK:  # this worker stops: the next one takes the job
+        raise self.retry(countdown=0, max_retries=None)
     return outcome

@@ -82,7 +82,7 @@ async def get_job(job: FastJobDep, reader: ReaderDep) -> JobStatus:
             summary="Result of a succeeded job")
 def get_result(job: JobDep, store: StoreDep) -> JobResult:
     """Retrieved model, per-photo poses and IoU, discarded photos, metrics, artifact links."""
-    return results.read_result(job, store.job_dir(job.id))
+    return results.read_result(job, results.results_folder(store, job))
 
 
 ARTIFACT_CACHE_CONTROL = "private, max-age=86400, immutable"
@@ -138,7 +138,7 @@ def get_artifact(job: JobDep, store: StoreDep, name: str, request: Request) -> R
     if job.state != "succeeded":
         raise ApiError(409, "not_ready", f"the job is {job.state.value}",
                        hint="artifacts exist once the job has succeeded")
-    path = results.artifact_path(store.job_dir(job.id), name)
+    path = results.artifact_path(results.results_folder(store, job), name)
     download = None if path.suffix in (".mp4", ".gif", ".png", ".jpg") else path.name
     try:
         stat = os.stat(path)

@@ -20,6 +20,7 @@ from app.state.records import ANON_OWNER, ErrorDetail, JobRecord, JobState, is_j
 from app.state.recovery import MAX_ATTEMPTS, ORPHAN_GRACE_S, OrphanWatch, find_orphans, requeue
 from app.state.serving import PresetTime, default_preset, preset_times, serving_device
 from app.state.settings import Settings, SettingsError, load_settings, non_public_reason
+from app.state.statefile import open_checked_storage
 from app.state.store import JobStore, connect
 from app.state.usage import Limits, Refusal, Usage, UsageMeter
 from app.state.work import scaled, stage_work, unscaled
@@ -31,6 +32,7 @@ __all__ = [
     "JobStore", "Limits", "OrphanWatch", "PresetTime", "QueueEstimate", "Refusal", "Settings",
     "SettingsError", "StageHistory", "Usage", "UsageMeter", "Workers", "celery_config", "connect",
     "default_preset", "default_stage_seconds", "find_orphans", "finish_job", "is_job_id",
-    "load_settings", "non_public_reason", "preset_times", "requeue", "scaled", "serving_device",
+    "load_settings", "non_public_reason", "open_checked_storage", "preset_times", "requeue",
+    "scaled", "serving_device",
     "stage_work", "unscaled",
 ]

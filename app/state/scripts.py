@@ -119,6 +119,19 @@ redis.call('zadd', KEYS[4], 0, ARGV[1])
 return attempts
 """
 
+# KEYS: job, its claim, running set, queue. ARGV: job id, worker, now.
+# Running on ``worker`` -> queued at the front, its claim released: the worker was asked to stop
+# and gives the job back (no attempt is counted; the job resumes from its checkpoints).
+HAND_BACK = """
+if redis.call('hget', KEYS[1], 'state') ~= 'running' then return 0 end
+if (redis.call('hget', KEYS[1], 'worker') or '') ~= ARGV[2] then return 0 end
+if redis.call('get', KEYS[2]) == ARGV[2] then redis.call('del', KEYS[2]) end
+redis.call('srem', KEYS[3], ARGV[1])
+redis.call('hset', KEYS[1], 'state', 'queued', 'worker', '', 'updated_at', ARGV[3], 'eta_s', '')
+redis.call('zadd', KEYS[4], 0, ARGV[1])
+return 1
+"""
+
 # KEYS: claim. ARGV: worker, ttl ms. Take or refresh a claim: only when free or already ours.
 CLAIM = """
 local holder = redis.call('get', KEYS[1])

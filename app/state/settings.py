@@ -30,7 +30,12 @@ class Settings(BaseSettings):
     model_config = SettingsConfigDict(env_prefix=ENV_PREFIX, extra="ignore", frozen=True)
 
     data_root: Path = Field(Path("data/jobs"), description="Folder holding one folder per job.")
-    """Shared storage for job folders (API and workers must see the same path)."""
+    """The job folders; with ``storage_url`` set, only this machine's scratch copies."""
+    storage_url: str = Field("", description="s3://BUCKET[/PREFIX]: job data in S3-compatible "
+                             "object storage (endpoint and keys from AWS_ENDPOINT_URL, "
+                             "AWS_ACCESS_KEY_ID, AWS_SECRET_ACCESS_KEY, AWS_DEFAULT_REGION); "
+                             "empty: the data root, shared by every process.")
+    """Lets the API and workers run on machines that share no disk (``jobfolder`` storage)."""
     redis_url: str = Field("", description="redis:// URL; empty: `cadnerf serve` embeds Redis.")
     """Broker and job-state store."""
     library_dir: Path = Field(Path("library_data/build"), description="The built CAD library.")
@@ -134,6 +139,15 @@ class Settings(BaseSettings):
             return None
         if not Path(str(value)).is_file():
             raise ValueError(f"{value} is not a file")
+        return value
+
+    @field_validator("storage_url")
+    @classmethod
+    def _storage_scheme(cls, value: str) -> str:
+        from urllib.parse import urlparse
+
+        if value and (urlparse(value).scheme != "s3" or not urlparse(value).netloc):
+            raise ValueError("must be s3://BUCKET or s3://BUCKET/PREFIX (or be empty)")
         return value
 
     @field_validator("redis_url")

@@ -1,8 +1,8 @@
-"""Job records in Redis, mirrored to ``<job folder>/state.json``, with the queue order, the
+"""Job records in Redis, mirrored to each job's ``state.json``, with the queue order, the
 running set and the cancel flags.
 
 Redis answers the hot path (a poll is one HGETALL); ``state.json`` lets a job survive a Redis
-restart: a job Redis has forgotten is read back from its folder and re-seeded.
+restart: a job Redis has forgotten is read back from where its data lives and re-seeded.
 """
 
 from __future__ import annotations
@@ -17,18 +17,19 @@ from pathlib import Path
 from typing import Any
 
 import redis
-from pydantic import ValidationError
 
 from app.state import keys, scripts
 from app.state.claims import Claims, Workers
 from app.state.estimate import QueueEstimate, read_estimates
 from app.state.eta import StageHistory, history_devices
 from app.state.records import JobRecord, JobState, encode, is_job_id
+from app.state.statefile import STATE_FILE, StateFiles
 from app.state.usage import UsageMeter
+from cadnerf_core.jobfolder import JobStorage, LocalStorage
 
 log = logging.getLogger(__name__)
 
-STATE_FILE = "state.json"
+__all__ = ["STATE_FILE", "JobStore", "connect"]
 TRASH_PREFIX = ".deleted-"  # a deleted job's folder, renamed away while it is removed
 TOMBSTONE_TTL_S = 7 * 24 * 3600
 CANCEL_TTL_S = 7 * 24 * 3600
@@ -49,27 +50,32 @@ class JobStore:
 
     Args:
         client: the Redis client (``connect``); closed by ``close``.
-        data_root: the folder holding one folder per job.
+        data_root: the folder holding one folder per job (scratch copies with object storage).
+        storage: where the job data lives (default: the data root itself).
     """
 
-    def __init__(self, client: redis.Redis, data_root: Path) -> None:
+    def __init__(self, client: redis.Redis, data_root: Path,
+                 storage: JobStorage | None = None) -> None:
         self._r = client
         self.data_root = Path(data_root)
+        self.storage = storage or LocalStorage(self.data_root)
         self.claims = Claims(client)
         self.workers = Workers(client)
         self.history = StageHistory(client)
-        self.usage = UsageMeter(client, data_root)
+        self.usage = UsageMeter(client, self.storage)
+        self.state_files = StateFiles(client, self.storage)
         self._update = client.register_script(scripts.UPDATE)
         self._start = client.register_script(scripts.START)
         self._requeue = client.register_script(scripts.REQUEUE)
         self._mark_running = client.register_script(scripts.MARK_RUNNING)
         self._enqueue = client.register_script(scripts.ENQUEUE)
         self._take = client.register_script(scripts.TAKE)
+        self._hand_back = client.register_script(scripts.HAND_BACK)
 
     @classmethod
-    def open(cls, url: str, data_root: Path) -> JobStore:
+    def open(cls, url: str, data_root: Path, storage: JobStorage | None = None) -> JobStore:
         """A store on a new client of the Redis at ``url``."""
-        return cls(connect(url), data_root)
+        return cls(connect(url), data_root, storage)
 
     def close(self) -> None:
         """Close the Redis connections."""
@@ -184,8 +190,16 @@ class JobStore:
         self.remove_folder(record.id)
 
     def remove_folder(self, job_id: str) -> None:
-        """Rename the job's folder to a ``TRASH_PREFIX`` name (atomic), then remove it; a
-        file a late writer puts into the renamed folder is removed by ``remove_trash``."""
+        """Remove the job's data: its objects in the store, if any, and its folder.
+
+        The folder is renamed to a ``TRASH_PREFIX`` name (atomic), then removed; a file a late
+        writer puts into the renamed folder is removed by ``remove_trash``. Objects the store
+        cannot delete now are left to the retention (the tombstone marks them).
+        """
+        try:
+            self.storage.remove(job_id)
+        except OSError as exc:
+            log.error("could not delete the stored data of job %s: %s", job_id, exc)
         folder = self.job_dir(job_id)
         trash = self.data_root / f"{TRASH_PREFIX}{job_id}-{uuid.uuid4().hex[:8]}"
         try:
@@ -356,25 +370,30 @@ class JobStore:
         flags, exists = pipe.execute()
         if flags:
             return True
-        return not exists and not (self.job_dir(job_id) / STATE_FILE).is_file()
+        return not exists and not self.state_files.exists(job_id)
 
     def was_deleted(self, job_id: str) -> bool:
-        """True when the job was deleted (in the last ``TOMBSTONE_TTL_S``) or its folder is gone."""
-        return bool(self._r.exists(keys.deleted(job_id))) or not (
-            self.job_dir(job_id) / STATE_FILE).is_file()
+        """True when the job was deleted (in the last ``TOMBSTONE_TTL_S``) or its data is gone."""
+        return bool(self._r.exists(keys.deleted(job_id))) or not self.state_files.exists(job_id)
+
+    def tombstoned(self, job_id: str) -> bool:
+        """True when the job was deleted in the last ``TOMBSTONE_TTL_S``."""
+        return bool(self._r.exists(keys.deleted(job_id)))
+
+    def hand_back(self, job_id: str, worker: str) -> bool:
+        """Running on ``worker`` -> queued at the front, claim released: the worker is stopping
+        (not an attempt used up). False when the job is no longer running there."""
+        handed = bool(self._hand_back(
+            keys=[keys.job(job_id), keys.claim(job_id), keys.RUNNING, keys.QUEUE],
+            args=[job_id, worker, f"{time.time():.6f}"]))
+        if handed:
+            self.mirror(job_id)
+        return handed
 
     # --- state.json -----------------------------------------------------------------------
     def write_state_file(self, record: JobRecord) -> None:
-        """Atomically mirror a record into its folder (skipped when the folder is gone)."""
-        folder = self.job_dir(record.id)
-        if not folder.is_dir():
-            return
-        tmp = folder / f".{STATE_FILE}.{os.getpid()}.tmp"
-        try:
-            tmp.write_text(record.model_dump_json(indent=1))
-            os.replace(tmp, folder / STATE_FILE)
-        except OSError as exc:  # the folder was deleted under us: the job is gone anyway
-            log.debug("could not mirror %s: %s", record.id, exc)
+        """Atomically mirror a record to its state.json (skipped when the job is gone)."""
+        self.state_files.write(record)
 
     def mirror(self, job_id: str) -> JobRecord | None:
         """Copy the Redis record to state.json; returns it (None if the job is gone)."""
@@ -386,21 +405,33 @@ class JobStore:
         return record
 
     def read_state_file(self, job_id: str) -> JobRecord | None:
-        """The record saved in the job folder, or None when absent or unreadable."""
-        if not is_job_id(job_id):
-            return None
-        try:
-            return JobRecord.model_validate_json((self.job_dir(job_id) / STATE_FILE).read_text())
-        except (OSError, ValidationError, ValueError):
-            return None
+        """The record saved in the job's state.json, or None when absent or unreadable."""
+        return self.state_files.read(job_id)
 
     def iter_job_ids(self) -> Iterator[str]:
-        """Ids of all job folders on disk."""
-        if not self.data_root.is_dir():
-            return
-        for entry in self.data_root.iterdir():
-            if entry.is_dir() and is_job_id(entry.name):
-                yield entry.name
+        """Ids of all jobs with data: folders on disk, and jobs in the store."""
+        seen = set()
+        if self.data_root.is_dir():
+            for entry in self.data_root.iterdir():
+                if entry.is_dir() and is_job_id(entry.name):
+                    seen.add(entry.name)
+                    yield entry.name
+        for job_id in self.storage.job_ids():
+            if is_job_id(job_id) and job_id not in seen:
+                yield job_id
+
+    def last_written(self, job_id: str) -> float | None:
+        """When the job's data last changed, here or in the store (None when it has none)."""
+        times = [t for t in (self.storage.newest(job_id), _mtime(self.job_dir(job_id)))
+                 if t is not None]
+        return max(times) if times else None
+
+
+def _mtime(path: Path) -> float | None:
+    try:
+        return path.stat().st_mtime
+    except OSError:
+        return None
 
 
 def _pairs(fields: dict[str, Any]) -> list[str]:

@@ -2,23 +2,23 @@
 
 An owner is the hash of an API key, or the anonymous owner on an open server (one owner for
 all anonymous callers). Queued, running and finished-today counts are read from the owner's
-records (no counter to drift through restarts); stored bytes from its job folders on disk.
+records (no counter to drift through restarts); stored bytes from its job data where it lives
+(the job folders, or the objects in the store).
 """
 
 from __future__ import annotations
 
 import math
-import os
 import time
 import uuid
 from dataclasses import dataclass
-from pathlib import Path
 
 import redis
 
 from app.state import keys, scripts
 from app.state.records import JobState
 from app.state.settings import MB, Settings
+from cadnerf_core.jobfolder import JobStorage
 
 UPLOAD_WINDOW_S = 60.0
 QUEUED_RETRY_S = 30  # a queued job of the key starts at the earliest after its turn: ask again
@@ -70,29 +70,17 @@ class Refusal:
     message: str
 
 
-def folder_bytes(folder: Path) -> int:
-    """Bytes of the files under ``folder`` (0 when it is gone)."""
-    total = 0
-    for root, _dirs, files in os.walk(folder):
-        for name in files:
-            try:
-                total += os.lstat(os.path.join(root, name)).st_size
-            except OSError:  # removed while walking
-                continue
-    return total
-
-
 class UsageMeter:
     """Reads an owner's usage and applies the limits at the door of a submission.
 
     Args:
         client: the Redis client.
-        data_root: the folder holding one folder per job.
+        storage: where the job data lives (``cadnerf_core.jobfolder`` storage).
     """
 
-    def __init__(self, client: redis.Redis, data_root: Path) -> None:
+    def __init__(self, client: redis.Redis, storage: JobStorage) -> None:
         self._r = client
-        self.data_root = Path(data_root)
+        self.storage = storage
         self._rate = client.register_script(scripts.RATE)
 
     def usage(self, owner: str, now: float | None = None, with_bytes: bool = True) -> Usage:
@@ -101,7 +89,7 @@ class UsageMeter:
         Args:
             owner: the owner.
             now: the current time (default: ``time.time()``).
-            with_bytes: walk the owner's job folders for ``bytes_stored`` (else 0).
+            with_bytes: add up the owner's job data for ``bytes_stored`` (else 0).
         """
         now = time.time() if now is None else now
         midnight = now - now % 86400
@@ -115,7 +103,7 @@ class UsageMeter:
             if not state:
                 continue
             counts[JobState(state)] += 1
-            stored += folder_bytes(self.data_root / job_id) if with_bytes else 0
+            stored += self.storage.job_bytes(job_id) if with_bytes else 0
             if finished and JobState(state).terminal:
                 done_today += float(finished) >= midnight
                 oldest = float(finished) if oldest is None else min(oldest, float(finished))
