@@ -104,6 +104,7 @@ from cadnerf_core.cameras import intrinsics_from_fov, orbit_pose
 from cadnerf_core.config import resolve_config
 from cadnerf_core.config_bounds import MAX_POINT_WIDTH
 from cadnerf_core.nerf import phases
+from cadnerf_core.nerf.device import adam
 from cadnerf_core.nerf.state import TrainData, TrainState
 def hwm():
     status = open('/proc/self/status').read()
@@ -124,7 +125,7 @@ else:
 state = TrainState.create(config, c2w, torch.device('cpu'), None)
 before = hwm()
 if phase == 'phase1':
-    optimizer = phases.adam(state.fields.density.parameters(), 1e-3, state.device)
+    optimizer = adam(state.fields.density.parameters(), 1e-3, state.device)
     phases.phase1_step(state, optimizer, torch.rand(points, 3) * 2 - 1, torch.zeros(points))
 else:
     K = np.repeat(intrinsics_from_fov(40.0, 64)[None], 3, 0)

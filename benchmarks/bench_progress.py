@@ -116,6 +116,8 @@ def op_profile(job_dir: Path, library: Any, steps: int = 20, top: int = 8
 
     from cadnerf_core.nerf import phases
     from cadnerf_core.nerf.checkpoint import checkpoint_path, load_payload, restore_state
+    from cadnerf_core.nerf.device import adam
+    from cadnerf_core.nerf.grid_update import refresh_fine_grid
     from cadnerf_core.pipeline import read_job_config, run_intake, training_data
     from cadnerf_core.progress import Progress
 
@@ -126,11 +128,10 @@ def op_profile(job_dir: Path, library: Any, steps: int = 20, top: int = 8
     state = restore_state(load_payload(checkpoint_path(job_dir, 3)), cpu, config)
     params = [p for name, p in state.fields.named_parameters()
               if not name.startswith("background.")]
-    optimizer = phases.adam(params, config.phase3.lr, cpu)
-    poses = phases.adam(state.poses.optimizer_groups(config.phase3.pose_lr,
-                                                     config.phase2.focal_lr),
-                        config.phase3.pose_lr, cpu)
-    phases.refresh_fine_grid(state)  # as phase three's culled passes use it
+    optimizer = adam(params, config.phase3.lr, cpu)
+    poses = adam(state.poses.optimizer_groups(config.phase3.pose_lr, config.phase2.focal_lr),
+                 config.phase3.pose_lr, cpu)
+    refresh_fine_grid(state)  # as phase three's culled passes use it
     phases.phase3_step(state, data, optimizer, poses)  # warm-up
     with profile(activities=[ProfilerActivity.CPU]) as prof:
         for _ in range(steps):

@@ -11,57 +11,28 @@ Scene mode adds a last loop where a background field explains the photo behind t
 
 from __future__ import annotations
 
-import contextlib
-import logging
-import math
-from collections.abc import Callable, Iterable, Iterator
-from typing import Any
+from collections.abc import Callable, Iterator
 
 import numpy as np
 import torch
 import torch.nn.functional as F
 
 from cadnerf_core.config import Phase2Config, Phase3Config
+from cadnerf_core.nerf.batch import render_batch, sample_pixels
 from cadnerf_core.nerf.blur import blur_images, target_blur
-from cadnerf_core.nerf.epipolar import epipolar_loss
-from cadnerf_core.nerf.fields import FieldOutputs
-from cadnerf_core.nerf.grid import REFINE_FACTOR
+from cadnerf_core.nerf.device import adam, autocast, upload
+from cadnerf_core.nerf.grid_update import refresh_fine_grid, update_grids
+from cadnerf_core.nerf.losses import matches_loss, pixel_weights, weighted_mse
+from cadnerf_core.nerf.passes import apply_step, ray_passes
 from cadnerf_core.nerf.poses import in_window
-from cadnerf_core.nerf.rays import pixel_rays
 from cadnerf_core.nerf.state import TrainData, TrainState
-from cadnerf_core.nerf.volrend import Culling, RenderOutput, render_rays
+from cadnerf_core.nerf.volrend import RenderOutput
 from cadnerf_core.progress import Progress
-
-log = logging.getLogger(__name__)
 
 # points [n] -> (points [n, 3] f32 in [-1, 1]^3, occupancy [n] f32 0/1)
 OccupancySampler = Callable[[int], tuple[np.ndarray, np.ndarray]]
 
 POOL_MAX = 1 << 18  # CAD occupancy samples drawn once for phase one
-CPU_PASS_RAYS = 2048  # ``render.train_pass_rays`` 0 on the CPU
-
-
-def autocast(state: TrainState) -> contextlib.AbstractContextManager[None]:
-    """bfloat16 autocast on CUDA when configured; nothing on the CPU."""
-    if state.device.type == "cuda" and state.config.mixed_precision:
-        return torch.autocast("cuda", dtype=torch.bfloat16)
-    return contextlib.nullcontext()
-
-
-def upload(t: torch.Tensor, device: torch.device) -> torch.Tensor:
-    """A CPU tensor on ``device``. To CUDA through pinned memory without blocking: a copy from
-    pageable memory waits for the GPU to drain first, which each step would otherwise do."""
-    if device.type == "cuda":
-        return t.pin_memory().to(device, non_blocking=True)
-    return t.to(device)
-
-
-def adam(params: Iterable[torch.nn.Parameter] | Iterable[dict[str, Any]], lr: float,
-         device: torch.device) -> torch.optim.Adam:
-    """Adam; on CUDA its fused kernel (one launch per step instead of several per tensor)."""
-    if device.type == "cuda":
-        return torch.optim.Adam(params, lr=lr, fused=True)
-    return torch.optim.Adam(params, lr=lr)
 
 
 def _report(progress: Progress | None, stage: str, step: int, total: int) -> None:
@@ -123,146 +94,6 @@ def make_prior(state: TrainState, sampler: OccupancySampler | None,
     return CadPrior(state, sampler)
 
 
-def sample_pixels(data: TrainData, n: int) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
-    """Random pixels over all photos (CPU generator: same draws on every device).
-
-    Returns:
-        image index [n], x [n], y [n] (long, on the data's device).
-    """
-    flat = upload(torch.randint(0, data.n_images * data.height * data.width, (n,)),
-                  data.images.device)
-    img = flat // (data.height * data.width)
-    rem = flat % (data.height * data.width)
-    return img, rem % data.width, rem // data.width
-
-
-def weighted_mse(pred: torch.Tensor, target: torch.Tensor,
-                 weight: torch.Tensor | None) -> torch.Tensor:
-    """Mean squared error of a batch where each ray counts by its ``weight``.
-
-    Args:
-        pred, target: [n] or [n, C].
-        weight: [n] in [0, 1] (``TrainData.weights`` at the batch's pixels), or None: plain MSE.
-    Returns:
-        Scalar: sum of weighted squared errors over the summed weight (times C); 0 with a
-        gradient when every weight is 0.
-    """
-    if weight is None:
-        return F.mse_loss(pred, target)
-    error = (pred - target) ** 2
-    if error.dim() > 1:
-        error = error.mean(dim=-1)
-    return (weight * error).sum() / weight.sum().clamp_min(1e-6)
-
-
-def pixel_weights(data: TrainData, img: torch.Tensor, x: torch.Tensor,
-                  y: torch.Tensor) -> torch.Tensor | None:
-    """Loss weights [n] of pixels (img, x, y), or None when every pixel weighs 1."""
-    return None if data.weights is None else data.weights[img, y, x]
-
-
-def render_batch(state: TrainState, data: TrainData, img: torch.Tensor, x: torch.Tensor,
-                 y: torch.Tensor, with_color: bool, pose_grad: bool,
-                 background: torch.Tensor | None = None, cull: bool = False) -> RenderOutput:
-    """Render training rays of pixels (img, x, y) at the current poses (``cull``: samples of
-    alpha below ``render.cull_alpha`` or behind opaque matter left out, ``volrend.Culling``)."""
-    with contextlib.nullcontext() if pose_grad else torch.no_grad():
-        c2w = state.poses(img)
-        K = state.poses.intrinsics(data.K[img])
-    rays_o, rays_d = pixel_rays(c2w, K, x, y)
-    if background is None and with_color and state.fields.background is not None \
-            and data.scene_images is not None:
-        background = state.fields.background(rays_d)
-
-    def fn(p: torch.Tensor, d: torch.Tensor | None) -> FieldOutputs:
-        # Only the networks run in reduced precision; compositing stays in float32.
-        with autocast(state):
-            return state.fields.query(p, d if with_color else None)
-
-    rcfg = state.config.render
-    culling = Culling(rcfg.cull_alpha) if cull and rcfg.cull_alpha > 0 else None
-    grid = (state.fine_grid or state.grid) if culling is not None else state.grid
-    return render_rays(fn, rays_o, rays_d, rcfg.samples_per_ray, rcfg.bound,
-                       grid if rcfg.use_grid else None, with_color, True, background, culling)
-
-
-def _occupancy_fn(state: TrainState) -> Callable[[torch.Tensor], torch.Tensor]:
-    def occupancy(p: torch.Tensor) -> torch.Tensor:
-        with autocast(state):
-            return state.fields.query(p, None).occupancy
-
-    return occupancy
-
-
-def _maybe_update_grid(state: TrainState, step: int) -> None:
-    rcfg = state.config.render
-    if not rcfg.use_grid or (step + 1) % rcfg.grid_update_every:
-        return
-    state.grid.update(_occupancy_fn(state), rcfg.grid_threshold, rcfg.grid_dilation)
-    if state.fine_grid is not None:
-        refresh_fine_grid(state)
-
-
-@torch.no_grad()
-def refresh_fine_grid(state: TrainState) -> None:
-    """``state.fine_grid`` remade from the learned field (``SkipGrid.refined``, one fine cell
-    of dilation): a culled pass's look-up without gradients then skips the empty margin the
-    training grid keeps for the shape to grow, which phase three's settled shape rarely
-    needs and its mask loss still covers within a cell."""
-    rcfg = state.config.render
-    if rcfg.use_grid and rcfg.cull_alpha > 0:
-        state.fine_grid = state.grid.refined(_occupancy_fn(state), REFINE_FACTOR,
-                                             rcfg.grid_threshold)
-
-
-def ray_passes(state: TrainState, n: int) -> list[tuple[slice, float]]:
-    """How a step's ``n`` rays are split into forward and backward passes
-    (``render.train_pass_rays``): each pass's slice and its share of the rays."""
-    size = state.config.render.train_pass_rays
-    if size <= 0:
-        size = n if state.device.type == "cuda" else CPU_PASS_RAYS
-    return [(slice(start, min(start + size, n)), (min(start + size, n) - start) / n)
-            for start in range(0, n, size)]
-
-
-def _apply_step(losses: Iterable[torch.Tensor], optimizer: torch.optim.Optimizer | None,
-                pose_optimizer: torch.optim.Optimizer | None) -> float:
-    """Backpropagate each pass's loss (``ray_passes``; their sum is the step's loss), then step
-    once; a non-finite loss or gradient skips the step (never NaN weights). ``optimizer``
-    None: only the poses learn (phase two with the shape held). Returns the step's loss.
-
-    The loss and the gradients' total norm come back to the host together, after the backward
-    passes: one wait for the GPU per step (a check per tensor waited once per tensor)."""
-    optimizers = [opt for opt in (optimizer, pose_optimizer) if opt is not None]
-    for opt in optimizers:
-        opt.zero_grad(set_to_none=True)
-    total: torch.Tensor | None = None
-    learned = False
-    for loss in losses:
-        total = loss.detach().float() if total is None else total + loss.detach().float()
-        if loss.requires_grad:
-            loss.backward()
-            learned = True
-    assert total is not None, "a step has at least one pass"
-    if not learned:
-        log.warning("no sample reached the object in this batch: step skipped")
-        return float(total)
-    loss = total
-    grads = [p.grad for opt in optimizers for group in opt.param_groups for p in group["params"]
-             if p.grad is not None]
-    norm = torch.nn.utils.get_total_norm(grads) if grads else torch.zeros((), device=loss.device)
-    value, grad_norm = torch.stack([loss, norm.float()]).tolist()
-    if not math.isfinite(value):
-        log.warning("non-finite loss: step skipped")
-        return value
-    if not math.isfinite(grad_norm):
-        log.warning("non-finite gradient: step skipped")
-        return value
-    for opt in optimizers:
-        opt.step()
-    return value
-
-
 def _pass_loss(state: TrainState, loss: torch.Tensor, out: RenderOutput,
                cfg: Phase2Config | Phase3Config, share: float,
                prior: CadPrior | None) -> torch.Tensor:
@@ -275,14 +106,6 @@ def _pass_loss(state: TrainState, loss: torch.Tensor, out: RenderOutput,
     if prior is not None:
         loss = loss + cfg.prior_weight * prior.loss(state, cfg.prior_points)
     return loss
-
-
-def matches_loss(state: TrainState, data: TrainData, weight: float) -> torch.Tensor | None:
-    """``weight`` times the epipolar loss of the photos' matches at the current poses and
-    focal length (``nerf.epipolar``); None without matches or weight."""
-    if data.matches is None or weight <= 0:
-        return None
-    return weight * epipolar_loss(state.poses(), state.poses.intrinsics(data.K), data.matches)
 
 
 def _matches_pass(state: TrainState, data: TrainData, weight: float,
@@ -313,7 +136,7 @@ def phase2_step(state: TrainState, data: TrainData, optimizer: torch.optim.Optim
             yield _pass_loss(state, loss, out, cfg, share, prior if i == 0 else None)
         yield from _matches_pass(state, data, cfg.lambda_matches, pose_optimizer is not None)
 
-    return _apply_step(losses(), optimizer, pose_optimizer)
+    return apply_step(losses(), optimizer, pose_optimizer)
 
 
 def _phase2_params(state: TrainState) -> list[torch.nn.Parameter]:
@@ -350,7 +173,7 @@ def run_phase2(state: TrainState, data: TrainData, progress: Progress | None = N
         loss = phase2_step(state, data, optimizer, pose_optimizer if active else None, step,
                            prior)
         state.log("phase2/loss", loss)
-        _maybe_update_grid(state, step)
+        update_grids(state, step)
         _report(progress, "phase2", step, cfg.steps)
     state.fields.density.requires_grad_(True)
     state.fields.set_anneal(1.0)
@@ -383,7 +206,7 @@ def phase3_step(state: TrainState, data: TrainData, optimizer: torch.optim.Optim
             yield _pass_loss(state, loss, out, cfg, share, prior if i == 0 else None)
         yield from _matches_pass(state, data, cfg.lambda_matches, pose_optimizer is not None)
 
-    return _apply_step(losses(), optimizer, pose_optimizer)
+    return apply_step(losses(), optimizer, pose_optimizer)
 
 
 def run_phase3(state: TrainState, data: TrainData, progress: Progress | None = None,
@@ -414,7 +237,7 @@ def run_phase3(state: TrainState, data: TrainData, progress: Progress | None = N
         state.log("phase3/loss", phase3_step(state, data, optimizer,
                                              pose_optimizer if active else None,
                                              targets=targets, prior=prior))
-        _maybe_update_grid(state, step)
+        update_grids(state, step)
         _report(progress, "phase3", step, total)
     if scene_steps and background is not None:
         optimizer.add_param_group({"params": list(background.parameters())})

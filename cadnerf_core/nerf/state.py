@@ -71,7 +71,7 @@ class TrainState:
     history: dict[str, list[float]] = field(default_factory=dict)
     fine_grid: SkipGrid | None = None
     """A finer grid of where the learned field is, for the samples a culled pass looks at
-    (``phases.refresh_fine_grid``); None: ``grid``."""
+    (``grid_update.refresh_fine_grid``); None: ``grid``."""
 
     @classmethod
     def create(cls, config: PipelineConfig, c2w_init: np.ndarray, device: torch.device,

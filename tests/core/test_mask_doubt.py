@@ -10,7 +10,7 @@ from cadnerf_core.config import resolve_config
 from cadnerf_core.intake.crop import canonical_box
 from cadnerf_core.intake.masks import doubt_map, photo_masks
 from cadnerf_core.intake.photos import Photo, doubt_weights
-from cadnerf_core.nerf import phases
+from cadnerf_core.nerf import losses
 from cadnerf_core.nerf.state import TrainData
 from cadnerf_core.pipeline import Intake, training_data
 from cadnerf_core.retrieval.result import PhotoMatch, RetrievalResult
@@ -86,11 +86,11 @@ def test_a_jobs_doubt_weight_decides_the_weights_training_gets() -> None:
 def test_weighted_mse_counts_each_ray_by_its_weight() -> None:
     pred = torch.tensor([[0.0, 0.0, 0.0], [1.0, 1.0, 1.0], [0.5, 0.5, 0.5]])
     target = torch.zeros(3, 3)
-    assert phases.weighted_mse(pred, target, None).item() == pytest.approx(1.25 / 3)
+    assert losses.weighted_mse(pred, target, None).item() == pytest.approx(1.25 / 3)
     weight = torch.tensor([1.0, 0.0, 1.0])
-    assert phases.weighted_mse(pred, target, weight).item() == pytest.approx(0.125)
-    assert phases.weighted_mse(pred[:, 0], target[:, 0], weight).item() == pytest.approx(0.125)
-    none = phases.weighted_mse(pred, target, torch.zeros(3))
+    assert losses.weighted_mse(pred, target, weight).item() == pytest.approx(0.125)
+    assert losses.weighted_mse(pred[:, 0], target[:, 0], weight).item() == pytest.approx(0.125)
+    none = losses.weighted_mse(pred, target, torch.zeros(3))
     assert none.item() == 0.0
 
 
@@ -102,11 +102,11 @@ def test_a_pixel_weighing_zero_gives_no_gradient() -> None:
     data = TrainData(images, masks, torch.eye(3)[None], weights=weights)
     img, x, y = torch.tensor([0, 0]), torch.tensor([2, 3]), torch.tensor([1, 1])
     acc = torch.tensor([0.7, 0.2], requires_grad=True)
-    loss = phases.weighted_mse(acc, data.masks[img, y, x], phases.pixel_weights(data, img, x, y))
+    loss = losses.weighted_mse(acc, data.masks[img, y, x], losses.pixel_weights(data, img, x, y))
     loss.backward()
     assert acc.grad is not None
     assert acc.grad[0].item() == 0.0 and acc.grad[1].item() == pytest.approx(0.4)
-    assert phases.pixel_weights(TrainData(images, masks, torch.eye(3)[None]), img, x, y) is None
+    assert losses.pixel_weights(TrainData(images, masks, torch.eye(3)[None]), img, x, y) is None
 
 
 @needs_learned

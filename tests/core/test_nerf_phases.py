@@ -26,6 +26,7 @@ from cadnerf_core.nerf import blur, phases
 from cadnerf_core.nerf.epipolar import match_terms
 from cadnerf_core.nerf.grid import SkipGrid, grid_from_occupancy
 from cadnerf_core.nerf.model import TrainedModel
+from cadnerf_core.nerf.passes import ray_passes
 from cadnerf_core.nerf.state import TrainData, TrainState
 from cadnerf_core.progress import Progress
 from cadnerf_core.retrieval.matches import PairMatch
@@ -308,13 +309,13 @@ def test_cad_prior_needs_a_template_and_a_deformation() -> None:
 def test_ray_passes_split_a_step_into_shares_that_sum_to_one() -> None:
     state = TrainState.create(_config(**{"render.train_pass_rays": 300}), np.eye(4)[None],
                               DEVICE)
-    passes = phases.ray_passes(state, 1000)
+    passes = ray_passes(state, 1000)
     assert [(p.start, p.stop) for p, _ in passes] == [(0, 300), (300, 600), (600, 900),
                                                       (900, 1000)]
     assert sum(share for _, share in passes) == pytest.approx(1.0)
-    assert phases.ray_passes(state, 200) == [(slice(0, 200), 1.0)]
+    assert ray_passes(state, 200) == [(slice(0, 200), 1.0)]
     auto = TrainState.create(_config(), np.eye(4)[None], DEVICE)
-    assert [p.stop for p, _ in phases.ray_passes(auto, 5000)] == [2048, 4096, 5000]
+    assert [p.stop for p, _ in ray_passes(auto, 5000)] == [2048, 4096, 5000]
 
 
 @pytest.mark.parametrize("phase", [2, 3])
