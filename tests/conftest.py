@@ -10,11 +10,14 @@ import pytest
 
 
 def pytest_configure(config: pytest.Config) -> None:
-    """Load the shared real-Redis fixtures (tests/redis_fixture.py) once for the session."""
-    from tests import redis_fixture
+    """Load the shared real-Redis fixtures (tests/redis_fixture.py) and the S3 endpoint's
+    (tests/s3_fixture.py) once for the session."""
+    from tests import redis_fixture, s3_fixture
 
     if not config.pluginmanager.is_registered(redis_fixture):
         config.pluginmanager.register(redis_fixture, "cadnerf_redis_fixture")
+    if not config.pluginmanager.is_registered(s3_fixture):
+        config.pluginmanager.register(s3_fixture, "cadnerf_s3_fixture")
 
 
 TINY_MODELS = ["chair_wood", "mug", "cuboid_slab"]

@@ -1,9 +1,9 @@
 """A real S3 endpoint for the tests: ``moto_server`` (moto[server]) in its own process.
 
 It speaks S3 over HTTP on 127.0.0.1, so the service's boto3 client, the API and worker
-processes talk to it exactly as to MinIO or AWS. One server per session; each test gets a
-bucket of its own (``s3_bucket``). Import the fixtures into a conftest
-(``from tests.s3_fixture import moto_endpoint, s3_env, s3_bucket``).
+processes talk to it exactly as to MinIO or AWS. One server per session, started on first use;
+each test gets a bucket of its own (``s3_bucket``). ``tests/conftest.py`` registers this module
+as a plugin, so every test can ask for the fixtures.
 """
 
 from __future__ import annotations

@@ -18,7 +18,7 @@ from app.state import (
     open_checked_storage,
 )
 from worker.liveness import Liveness, worker_name
-from worker.shutdown import request_stop
+from worker.shutdown import reclaim_stop_signals, request_stop
 
 log = logging.getLogger(__name__)
 
@@ -57,6 +57,7 @@ def _connect_signals(celery: Celery, settings: Settings) -> None:
     @worker_ready.connect(weak=False)
     def _ready(**_: Any) -> None:
         _preload_library(settings)
+        reclaim_stop_signals()
         liveness.start()  # heartbeat, claims, and re-queueing jobs of dead workers
         log.info("worker %s ready on queue %s", name, QUEUE)
 

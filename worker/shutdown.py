@@ -10,8 +10,11 @@ itself and exits; the job resumes from its last checkpoint on the next worker.
 
 from __future__ import annotations
 
+import contextlib
+import importlib
 import logging
 import os
+import signal
 import threading
 from collections.abc import Callable
 from typing import Protocol
@@ -22,6 +25,26 @@ STOPPING = threading.Event()
 """Set once this worker process was asked to stop."""
 STOP_DEADLINE_S = 6.0
 """Seconds after SIGTERM by which the process has handed its job back and exited."""
+SIGNAL_TAKERS = ("pycolmap",)
+"""Native libraries the pipeline imports that take SIGTERM over at import (COLMAP's glog failure
+handler dumps a stack and kills the process, or hangs symbolising it), so a stop request would
+never reach the job."""
+STOP_SIGNALS = (signal.SIGTERM, signal.SIGINT)
+
+
+def reclaim_stop_signals() -> None:
+    """Import the ``SIGNAL_TAKERS`` now, then give the stop signals back to Python's handlers
+    (the worker's own, Celery's). Call from the main thread before the first job."""
+    for name in SIGNAL_TAKERS:
+        with contextlib.suppress(ImportError):
+            importlib.import_module(name)
+    if threading.current_thread() is not threading.main_thread():
+        log.warning("stop signals not reclaimed: not on the main thread")
+        return
+    for sig in STOP_SIGNALS:
+        handler = signal.getsignal(sig)
+        if handler is not None:  # re-installing puts Python's trampoline back in the kernel
+            signal.signal(sig, handler)
 
 
 class Holder(Protocol):

@@ -28,6 +28,7 @@ ROOT = Path(__file__).resolve().parents[2]
 RELIABILITY_DB = 13  # its own Redis database: other suites flush theirs (15) while we run
 LIVE_DB = 12  # the session's live API + worker (a worker would take in-process tests' jobs)
 FAIR_DB = 11  # the fair-order test's API (with API keys) + worker
+STORAGE_DB = 10  # the object-storage tests' API + workers, each on a data root of its own
 
 FileEntry = tuple[str, tuple[str, bytes, str]]
 
