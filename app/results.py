@@ -6,7 +6,6 @@ the job folder (no ``..``, no symbolic links leading out).
 
 from __future__ import annotations
 
-import json
 import logging
 from collections.abc import Callable
 from pathlib import Path
@@ -16,6 +15,7 @@ from urllib.parse import quote
 from app.errors import ApiError
 from app.schemas import JobResult, ModelRef, PhotoResult
 from app.state import JobRecord, JobState, JobStore
+from cadnerf_core.job_warnings import job_warnings, walk_order
 from cadnerf_core.jobfolder import JobFolder, MaskRecord, StorageError, media_type
 
 log = logging.getLogger(__name__)
@@ -157,51 +157,15 @@ def read_result(record: JobRecord, job_dir: Path) -> JobResult:
                      _mask_links(masks.get(i), artifacts), silhouette)
               for i, name in enumerate(record.names)]
     model = ModelRef(id=str(model_id or "unknown"), category=retrieval.get("category"))
-    order = [record.names[i] for i in _order(retrieval, len(record.names))]
+    order = [record.names[i] for i in walk_order(retrieval, len(record.names))]
+    warnings = _tolerant(folder.read_warnings)
+    if warnings is None:  # a job finished before its warnings were written to its folder
+        warnings = job_warnings(retrieval, record.names,
+                                [w for photo in photos for w in photo.mask_warnings])
     return JobResult(id=record.id, model=model, photos=photos,
                      discarded=[p.name for p in photos if p.discarded], order=order,
                      reordered=bool(retrieval.get("reordered")),
                      metrics=metrics if isinstance(metrics, dict) else {},
-                     artifacts=artifacts, warnings=_warnings(retrieval, photos, order))
+                     artifacts=artifacts, warnings=warnings)
 
 
-def _order(retrieval: dict[str, Any], count: int) -> list[int]:
-    """The walking order in ``retrieval.json`` (photo indices), or the given one where it
-    names none or an unusable one."""
-    order = retrieval.get("order")
-    if isinstance(order, list) and sorted(order) == list(range(count)):
-        return [int(i) for i in order]
-    return list(range(count))
-
-
-def _warnings(retrieval: dict[str, Any], photos: list[PhotoResult],
-              order: list[str]) -> list[str]:
-    """The result's warnings: each photo's mask warnings, a walking order that is a guess or
-    photos reordered although given as a walk, then an undecided walking direction, then a
-    field of view that no photo told."""
-    from cadnerf_core.config import direction_guess_hint  # torch-free by contract
-    from cadnerf_core.config_retrieval import (
-        FOCAL_UNKNOWN_WARNING,
-        MATCHES_FEW_WARNING,
-        focal_guessed,
-        order_guess_warning,
-        reorder_warning,
-    )
-
-    warnings = [w for photo in photos for w in photo.mask_warnings]
-    if retrieval.get("order_ambiguous"):
-        warnings.append(order_guess_warning(order))
-    elif retrieval.get("reordered") and retrieval.get("order_mode") == "auto":
-        warnings.append(reorder_warning(order))
-    if retrieval.get("direction_ambiguous"):
-        direction = int(retrieval.get("direction", 1))
-        other = json.dumps({"overrides": {"retrieval": {"walk": "ccw" if direction < 0
-                                                        else "cw"}}})
-        warnings.append(f"{direction_guess_hint(direction)}: resubmit with the config field "
-                        f"{other}")
-    if focal_guessed(retrieval):
-        warnings.append(FOCAL_UNKNOWN_WARNING)
-    fusion = retrieval.get("fusion")
-    if isinstance(fusion, dict) and not fusion.get("photos"):
-        warnings.append(MATCHES_FEW_WARNING)
-    return warnings

@@ -112,36 +112,8 @@ def reconstruct(
     logging.getLogger(__name__).debug("summary: %s", summary)
     typer.echo(f"model: {summary['model_id']} ({summary['category']}); "
                f"mean training PSNR {metrics['mean_psnr']:.2f} dB")
-    for record in JobFolder(out).read_mask_sources():
-        for warning in record.warnings:
-            typer.echo(f"warning: {warning}")
-    retrieval = JobFolder(out).read_retrieval() or {}
-    names = [m["name"] for m in retrieval.get("matches", [])]
-    if retrieval.get("order_ambiguous"):
-        from cadnerf_core.config_retrieval import order_guess_warning
-
-        typer.echo("warning: "
-                   f"{order_guess_warning([names[i] for i in retrieval['order']])} (--order walk)")
-    elif retrieval.get("reordered") and retrieval.get("order_mode") == "auto":
-        from cadnerf_core.config_retrieval import reorder_warning
-
-        typer.echo(f"warning: {reorder_warning([names[i] for i in retrieval['order']])}")
-    if retrieval.get("direction_ambiguous"):
-        from cadnerf_core.config import direction_guess_hint
-
-        typer.echo(f"warning: {direction_guess_hint(int(retrieval.get('direction', 1)))} "
-                   "(--walk)")
-    from cadnerf_core.config_retrieval import focal_guessed
-
-    if focal_guessed(retrieval):
-        from cadnerf_core.config_retrieval import FOCAL_UNKNOWN_WARNING
-
-        typer.echo(f"warning: {FOCAL_UNKNOWN_WARNING} (--focal-35mm)")
-    fusion = retrieval.get("fusion")
-    if isinstance(fusion, dict) and not fusion.get("photos"):
-        from cadnerf_core.config_retrieval import MATCHES_FEW_WARNING
-
-        typer.echo(f"warning: {MATCHES_FEW_WARNING}")
+    for warning in JobFolder(out).read_warnings() or []:
+        typer.echo(f"warning: {warning}")
     typer.echo(f"results in {out.resolve()}: {ORBIT_VIDEO}, {MESH}, {POSES}, {VIEWS}/, "
                f"{MASKS}/")
 

@@ -151,18 +151,14 @@ def summary_lines(result: RetrievalResult) -> list[str]:
     lines = [f"model: {result.model_id} ({result.category})  solver: {result.solver}  "
              f"direction: {result.direction:+d}  perspective: {result.perspective}",
              "top models:"]
-    if result.direction_ambiguous:
-        from cadnerf_core.config import direction_guess_hint
-
-        lines.insert(1, f"warning: {direction_guess_hint(result.direction)}")
     if result.order and result.order != sorted(result.order):
         walked = ", ".join(result.matches[i].name for i in result.order)
         lines.insert(1, f"walking order{' (reordered)' if result.reordered else ''}: {walked}")
-    if result.order_ambiguous:
-        from cadnerf_core.config_retrieval import order_guess_warning
+    from cadnerf_core.job_warnings import job_warnings
 
-        lines.insert(1, "warning: "
-                     f"{order_guess_warning([result.matches[i].name for i in result.order])}")
+    names = [m.name for m in sorted(result.matches, key=lambda m: m.index)]
+    for warning in reversed(job_warnings(result.to_json(), names)):
+        lines.insert(1, f"warning: {warning}")
     lines += [f"  {t['model_id']:<24} {t['category']:<12} votes {t['votes']}  "
               f"summed IoU {t['score']:.2f}" for t in result.top_models]
     lines.append("photos:")

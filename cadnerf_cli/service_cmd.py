@@ -278,6 +278,11 @@ def demo_mesh(path: Path) -> Path:
     return path
 
 
+DEMO_FOCAL_35MM = 42.0
+"""The 35 mm equivalent focal length of the demo's renders (``render_dataset``'s 40-degree
+field of view on a square frame)."""
+
+
 def run_demo(url: str, preset: str = "preview", views: int = 6, size: int = 160,
              mesh: Path | None = None, out: Path | None = None,
              api_key: str | None = None,
@@ -301,7 +306,11 @@ def run_demo(url: str, preset: str = "preview", views: int = 6, size: int = 160,
     client = JobClient(url, api_key=api_key)
     try:
         submitted = time.monotonic()
-        job = client.submit(photos, config={"preset": preset, "overrides": overrides or {}})
+        # The renders carry no EXIF; their lens is known (40 degrees across a square frame).
+        told = {"retrieval": {"focal_35mm": DEMO_FOCAL_35MM}}
+        sent = {**told, **(overrides or {})}
+        sent["retrieval"] = {**told["retrieval"], **(overrides or {}).get("retrieval", {})}
+        job = client.submit(photos, config={"preset": preset, "overrides": sent})
         typer.echo(f"demo job {job['id']}: {len(photos)} photos, preset {preset}")
         typer.echo(f"watch it at {url}/?job={job['id']}")
         final = client.follow(job["id"], on_update=_StatusPrinter(), poll_s=1.0)

@@ -4,6 +4,10 @@ Torch-free on purpose: the web service imports this module to validate a job's c
 before it is queued. Field docstrings say what a field does and why its default; the measured
 reasons for each preset's values are in ``docs/presets.md``. Where the paper ("CAD-NeRF", Wen
 et al.) gives a value the ``paper`` preset uses it; everything else is ours.
+
+Two ways in: ``resolve_config`` takes a client's overrides, only the settings of
+``cadnerf_core.config_client``; ``internal_config`` takes any field, for the pipeline's own
+callers (evaluation, benchmarks, tests) and never for a client's values.
 """
 
 from __future__ import annotations
@@ -25,7 +29,6 @@ from cadnerf_core.config_bounds import (
 from cadnerf_core.config_bounds import Frozen as _Frozen
 from cadnerf_core.config_retrieval import MatchesConfig as MatchesConfig
 from cadnerf_core.config_retrieval import RetrievalConfig as RetrievalConfig
-from cadnerf_core.config_retrieval import direction_guess_hint as direction_guess_hint
 
 
 def _check_window(name: str, window: tuple[float, float]) -> None:
@@ -47,9 +50,6 @@ class FieldConfig(_Frozen):
     dir_freqs: int = Field(default=0, ge=0, le=8)
     """Positional-encoding frequencies of view directions (0: the raw direction). Ours: 0; with
     3 to 10 photos more let the colour net paint each photo apart, which new views pay for."""
-    deform_freqs: int | None = Field(default=None, ge=0, le=16)
-    """Positional-encoding frequencies of the deformation network G's input (None: as
-    ``pos_freqs``). Fewer bands make G a smoother warp; measured no better, so None."""
     deform_hidden: int = Field(default=64, ge=8, le=1024)
     """Width of the deformation network G."""
     deform_layers: int = Field(default=3, ge=1, le=12)
@@ -84,11 +84,12 @@ class RenderConfig(_Frozen):
     correction regularisers then average over the samples kept. 0: every sample (``paper``,
     whose regularisers average over every sample in the grid)."""
     chunk_rays: int = Field(default=0, ge=0, le=MAX_RAYS)
-    """Rays per chunk when rendering images (memory bound, not a quality setting). 0: 65536 on
-    a GPU (fewer, larger launches: a 512-px frame in 4 chunks, not 64), 4096 on the CPU."""
+    """Rays per chunk when rendering images (memory bound, not a quality setting). 0: a large
+    chunk on a GPU (fewer, larger launches), a small one on the CPU."""
     train_pass_rays: int = Field(default=0, ge=0, le=MAX_RAYS)
     """Rays per forward and backward pass; a step's passes add their gradients (same loss, less
-    memory). 0: one pass on a GPU, 2048 on the CPU, where larger passes are slower per ray."""
+    memory). 0: one pass on a GPU; on the CPU, where larger passes are slower per ray, smaller
+    ones."""
 
 
 class Phase1Config(_Frozen):
@@ -126,19 +127,15 @@ class Phase2Config(_Frozen):
     to the truth. Without G, off holds the CAD shape while phase two refines the poses
     against it (its steps outside the pose window skipped)."""
     lambda_offset: float = Field(default=0.1, ge=0.0, le=MAX_WEIGHT)
-    """Weight of the mean offset norm ||o||_2 in phase two (ours; 10 on a mean pins G at 0)."""
+    """Weight of the mean offset norm ||o||_2 in phase two (ours: the paper's weight on a mean
+    pins G at 0)."""
     lambda_correction: float = Field(default=0.01, ge=0.0, le=MAX_WEIGHT)
     """Weight of the mean |c| (logit units) in phase two (ours, as above)."""
-    prior_weight: float = Field(default=0.0, ge=0.0, le=MAX_WEIGHT)
-    """Weight of a CAD prior holding D to the retrieved model's occupancy while G deforms it.
-    0 (off): the retrieved model is another object; held to it, the poses do not move."""
-    prior_points: int = Field(default=1024, ge=16, le=MAX_RAYS)
-    """CAD occupancy points per step for ``prior_weight``."""
     focal_bound: float = Field(default=1.0, ge=1.0, le=4.0)
     """Where no photo's EXIF (nor ``retrieval.focal_35mm``) gives the focal length: the one
     focal length the photos share is refined with the poses, in both phases' pose windows (as
     NeRF-- does), by a factor kept within [1 / bound, bound] (1: fixed at retrieval's
-    estimate, which assumes the library's 40-degree camera)."""
+    estimate, which assumes the library's camera)."""
     focal_lr: float = Field(default=1e-2, gt=0.0, le=MAX_LR)
     """Adam learning rate of the focal factor's logit (``focal_bound``), in either phase."""
     lambda_matches: float = Field(default=0.01, ge=0.0, le=MAX_WEIGHT)
@@ -163,16 +160,12 @@ class Phase3Config(_Frozen):
     lr: float = Field(default=5e-4, gt=0.0, le=MAX_LR)
     """Adam learning rate (the paper: 5e-4)."""
     lambda_offset: float = Field(default=0.1, ge=0.0, le=MAX_WEIGHT)
-    """Weight of the mean offset norm ||o||_2 (the paper's lambda_a, 10, kept by ``paper``;
-    ours 0.1 lets phase two's deformation survive phase three)."""
+    """Weight of the mean offset norm ||o||_2 (the paper's lambda_a, kept by ``paper``; ours
+    is lower so that phase two's deformation survives phase three)."""
     lambda_correction: float = Field(default=0.01, ge=0.0, le=MAX_WEIGHT)
-    """Weight of the mean |c| (the paper's lambda_b: 0.1 in ``paper``, 0.01 in ours)."""
+    """Weight of the mean |c| (the paper's lambda_b in ``paper``; lower in ours, as above)."""
     mask_weight: float = Field(default=0.1, ge=0.0, le=MAX_WEIGHT)
     """Weight of the silhouette loss kept during phase three (ours; the paper uses none)."""
-    prior_weight: float = Field(default=0.0, ge=0.0, le=MAX_WEIGHT)
-    """Weight of the CAD prior on D in phase three (as ``Phase2Config.prior_weight``)."""
-    prior_points: int = Field(default=1024, ge=16, le=MAX_RAYS)
-    """CAD occupancy points per step for ``prior_weight``."""
     pose_window: tuple[float, float] = (0.0, 0.75)
     """Fractions of phase three's steps in which the colour loss refines poses ((0, 0): frozen,
     the paper). Ours: three quarters, then the sharp photos are fitted with poses settled."""
@@ -197,7 +190,7 @@ class ExportConfig(_Frozen):
     """What the job writes."""
 
     orbit_frames: int = Field(default=180, ge=2, le=240)
-    """Frames in orbit.mp4 and orbit.gif (with ``orbit_fps``: the orbit's length, 6 s)."""
+    """Frames in orbit.mp4 and orbit.gif (with ``orbit_fps``: the orbit's length)."""
     orbit_fps: int = Field(default=30, ge=1, le=120)
     """Frames per second of the video."""
     orbit_elevation: float = Field(default=20.0, ge=-89.0, le=89.0)
@@ -231,8 +224,8 @@ class MasksConfig(_Frozen):
     doubt_weight: float = Field(default=1.0, ge=0.0, le=1.0)
     """Weight in the silhouette losses of the pixels where a learned mask is in doubt (its
     refined cut and the network's first look disagree): 0 leaves them to the other views, 1
-    counts them as any pixel. 1: on the real photo sets most doubtful pixels are right (77 %
-    on the robot, 82 % on the espresso machine against the shipped masks)."""
+    counts them as any pixel. 1: on real photos most doubtful pixels are right
+    (``docs/presets.md``)."""
 
 
 class PipelineConfig(_Frozen):
@@ -284,7 +277,7 @@ def _preset(name: str, **sections: Any) -> PipelineConfig:
 # What each preset is for and the measurements behind its values: docs/presets.md.
 PRESETS: dict[str, PipelineConfig] = {
     # The paper's values where it gives them (blocks, layers, lambdas, lr, pose window, no
-    # silhouette loss in phase three); sizes and step counts ours. Hours on a CPU.
+    # silhouette loss in phase three); sizes and step counts ours. Slow: meant for a GPU.
     "paper": _preset(
         "paper", image_size=256,
         field={"hidden": 256, "pos_freqs": 10, "dir_freqs": 4, "deform_hidden": 128,
@@ -298,8 +291,8 @@ PRESETS: dict[str, PipelineConfig] = {
                 "lambda_offset": 10.0, "lambda_correction": 0.1, "pose_window": (0.0, 0.0),
                 "pose_blur": 0.0, "lambda_matches": 0.0},
         export={"orbit_size": 512, "mesh_resolution": 160}),
-    # The default: best quality on a GPU at 256 px (training 21 s on an H200). Few large
-    # steps: on a GPU a step of these small networks costs about the same whatever its batch.
+    # The default: best quality on a GPU. Few large steps: on a GPU a step of these small
+    # networks costs about the same whatever its batch.
     "standard": _preset(
         "standard", image_size=256,
         field={"hidden": 128, "pos_freqs": 8, "deform_hidden": 64, "color_hidden": 96},
@@ -308,8 +301,8 @@ PRESETS: dict[str, PipelineConfig] = {
         phase2={"steps": 500, "rays": 8192},
         phase3={"steps": 1000, "rays": 8192, "scene_steps": 250},
         export={"orbit_size": 512, "mesh_resolution": 128}),
-    # A useful result in minutes on 2 CPU cores at 128 px. No G: D is fitted to the silhouettes
-    # in its place, as good within a seed's spread and faster at this scale.
+    # A useful result in minutes on a few CPU cores. No G: D is fitted to the silhouettes in
+    # its place, as good within a seed's spread and faster at this scale.
     "preview": _preset(
         "preview", image_size=128, use_deformation=False,
         field={"hidden": 64, "pos_freqs": 6, "deform_hidden": 48, "color_hidden": 64},
@@ -324,7 +317,7 @@ PRESETS: dict[str, PipelineConfig] = {
 DEFAULT_PRESET = "standard"
 
 
-def _nest(overrides: dict[str, Any]) -> dict[str, Any]:
+def nest_dotted(overrides: dict[str, Any]) -> dict[str, Any]:
     """Turn dotted keys (``"phase2.steps": 10``) into nested dictionaries."""
     nested: dict[str, Any] = {}
     for key, value in overrides.items():
@@ -355,19 +348,42 @@ def _merge(base: dict[str, Any], update: dict[str, Any]) -> dict[str, Any]:
     return out
 
 
-def resolve_config(preset: str | None = None,
-                   overrides: dict[str, Any] | None = None) -> PipelineConfig:
-    """The preset's configuration with user overrides applied and validated.
+def resolve_config(preset: str | None = None, overrides: Any = None) -> PipelineConfig:
+    """The preset's configuration with a client's overrides applied and validated.
 
     Args:
         preset: a key of ``PRESETS`` (``None``: the default preset).
-        overrides: nested (``{"phase2": {"steps": 10}}``) or dotted (``{"phase2.steps": 10}``)
-            values; unknown keys and out-of-range values are rejected.
+        overrides: the client's settings (``cadnerf_core.config_client.CLIENT_SETTINGS``),
+            nested (``{"phase2": {"steps": 10}}``) or dotted (``{"phase2.steps": 10}``), or a
+            ``ClientSettings``; any other key and out-of-range values are rejected.
     Returns:
         The resolved, frozen configuration.
     Raises:
         ValueError: unknown preset or malformed overrides.
-        pydantic.ValidationError: unknown keys or invalid values (a ValueError subclass).
+        pydantic.ValidationError: a setting a client may not send, or an invalid value (a
+            ValueError subclass), located by its path.
+    """
+    from cadnerf_core.config_client import client_overrides  # it is built from this module
+
+    if overrides is not None and not isinstance(overrides, dict) \
+            and not hasattr(overrides, "model_dump"):
+        raise ValueError("overrides must be a JSON object")
+    return internal_config(preset, client_overrides(overrides or {}))
+
+
+def internal_config(preset: str | None = None,
+                    overrides: dict[str, Any] | None = None) -> PipelineConfig:
+    """The preset's configuration with any of its fields overridden: for the pipeline's own
+    callers (evaluation, benchmarks, tests), never for a client's values (``resolve_config``).
+
+    Args:
+        preset: a key of ``PRESETS`` (``None``: the default preset).
+        overrides: nested or dotted values of any config field; unknown keys and out-of-range
+            values are rejected.
+    Returns:
+        The resolved, frozen configuration.
+    Raises:
+        ValueError: unknown preset or malformed overrides (pydantic.ValidationError included).
     """
     name = DEFAULT_PRESET if preset is None else preset
     if name not in PRESETS:
@@ -376,7 +392,7 @@ def resolve_config(preset: str | None = None,
         overrides = {}
     if not isinstance(overrides, dict):
         raise ValueError("overrides must be a JSON object")
-    nested = _nest(overrides)
+    nested = nest_dotted(overrides)
     nested.pop("preset", None)
     data = _merge(PRESETS[name].model_dump(), nested)
     data["preset"] = name

@@ -4,66 +4,13 @@ Torch-free, like the rest of the config."""
 
 from __future__ import annotations
 
-from typing import Any, Literal
+from typing import Literal
 
 from pydantic import Field, model_validator
 
 from cadnerf_core.config_bounds import MAX_LR
 from cadnerf_core.config_bounds import Frozen as _Frozen
 from cadnerf_core.config_matches import MatchesConfig
-
-
-def direction_guess_hint(direction: int) -> str:
-    """What a user is told when ``RetrievalResult.direction_ambiguous``: the way round the walk
-    was taken (``direction`` +1: counter-clockwise seen from above, -1: clockwise) and the
-    ``walk`` value that gives the other."""
-    taken, side, other = (("counter-clockwise", "left", "cw") if direction >= 0
-                          else ("clockwise", "right", "ccw"))
-    return ("the walking direction is a guess: these photos look alike walked either way "
-            f"round, so the walk was taken {taken} (the object on your {side} as you walked); "
-            "if you walked the other way round, the poses are those of the mirrored walk: "
-            f"give the direction (walk: {other})")
-
-
-def reorder_warning(names: list[str]) -> str:
-    """What a user is told when photos given with ``order`` "auto" were reordered: the order
-    found, by the photos' names."""
-    return ("the photos did not look like a walk round the object in the order given, so they "
-            f"were walked in this order: {', '.join(names)}; if you did take them in the order "
-            "given, resubmit with the config field retrieval.order set to \"walk\"")
-
-
-def order_guess_warning(names: list[str]) -> str:
-    """What a user is told when ``RetrievalResult.order_ambiguous``: the order the photos were
-    walked in, by name, and how to give the right one."""
-    return ("the walking order is a guess: another order of these photos fits their "
-            "silhouettes almost as well, so the poses may be those of the wrong walk (walked in "
-            f"this order: {', '.join(names)}); put the photos in the order you took them and "
-            "resubmit with the config field retrieval.order set to \"walk\"")
-
-
-FOCAL_UNKNOWN_WARNING = (
-    "no photo carried its focal length (EXIF), so the camera's field of view was estimated "
-    "from silhouettes, which cannot tell it: on objects the library does not hold the true "
-    "focal length was worth 1.1 dB and 3 degrees on average (docs/bench_unseen_full.md); "
-    "upload the files your phone wrote, or resubmit with the config field "
-    "retrieval.focal_35mm (a phone's main lens: about 26)")
-"""What a user is told when no photo's focal length was known (``focal_known`` False) and the
-photos' matches did not measure it (``focal_guessed``)."""
-
-
-def focal_guessed(retrieval: dict[str, Any]) -> bool:
-    """Whether a job's ``retrieval.json`` says its focal length is a guess: no photo carried it
-    and the cameras did not start from the mapper, which measures it."""
-    fusion = retrieval.get("fusion")
-    mapped = isinstance(fusion, dict) and fusion.get("start") == "mapper"
-    return retrieval.get("focal_known") is False and not mapped
-
-MATCHES_FEW_WARNING = (
-    "the photos share too few matched points for their texture to place the cameras, so the "
-    "cameras come from silhouettes alone: take photos closer together (about 30 degrees apart) "
-    "of an object with some print, grain or texture, in sharp light")
-"""What a user is told when the photos' matches fused no camera (``fusion`` with no photos)."""
 
 
 class RetrievalConfig(_Frozen):
@@ -85,8 +32,8 @@ class RetrievalConfig(_Frozen):
     focal_35mm: float | None = Field(default=None, ge=8.0, le=1200.0)
     """35 mm equivalent focal length of photos without EXIF (a phone: 24-28 mm); EXIF wins."""
     perspective: Literal["auto", "far", "near"] = "auto"
-    """Library silhouettes to match: "far" (a 40-degree camera), "near" (a phone's wide lens),
-    or "auto": the set fitting the photos' known focal length, else "far"."""
+    """Library silhouettes to match: "far" (the library's narrow camera), "near" (a phone's wide
+    lens), or "auto": the set fitting the photos' known focal length, else "far"."""
     discard_penalty: float = Field(default=0.3, ge=0.0, le=10.0)
     """DP only: IoU a discard costs; a photo is dropped only if keeping it costs more."""
     cyclic: bool = True
@@ -94,50 +41,44 @@ class RetrievalConfig(_Frozen):
     both_directions: bool = True
     """DP only: also try the walk with decreasing azimuth."""
     direction_margin: float = Field(default=0.0, ge=0.0, le=1.0)
-    """DP only: IoU per photo by which a decreasing walk must beat an increasing one (0: any
-    margin turned true decreasing walks into front/back flips)."""
+    """DP only: IoU per photo by which a decreasing walk must beat an increasing one (0: a
+    margin turns true decreasing walks into front/back flips). Kept for the benchmarks."""
     spread_weight: float = Field(default=10.0, ge=0.0, le=100.0)
     """DP only: weight of the prior that photos are spread round the object: this times the sum
     of the walk's squared gaps (in turns) is subtracted. Lower it, or 0, for partial walks."""
     model_choice: Literal["votes", "walk"] = "walk"
     """"votes": the model most photos' best views belong to (the paper, whose solver always
     votes). "walk": of the ``walk_models`` most voted, the one whose best ordered walk scores
-    best."""
+    best. Kept for the benchmarks' comparison with the paper."""
     walk_models: int = Field(default=0, ge=0, le=10000)
     """DP, ``model_choice`` "walk": how many models, most voted first, have their best walk
     compared, and give the start's ``hypotheses``; 0: every model the library allows. With
-    6-10 photos the votes scatter (one or two a model), and the best walk is often a model
-    that no photo voted for. Every model against the five most voted, look-alikes left out:
-    retrieved poses 15.9 against 16.8 degrees median over 52 walks (``bench_retrieval``), 20.94
-    against 20.75 dB and 9.5 degrees both over the 39 jobs of ``bench_unseen``; about 0.1 s
-    more a retrieval (models that cannot win are not walked: ``walks.walk_bound``). With
-    masks made from photos a basic shape's walk can edge out the right model's (the espresso
-    photos with learned masks: the cylinder's 0.578 a photo against the espresso machine's
-    0.553, ``bench_masks --retrieval``); 5 keeps the race to the most voted."""
+    few photos the votes scatter, and the best walk is often a model no photo voted for, so
+    every model competes (models that cannot win are not walked: ``walks.walk_bound``); a
+    small number keeps the race to the most voted, where a basic shape's walk could edge out
+    the right model's (``docs/presets.md``)."""
     appearance_weight: float = Field(default=0.2, ge=0.0, le=10.0)
     """DP only, photos given: IoU per unit of texture evidence by which the direction the
     photos' texture favours is preferred (0: silhouettes alone; more overrides them)."""
     appearance_threshold: float = Field(default=0.25, ge=0.0, le=10.0)
     """DP only: texture evidence weaker than this (in absolute value) is ignored."""
     start_evidence: float = Field(default=0.9, ge=0.0, le=100.0)
-    """Texture evidence (in absolute value; one matched pair turning the walk's way gives 1.25,
-    the colours' turn of the real espresso photos 0.98) from which the start's hypotheses
-    (``hypotheses``) walking against it are not fitted: their short silhouette fits cannot
-    tell a walk from its mirror image (the espresso photos' mirrored walk fitted 0.010 IoU
-    better and ended 162 degrees off). 0: every hypothesis is fitted."""
+    """Texture evidence (in absolute value; one matched pair turning the walk's way gives
+    ``matches.evidence_per_pair``) from which the start's hypotheses (``hypotheses``) walking
+    against it are not fitted: their short silhouette fits cannot tell a walk from its mirror
+    image. 0: every hypothesis is fitted."""
     ambiguity_margin: float = Field(default=0.05, ge=0.0, le=100.0)
     """DP, "auto" only: a best walk that leads the other direction's best by less than this
     (summed IoU), with no texture evidence, flags ``direction_ambiguous`` and a warning."""
     ambiguous_walk: Literal["ccw", "best"] = "ccw"
-    """DP, "auto": the walk taken when ambiguous: "ccw" (the paper's order; a lead of a few
-    hundredths of IoU never decides) or "best" (the higher objective, however slight)."""
+    """DP, "auto": the walk taken when ambiguous: "ccw" (the paper's order; a slight lead never
+    decides) or "best" (the higher objective, however slight). Kept for the benchmarks."""
     hypotheses: int = Field(default=3, ge=1, le=10)
     """Start hypotheses (model, walking direction, poses, silhouette set) each given a short
     coarse silhouette fit before training, the best fit kept: the retrieved walk, then (where
     no focal length is known and ``perspective`` is "auto") the near set's best walk, then the
     next best walks of the ``walk_models`` either way round (1: the retrieved walk alone).
-    3 measured better than 1 on objects the library has not seen (``bench_unseen``), at about
-    3 s a hypothesis on 2 CPU cores."""
+    Several hypotheses help most on objects the library has not seen."""
     hypothesis_steps: int = Field(default=60, ge=1, le=2000)
     """Phase-two steps of each hypothesis's coarse fit (phase one gets half as many)."""
     hypothesis_size: int = Field(default=32, ge=16, le=256)
@@ -148,37 +89,30 @@ class RetrievalConfig(_Frozen):
     learns the poses faster."""
     hypothesis_seeds: int = Field(default=1, ge=1, le=8)
     """Coarse fits of each hypothesis, each from its own seed, their scores averaged: one fit's
-    score scatters by 0.01-0.02 IoU between seeds, as much as hypotheses often differ. Each
-    extra seed costs as much as the fits themselves."""
+    score scatters between seeds about as much as hypotheses often differ. Each extra seed
+    costs as much as the fits themselves. Kept for the benchmarks."""
     mirror_margin: float = Field(default=0.01, ge=0.0, le=1.0)
     """Mean silhouette IoU by which the retrieved model walked the other way round must out-fit
     the retrieved walk for the job to start from it (0: any lead). Silhouettes cannot tell a
-    walk from its mirror image on an object that is nearly symmetric: a 6-photo walk round
-    fuze fitted its mirror 0.003 better and ended 125 degrees off, 12.7 dB. The margin is
-    kept to the mirror: another model's walk switches on any lead, as the mug's walks need
+    walk from its mirror image on an object that is nearly symmetric, so a slight lead is
+    noise. The margin is kept to the mirror: another model's walk switches on any lead
     (``docs/presets.md``)."""
     order: Literal["walk", "any", "auto"] = "auto"
     """The photos' order: "walk" (they were taken walking round the object, in this order: the
     paper's assumption), "any" (no order: the walk is found from the silhouettes and the
     photos' colours, ``retrieval.ordering``), or "auto": the given order kept when it is a
-    plausible walk, else the order found, with a warning that names it. For 10 photos on 2
-    CPU cores the search costs about 0.1 s a model, 1.5 s a job (five models), and the check
-    whether the order found is a guess about 1 s more (``bench_order``)."""
+    plausible walk, else the order found, with a warning that names it. The search walks the
+    five most voted models; its cost is in ``docs/presets.md``."""
     order_margin: float = Field(default=0.12, ge=0.0, le=10.0)
     """"auto" only: IoU per photo by which the best walk in any order must beat the walk in the
     given order for the photos to be reordered. Silhouettes of a side and of its mirror side
-    look alike, so walks taken in order lose to some other order: up to 0.075 a photo at the
-    library's 40-degree field of view (``bench_order``), up to 0.097 at a phone's 55-70
-    (the unseen-objects walks of ``bench_unseen``: armchair, fuze), where 0.08 reordered the
-    fuze's walk at 70 degrees: its retrieved cameras 41.7 degrees off instead of 15.8, the
-    whole ``preview`` job's 52.7 instead of 16.5 (2 CPU cores; test PSNR 20.82 dB against
-    20.44).
-    Shuffled photos gain 0.12-0.21 a photo where their walk is found clearly (a plane, a boot)."""
+    look alike, so walks taken in order lose to some other order by a little, more so with a
+    phone's wide lens; a margin below that loss reorders true walks, while shuffled photos
+    gain more where their walk is found clearly (``docs/presets.md``)."""
     order_ambiguity_margin: float = Field(default=0.003, ge=0.0, le=1.0)
     """"any", and "auto" when it reordered: IoU per photo by which the order found must beat
     the best walk of any other order, else the result says the order is a guess
-    (``order_ambiguous``, with a warning). On the order benchmark's shuffled walks 0.003 flags
-    39 of the 51 walks whose order is not found and 6 of the 27 found (``bench_order``)."""
+    (``order_ambiguous``, with a warning)."""
     similarity_weight: float = Field(default=0.1, ge=0.0, le=10.0)
     """"any" and "auto": IoU a walk gains per neighbouring pair per unit of the pair's
     standardised likeness (colours and outlines, ``retrieval.ordering``) in the order search."""

@@ -267,6 +267,19 @@ class JobFolder:
         """``retrieval.json``, None before retrieval ran. Raises ValueError on a broken file."""
         return self._read_object(RETRIEVAL)
 
+    def write_warnings(self, warnings: list[str]) -> None:
+        """Write ``warnings.json``: what the job tells its user (``job_warnings``)."""
+        write_json(self.root / WARNINGS, warnings)
+
+    def read_warnings(self) -> list[str] | None:
+        """``warnings.json``, None before the job's intake wrote it. Raises ValueError on a
+        broken file."""
+        data = self._read(WARNINGS)
+        if data is not None and not (isinstance(data, list)
+                                     and all(isinstance(w, str) for w in data)):
+            raise ValueError(f"{WARNINGS} does not hold a list of strings")
+        return data
+
     def write_poses(self, model_id: str, photos: list[dict[str, Any]],
                     extra: dict[str, Any] | None = None) -> None:
         """Write ``poses.json``: the model id, one entry per photo, and ``extra`` keys (its

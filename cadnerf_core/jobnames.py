@@ -21,6 +21,7 @@ CHECKPOINTS = "checkpoints"
 EVAL = "eval"
 CONFIG = "config.json"
 RETRIEVAL = "retrieval.json"
+WARNINGS = "warnings.json"
 MASK_SOURCES = "masks.json"
 POSES = "poses.json"
 TRANSFORMS = "transforms.json"
@@ -49,7 +50,8 @@ MEDIA_TYPES: dict[str, str] = {
     MESH_USDZ: "model/vnd.usdz+zip",
     BUNDLE: "application/zip",
     POSES: "application/json", TRANSFORMS: "application/json", METRICS: "application/json",
-    RETRIEVAL: "application/json", CONFIG: "application/json", MASK_SOURCES: "application/json",
+    RETRIEVAL: "application/json", WARNINGS: "application/json", CONFIG: "application/json",
+    MASK_SOURCES: "application/json",
     COLMAP_CAMERAS: "text/plain", COLMAP_IMAGES: "text/plain", COLMAP_POINTS: "text/plain",
     LOG: "text/plain",
 }

@@ -21,13 +21,9 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from cadnerf_core.config import PipelineConfig
-from cadnerf_core.config_retrieval import (
-    FOCAL_UNKNOWN_WARNING,
-    MATCHES_FEW_WARNING,
-    focal_guessed,
-)
 from cadnerf_core.errors import InputError
 from cadnerf_core.intake.crop import apply_crop
+from cadnerf_core.job_warnings import job_warnings
 from cadnerf_core.jobfolder import CONFIG, INPUTS, OVERLAY_SIDE, JobFolder
 from cadnerf_core.progress import Progress
 
@@ -87,9 +83,6 @@ def run_intake(job_dir: Path, library: Library, config: PipelineConfig,
     folder.write_masks(inputs, found, (  # overlays are small: milliseconds, not 12 megapixels
         mask_overlay(downscaled(p.rgb, OVERLAY_SIDE), shrunk_mask(m, OVERLAY_SIDE))
         for p, m in zip(photos, masks, strict=True)))
-    for result in found:
-        for warning in result.warnings:
-            log.warning("%s", warning)
     photos = with_focal(photos, config.retrieval.focal_35mm)  # where EXIF says nothing
     images, focals = [p.rgb for p in photos], [p.focal_pixels for p in photos]
     pairs = job_pairs(folder, inputs, images, masks, focals, config.retrieval,
@@ -102,9 +95,12 @@ def run_intake(job_dir: Path, library: Library, config: PipelineConfig,
     if pairs is not None:
         retrieval = with_matches(retrieval, pairs, photos, config, known)
     retrieval = dataclasses.replace(retrieval, focal_known=known)
-    if focal_guessed(retrieval.to_json()):
-        log.warning("%s", FOCAL_UNKNOWN_WARNING)
-    folder.write_retrieval(retrieval.to_json())
+    summary = retrieval.to_json()
+    folder.write_retrieval(summary)
+    warnings = job_warnings(summary, names, [w for result in found for w in result.warnings])
+    for warning in warnings:
+        log.info("warning: %s", warning)
+    folder.write_warnings(warnings)
     if len(retrieval.kept) < 2:
         raise InputError("fewer than two photos could be matched to the retrieved model",
                          item=INPUTS, hint="use 3 to 10 photos walking around the object")
@@ -116,7 +112,7 @@ def with_matches(retrieval: RetrievalResult, pairs: list[Any], photos: list[Any]
     """The retrieved cameras (and their hypotheses) started from what the photos' matches
     tell: the mapper's cameras where it registers every photo (``retrieval.mapper``), else the
     retrieved cameras fused with the pairs' rotations (``retrieval.fusion``); unchanged when
-    neither is asked for. Warns when the matches placed no camera."""
+    neither is asked for."""
     from cadnerf_core.retrieval.fusion import fuse_hypotheses, pairs_at_focal, place_hypotheses
     from cadnerf_core.retrieval.mapper import accept, map_photos
 
@@ -136,8 +132,6 @@ def with_matches(retrieval: RetrievalResult, pairs: list[Any], photos: list[Any]
     if not matches.fuse:
         return retrieval
     retrieval = fuse_hypotheses(retrieval, matches.min_inliers, search_focal=not focal_known)
-    if not retrieval.fusion or not retrieval.fusion.get("photos"):
-        log.warning("%s", MATCHES_FEW_WARNING)
     return retrieval if focal_known else pairs_at_focal(retrieval)
 
 

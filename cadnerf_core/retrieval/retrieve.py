@@ -16,11 +16,11 @@ from typing import TYPE_CHECKING, TypeVar
 
 import numpy as np
 
-from cadnerf_core.config import RetrievalConfig, direction_guess_hint
-from cadnerf_core.config_retrieval import order_guess_warning, reorder_warning
+from cadnerf_core.config import RetrievalConfig
 from cadnerf_core.errors import InputError
 from cadnerf_core.intake.crop import CropBox, apply_crop
 from cadnerf_core.intake.photos import canonical_masks
+from cadnerf_core.job_warnings import direction_guess_hint, order_guess_warning, reorder_warning
 from cadnerf_core.progress import Progress
 from cadnerf_core.retrieval.cameras import angle_mismatch, photo_match, share_focal
 from cadnerf_core.retrieval.matches import (
@@ -133,12 +133,12 @@ def retrieve(masks: Sequence[np.ndarray], names: Sequence[str], library: Library
                           library, allowed, walk, progress, _pick(focals, choice.order),
                           crop_size)
         if choice.reordered and config.order == "auto":
-            log.warning("%s", reorder_warning([names[i] for i in choice.order]))
+            log.info("%s", reorder_warning([names[i] for i in choice.order]))
         lead = choice.lead
         guess = lead is not None and lead < config.order_ambiguity_margin * len(masks)
         if guess:
-            log.warning("%s (lead %.3f IoU)",
-                        order_guess_warning([names[i] for i in choice.order]), lead)
+            log.info("%s (lead %.3f IoU)",
+                     order_guess_warning([names[i] for i in choice.order]), lead)
         return found.in_given_order(choice.order, config.order, choice.reordered, seen.pairs,
                                     lead, guess)
     return _retrieve(seen, names, library, allowed, config, progress, focals, crop_size)
@@ -226,8 +226,8 @@ def _retrieve(seen: _Seen, names: Sequence[str], library: Library, allowed: np.n
         log.info("perspective: %s (photos' angle against the matched views': far %.3f, "
                  "near %.3f)", chosen.perspective, *mismatch)
     if chosen.direction_ambiguous:
-        log.warning("%s (lead %.3f IoU, texture evidence %+.2f)",
-                    direction_guess_hint(chosen.direction), chosen.direction_lead,
+        log.info("%s (lead %.3f IoU, texture evidence %+.2f)",
+                 direction_guess_hint(chosen.direction), chosen.direction_lead,
                     chosen.direction_evidence)
     return chosen
 

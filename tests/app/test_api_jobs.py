@@ -155,7 +155,7 @@ def test_result_is_409_until_succeeded_then_complete(client: TestClient, setting
     result = client.get(f"/v1/jobs/{job['id']}/result").json()
     warnings = result["warnings"]
     assert len(warnings) == 2 and "walking direction is a guess" in warnings[1]
-    assert '"walk": "cw"' in warnings[1]
+    assert 'retrieval.walk to "cw"' in warnings[1]
     assert result["photos"][0]["silhouette"].endswith("/silhouette/0?perspective=near")
     assert result["order"] == ["photo_0.png", "photo_1.png", "photo_2.png"]
     assert not result["reordered"]
@@ -172,7 +172,7 @@ def test_result_is_409_until_succeeded_then_complete(client: TestClient, setting
     folder.write_retrieval({**(folder.read_retrieval() or {}), "order_ambiguous": True})
     last = client.get(f"/v1/jobs/{job['id']}/result").json()["warnings"][-1]
     assert "walking order is a guess" in last and "photo_2.png, photo_0.png" in last
-    assert 'retrieval.order set to "walk"' in last
+    assert 'retrieval.order to "walk"' in last
     folder.write_retrieval({**(folder.read_retrieval() or {}), "order_ambiguous": False})
     folder.write_retrieval({**(folder.read_retrieval() or {}), "order": [0, 0, 7]})
     result = client.get(f"/v1/jobs/{job['id']}/result").json()

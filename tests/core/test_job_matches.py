@@ -13,7 +13,7 @@ import pytest
 from PIL import Image
 
 from cadnerf_core.cameras import intrinsics_from_fov, orbit_pose
-from cadnerf_core.config_retrieval import MATCHES_FEW_WARNING
+from cadnerf_core.job_warnings import MATCHES_FEW_WARNING
 from cadnerf_core.jobfolder import JobFolder
 from cadnerf_core.progress import Progress
 from tests.configs import tiny_config
@@ -79,8 +79,6 @@ def test_matches_are_kept_pictured_and_fused(tmp_path: Path, tiny_library: Any,
 
 def test_photos_sharing_nothing_train_on_silhouettes_and_say_so(tmp_path: Path,
                                                                  tiny_library: Any) -> None:
-    from app.results import _warnings
-
     folder = _job(tmp_path, textured=False)
     intake = _intake(tmp_path, tiny_library)
     data = folder.read_retrieval()
@@ -88,18 +86,17 @@ def test_photos_sharing_nothing_train_on_silhouettes_and_say_so(tmp_path: Path,
     assert all("c2w_retrieved" not in m for m in data["matches"])
     assert all(np.array_equal(m.c2w, np.array(d["c2w"]))
                for m, d in zip(intake.retrieval.matches, data["matches"], strict=True))
-    assert MATCHES_FEW_WARNING in _warnings(data, [], [])
+    assert MATCHES_FEW_WARNING in (folder.read_warnings() or [])
 
 
 def test_matching_off_neither_fuses_nor_warns(tmp_path: Path, tiny_library: Any) -> None:
-    from app.results import _warnings
-
     folder = _job(tmp_path, textured=True,
                   retrieval={"hypotheses": 1, "matches": {"enabled": False}})
     _intake(tmp_path, tiny_library)
     data = folder.read_retrieval()
     assert data is not None and "fusion" not in data and "photo_pairs" not in data
-    assert MATCHES_FEW_WARNING not in _warnings(data, [], [])
+    assert folder.read_warnings() is not None
+    assert MATCHES_FEW_WARNING not in (folder.read_warnings() or [])
     assert not (tmp_path / "matches").exists()
     assert json.loads((tmp_path / "config.json").read_text())["retrieval"]["matches"][
         "enabled"] is False

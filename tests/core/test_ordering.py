@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from cadnerf_core.config import RetrievalConfig
-from cadnerf_core.config_retrieval import reorder_warning
+from cadnerf_core.job_warnings import reorder_warning
 from cadnerf_core.retrieval.ordering import (
     any_order,
     choose_order,

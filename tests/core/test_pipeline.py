@@ -216,7 +216,7 @@ def test_cli_retrieve_warns_of_a_guessed_direction_unless_given(tmp_path: Path,
     common = ["retrieve", *photos, "--library", str(tiny_library_dir)]
     guessed = CliRunner().invoke(app, common)
     assert guessed.exit_code == 0, guessed.output
-    assert "warning: the walking direction is a guess" in guessed.output
+    assert "warning: The walking direction is a guess" in guessed.output
     told = CliRunner().invoke(app, [*common, "--walk", "cw", "--json"])
     assert told.exit_code == 0, told.output
     data = json.loads(told.output)
@@ -242,7 +242,7 @@ def test_cli_retrieve_warns_of_a_guessed_direction_unless_given(tmp_path: Path,
                str(tiny_library_dir), "--order", "any"]
     data = json.loads(CliRunner().invoke(app, [*mug_any, "--json"]).stdout)
     assert data["order_ambiguous"] is True and data["order_lead"] < 0.003 * 5
-    assert "warning: the walking order is a guess" in CliRunner().invoke(app, mug_any).output
+    assert "warning: The walking order is a guess" in CliRunner().invoke(app, mug_any).output
     bad = CliRunner().invoke(app, [*common, "--order", "sideways"])
     assert bad.exit_code == 2 and "--order" in bad.output
     unknown = CliRunner().invoke(app, [*common, "--exclude-models", "mug,no_such_model"])

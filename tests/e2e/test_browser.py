@@ -8,7 +8,7 @@ from pathlib import Path
 
 import pytest
 
-from cadnerf_core.config_retrieval import MATCHES_FEW_WARNING
+from cadnerf_core.job_warnings import MATCHES_FEW_WARNING
 from tests.configs import TINY_PRESET
 from tests.e2e.pages import CHROMIUM, LAUNCH_ARGS, TINY_CONFIG_SCRIPT, progress_samples
 

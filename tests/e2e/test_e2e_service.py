@@ -118,3 +118,7 @@ def test_the_demo_command_follows_a_job_to_its_orbit(live_service, tmp_path: Pat
     assert (tmp_path / "orbit.mp4").read_bytes()[4:8] == b"ftyp"
     printed = capsys.readouterr().out
     assert f"/v1/jobs/{final['id']}/artifacts/orbit.mp4" in printed and "%" in printed
+    # The demo tells its renders' lens: no warning asks for EXIF the renders cannot carry.
+    from cadnerf_core.job_warnings import FOCAL_UNKNOWN_WARNING
+
+    assert FOCAL_UNKNOWN_WARNING not in printed
