@@ -18,16 +18,31 @@ def _compose() -> dict:
 
 def test_compose_services_and_health_checks() -> None:
     services = _compose()["services"]
-    assert set(services) == {"redis", "api", "worker"}
+    assert set(services) == {"redis", "minio", "bucket", "api", "worker"}
     assert services["redis"]["command"][-2:] == ["--appendonly", "yes"]
     assert services["redis"]["healthcheck"]["test"] == ["CMD", "redis-cli", "ping"]
     assert "/healthz" in " ".join(services["api"]["healthcheck"]["test"])
     assert services["api"]["command"][3] == "serve" and services["worker"]["command"][3] == "worker"
-    assert services["api"]["volumes"] == services["worker"]["volumes"] == ["jobs:/data/jobs"]
+
+
+def test_compose_api_and_workers_share_no_disk_only_the_object_store() -> None:
+    compose = _compose()
+    services = compose["services"]
+    assert "volumes" not in services["api"] and "volumes" not in services["worker"]
+    assert "jobs" not in compose["volumes"]
+    environment = services["worker"]["environment"]
+    assert environment == services["api"]["environment"]
+    assert str(environment["CADNERF_STORAGE_URL"]).endswith("s3://cadnerf/jobs}")
+    assert "http://minio:9000" in str(environment["AWS_ENDPOINT_URL"])
+    assert "mb --ignore-existing store/cadnerf" in " ".join(services["bucket"]["command"])
+    for name in ("api", "worker"):
+        assert services[name]["depends_on"]["bucket"]["condition"] == \
+            "service_completed_successfully"
 
 
 def test_compose_variables_are_settings_that_load() -> None:
-    environment = _compose()["services"]["worker"]["environment"]
+    environment = {k: v for k, v in _compose()["services"]["worker"]["environment"].items()
+                   if not k.startswith("AWS_")}  # boto3's own variables
     fields = {f"{ENV_PREFIX}{name.upper()}" for name in Settings.model_fields}
     assert set(environment) <= fields
     resolved = {}
@@ -37,6 +52,7 @@ def test_compose_variables_are_settings_that_load() -> None:
     settings = load_settings(**resolved)
     assert settings.redis_url == "redis://redis:6379/0"
     assert str(settings.data_root) == "/data/jobs"
+    assert settings.storage_url == "s3://cadnerf/jobs"
 
 
 def test_dockerfile_installs_cpu_torch_first() -> None:
