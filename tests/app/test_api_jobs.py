@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import io
 import json
+import threading
 import time
 import uuid
 from dataclasses import dataclass
@@ -248,12 +249,34 @@ def test_delete_cancels_a_queued_job_and_removes_everything(client: TestClient,
 
 
 def test_delete_of_a_running_job_waits_for_the_worker(settings: Settings) -> None:
+    """DELETE returns after the worker ended the job, not before: the order of the events,
+    never the time taken (the wait is a hang guard)."""
     store = _store(settings)
     record = _record(settings, state=JobState.running)
-    started = time.monotonic()
-    result = jobs.delete_job(store, record, wait_s=0.5)  # no worker acknowledges
-    assert result.worker_stopped is False and time.monotonic() - started >= 0.5
+    ended = threading.Event()
+
+    def worker() -> None:  # stops at its next step once it sees the cancel flag
+        own = _store(settings)
+        try:
+            while not own.cancel_requested(record.id):
+                time.sleep(0.01)
+            own.update(record.id, state=JobState.cancelled, finished_at=time.time())
+            ended.set()
+        finally:
+            own.close()
+
+    thread = threading.Thread(target=worker, daemon=True)
+    thread.start()
+    result = jobs.delete_job(store, record, wait_s=60)
+    assert ended.is_set(), "DELETE returned before the worker ended the job"
+    assert result.worker_stopped is True and result.previous_state == JobState.running
     assert store.get(record.id) is None
+    thread.join(60)
+
+    silent = _record(settings, state=JobState.running)  # no worker acknowledges
+    result = jobs.delete_job(store, silent, wait_s=0.5)
+    assert result.worker_stopped is False
+    assert store.get(silent.id) is None and not (settings.data_root / silent.id).exists()
 
 
 def _record(settings: Settings, state: JobState = JobState.queued, created_at: float | None = None,

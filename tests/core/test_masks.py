@@ -353,10 +353,10 @@ def test_a_cancel_while_photos_are_masked_stops_the_running_ones_early() -> None
         if len(calls) > 1:
             raise JobCancelled("cancelled")
 
-    asked = time.monotonic()
     with pytest.raises(JobCancelled), closing(in_order(work, [0, 1, 2], 2, check, stop)) as f:
         next(f)
-    assert time.monotonic() - asked < 1.5 and stop.is_set()
+    assert stop.is_set()
+    # both running photos saw the stop between their steps: neither ran its 200 steps out
     assert ended == ["early", "early"]
 
 

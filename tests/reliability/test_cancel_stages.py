@@ -1,10 +1,12 @@
-"""Cancel during every stage: the job ends `cancelled` within a few seconds, and the worker is
-free for the next job. The cancel is the one DELETE sends (the job's Redis flag), set as soon as
-the job reports the stage; each job is made long in its target stage by its config."""
+"""Cancel during every stage: the job ends `cancelled` in the stage it was cancelled in (a
+checkpoint inside the stage saw the flag; it did not run the stage out), and the worker is free
+for the next job. The cancel is the one DELETE sends (the job's Redis flag), set as soon as the
+job reports the stage; each job is made long in its target stage by its config. How soon the
+job stops is not measured here (``tests/core/test_nerf_phases.py`` checks that training looks
+at every step); waits only guard against a hang."""
 
 from __future__ import annotations
 
-import time
 from pathlib import Path
 from typing import Any
 
@@ -30,10 +32,10 @@ PLANS: dict[str, tuple[dict[str, Any], str]] = {
     "render": ({"image_size": 256, "export": {"novel_views": 64}}, "rgba"),
     "export": ({"export": {"mesh_resolution": 192}}, "rgba"),  # marching cubes on 192^3 points
 }
-CANCEL_WITHIN_S = 5.0
+HANG_S = 120.0  # a wait that only guards against a hang
 # Stages too short to be caught every time (under a second on the tiny library): the cancel may
 # land in a later stage (phase one of the tiny config is a few steps too); the job must still end
-# cancelled within the bound, at the latest in phase two.
+# cancelled, at the latest in phase two.
 SHORT = ("masks", "retrieval")
 
 
@@ -66,19 +68,22 @@ def test_cancel_in_each_stage(service: Live, photo_set: list[Path], plain_photos
                               every_s=0.02)
     store = JobStore(connect(service.env["CADNERF_REDIS_URL"]), service.data_root)
     try:
-        asked = time.monotonic()
         store.request_cancel(job["id"])  # what DELETE does before it waits and removes
-        final, _ = jobs.wait_state(service.url, job["id"], 30, every_s=0.05)
-        took = time.monotonic() - asked
+        try:
+            final, _ = jobs.wait_state(service.url, job["id"], HANG_S, every_s=0.05)
+        except AssertionError as exc:
+            raise AssertionError(f"the job did not stop after a cancel in {stage}: {exc}\n"
+                                 f"{service.logs()}") from None
     finally:
         store.close()
         if jobs.status(service.url, job["id"])["state"] == "running":  # free the worker
             httpx.delete(f"{service.url}/v1/jobs/{job['id']}", timeout=60)
     assert final["state"] == "cancelled", f"{final}\n{service.logs()}"
-    assert took < CANCEL_WITHIN_S, f"took {took:.1f} s"
     ended = STAGES.index(final["stage"])
     latest = STAGES.index("phase2") if stage in SHORT else STAGES.index(stage)
-    assert STAGES.index(stage) <= ended <= latest, (seen, final)
+    assert STAGES.index(stage) <= ended <= latest, \
+        f"cancelled in {stage} but stopped in {final['stage']} ({seen})"
     assert jobs.status(service.url, job["id"])["state"] == "cancelled"  # and it stays so
     assert httpx.delete(f"{service.url}/v1/jobs/{job['id']}", timeout=30).status_code == 200
-    assert wait_for(lambda: not (service.data_root / job["id"]).exists(), 5)
+    assert wait_for(lambda: not (service.data_root / job["id"]).exists(), HANG_S), \
+        "the deleted job's folder stayed"

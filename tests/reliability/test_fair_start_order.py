@@ -48,12 +48,13 @@ def test_key_b_starts_before_key_as_third_job(keyed_service: Live,
     a_ids = [jobs.submit(url, photo_set, config, headers=KEY_A)["id"] for _ in range(30)]
     b_job = jobs.submit(url, photo_set, config, headers=KEY_B)
     assert b_job["queue_position"] is not None and b_job["queue_position"] <= 1
-    deadline = time.monotonic() + 600
+    give_up = time.monotonic() + 600  # guards against a hang only: the test is the order
     while (b_start := _started(url, b_job["id"], KEY_B)) is None:
-        assert time.monotonic() < deadline, keyed_service.logs()
+        assert time.monotonic() < give_up, \
+            f"key B's job never started (600 s)\n{keyed_service.logs()}"
         time.sleep(0.5)
     third = _started(url, a_ids[2], KEY_A)
-    assert third is None or third > b_start
+    assert third is None or third > b_start, "key A's third job started before key B's first"
     for job_id in a_ids:  # the rest need not run
         assert httpx.delete(f"{url}/v1/jobs/{job_id}", headers=KEY_A,
                             timeout=30).status_code == 200

@@ -36,6 +36,7 @@ from tests.reliability.support import (
 )
 
 _restarted: list[Proc] = []  # the redis-server processes of the running test
+HANG_S = 120.0  # a wait that only guards against a hang, never a measure
 
 
 @pytest.fixture()
@@ -114,20 +115,17 @@ def test_jobs_come_back_from_state_json_after_redis_restart(own_redis: tuple[str
         _kill_redis(port)
         assert client.get(f"/v1/jobs/{ids[0]}").headers["x-job-state-source"] == "disk"
         _restart_redis(folder, port)
-        restarted = time.monotonic()
 
         def from_redis() -> bool:
             response = client.get(f"/v1/jobs/{ids[0]}")
             return response.status_code == 200 and "x-job-state-source" not in response.headers
 
-        assert wait_for(from_redis, 30, 0.1)
-        recovery_s = time.monotonic() - restarted
+        assert wait_for(from_redis, HANG_S, 0.1), "the jobs were not read from Redis again"
         for job_id in ids:
             status = client.get(f"/v1/jobs/{job_id}").json()
             assert status["state"] == "queued" and status["n_photos"] == 3, status
         listed = [j["id"] for j in client.get("/v1/jobs").json()["items"]]
         assert listed == ids[::-1]  # newest first, as before the restart
-        assert recovery_s < 30
 
 
 def test_data_root_replaced_by_a_file_gives_a_clear_error(make_settings, sandbox: Path) -> None:
@@ -208,9 +206,15 @@ def test_redis_restart_during_a_job(own_redis: tuple[str, int, Path], tiny_libra
             response = httpx.get(f"{live.url}/v1/jobs/{job['id']}", timeout=5)
             return response.status_code == 200 and "x-job-state-source" not in response.headers
 
-        assert wait_for(from_redis, 30), live.logs()
-        # The rest of the job takes seconds: a minute is ample.
-        final, _ = jobs.wait_state(live.url, job["id"], 60)
+        assert wait_for(from_redis, HANG_S), \
+            f"the job was not read from Redis again\n{live.logs()}"
+        # The rest of the job takes seconds; the wait only guards against a job left `running`
+        # for ever, the failure this test is about.
+        try:
+            final, _ = jobs.wait_state(live.url, job["id"], 5 * HANG_S)
+        except AssertionError as exc:
+            raise AssertionError(f"the job never ended after Redis came back: {exc}\n"
+                                 f"{live.logs()}") from None
         assert final["state"] in ("succeeded", "failed"), final
         if final["state"] == "failed":
             assert final["error"], final

@@ -7,7 +7,6 @@ import contextlib
 import os
 import signal
 import sys
-import time
 from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
@@ -34,7 +33,9 @@ needs_pipeline = pytest.mark.skipif(not pipeline_ready(), reason=NEEDS_PIPELINE)
 
 # Phase two long enough to be caught and killed (a few seconds on two cores), the rest tiny.
 LONG_PHASE2 = tiny_request(phase2={"steps": 800})
-REDELIVERY_S = 45.0  # a new worker is ready in ~10 s and the rest of the job takes seconds
+# Guards against a hang only (a new worker is ready in ~10 s and the rest of the job takes
+# seconds): the test is that the job is run again at all, never how soon.
+REDELIVERY_S = 300.0
 
 
 def _restart_worker(service: Live) -> None:
@@ -173,17 +174,14 @@ def test_serve_replaces_its_dead_worker(tiny_library_dir: Path, tmp_path: Path) 
         first = _worker_pid(ready_workers(url))
         assert first in children
         os.kill(first, signal.SIGKILL)
-        killed_at = time.monotonic()
 
         def replaced() -> bool:
             names = ready_workers(url)
             return bool(names) and all(_worker_pid([n]) != first for n in names)
 
         assert wait_for(replaced, 180, 0.5), f"no new worker\n{serve.tail()}"
-        recovery_s = time.monotonic() - killed_at
         second = _worker_pid(ready_workers(url))
         assert second in _child_pids(serve.pid) and second != first
-        assert recovery_s < 180
 
 
 def test_serve_stops_its_worker_and_redis_on_sigterm(tiny_library_dir: Path,
@@ -193,7 +191,7 @@ def test_serve_stops_its_worker_and_redis_on_sigterm(tiny_library_dir: Path,
         assert len(children) >= 2  # the worker and the embedded redis-server
         serve.popen.send_signal(signal.SIGTERM)
         serve.popen.wait(40)
-        gone = wait_for(lambda: not any(_alive(pid) for pid in children), 10)
+        gone = wait_for(lambda: not any(_alive(pid) for pid in children), 60)  # a hang guard
         assert gone, f"serve left child processes behind: {_describe(children)}\n{serve.tail()}"
 
 

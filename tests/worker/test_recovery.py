@@ -145,10 +145,10 @@ def test_the_heartbeat_announces_the_device_the_api_offers_presets_for(store: Jo
     liveness = Liveness(settings, "host-cpu", send=lambda job_id: None, startup_watch_s=0)
     liveness.start()
     try:
-        deadline = time.monotonic() + 10
-        while not store.workers.devices() and time.monotonic() < deadline:
+        give_up = time.monotonic() + 60  # a guard against a hang: the first beat is at once
+        while not store.workers.devices() and time.monotonic() < give_up:
             time.sleep(0.05)
-        assert store.workers.devices() == ["cpu"]
+        assert store.workers.devices() == ["cpu"], "no heartbeat announced the worker's device"
     finally:
         liveness.stop()
     assert store.workers.devices() == []
