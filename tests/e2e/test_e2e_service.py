@@ -13,7 +13,7 @@ import pytest
 
 from app.embedded import free_port
 from cadnerf_core.config_bounds import MAX_STEPS
-from tests.configs import TINY_PRESET, tiny_request
+from tests.configs import TINY_OVERRIDES, TINY_PRESET, tiny_request
 from tests.e2e.conftest import _start_api
 
 pytestmark = pytest.mark.slow
