@@ -12,6 +12,7 @@ from typing import Any, Literal
 from pydantic import BaseModel, ConfigDict, Field
 
 from app.state import ErrorDetail, JobState
+from cadnerf_core.config_client import ClientSettings, inline_refs
 
 
 class JobCreate(BaseModel):
@@ -20,8 +21,16 @@ class JobCreate(BaseModel):
     model_config = ConfigDict(extra="forbid")
 
     preset: str | None = Field(None, description="Preset name; default: the server's.")
-    overrides: dict[str, Any] = Field(default_factory=dict,
-                                      description="Preset fields to change, nested by section.")
+    overrides: ClientSettings = Field(
+        default_factory=ClientSettings,
+        description="The settings to change on top of the preset, nested by section (dotted "
+                    "keys accepted); any other key is refused with a 422 naming it.")
+
+
+def job_create_schema() -> dict[str, Any]:
+    """``JobCreate``'s JSON Schema with nothing referenced: the `config` form field of the
+    OpenAPI document, so `/docs` lists every setting a client may send."""
+    return inline_refs(JobCreate.model_json_schema())
 
 
 class JobLinks(BaseModel):

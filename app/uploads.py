@@ -25,6 +25,7 @@ from app.multipart import ReceivedForm, StoredPart
 from app.schemas import JobCreate
 from app.state import Settings, non_public_reason
 from cadnerf_core.config import PipelineConfig, field_bounds, resolve_config
+from cadnerf_core.config_client import refused_names
 from cadnerf_core.intake.limits import COVER_SIDE, cover_problem, mask_cover, shape_problem
 from cadnerf_core.jobfolder import JobFolder
 
@@ -250,6 +251,10 @@ def _mask_cover(part: StoredPart) -> float:
                        field="masks", hint="export the mask again as PNG") from None
 
 
+UNKNOWN_SETTING = ("not a setting a client may send (the settings: `overrides` in GET /docs, "
+                   "or `cadnerf config --schema`)")
+
+
 def parse_config(raw: str | None, preset_default: Callable[[], str]) -> PipelineConfig:
     """Resolve the `config` JSON field (preset and overrides) into the job's one config.
 
@@ -289,11 +294,17 @@ def _config_error(exc: ValidationError, most: int = 4) -> ApiError:
 
 
 def _error_text(err: Any) -> str:
-    """One validation error: the field, pydantic's message, and the field's allowed range."""
-    where = ".".join(str(p) for p in err.get("loc", ()))
+    """One validation error: the field, pydantic's message, and the field's allowed range (a
+    setting is named by its path in ``overrides``)."""
+    loc = tuple(err.get("loc", ()))
+    if loc[:1] == ("overrides",) and len(loc) > 1:
+        loc = loc[1:]
+    where = ".".join(str(p) for p in loc)
     text = str(err.get("msg")).removeprefix("Value error, ")
+    if err.get("type") == "extra_forbidden":
+        where, text = refused_names(loc, err.get("input")), UNKNOWN_SETTING
     message = f"{where}: {text}" if where else text
-    bounds = field_bounds(tuple(err.get("loc", ())))
+    bounds = field_bounds(loc)
     if bounds:  # name the bound whatever pydantic's wording (a huge number fails to parse)
         message = f"{message} (allowed: {bounds})"
     return message

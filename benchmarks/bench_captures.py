@@ -112,7 +112,7 @@ def run_capture(capture: Capture, library: Any, variant: str) -> dict[str, Any]:
     error (share), PSNR, seconds, pairs and fused photos."""
     from cadnerf_cli.reconstruct_cmd import stage_inputs
     from cadnerf_core.cameras import pose_errors
-    from cadnerf_core.config import resolve_config
+    from cadnerf_core.config import internal_config
     from cadnerf_core.evaluation.jobio import read_job_cameras
     from cadnerf_core.jobfolder import JobFolder
     from cadnerf_core.nerf.model import TrainedModel
@@ -121,7 +121,7 @@ def run_capture(capture: Capture, library: Any, variant: str) -> dict[str, Any]:
     job = Path(tempfile.mkdtemp(prefix="bench_captures_"))
     try:
         stage_inputs(capture.photos, capture.masks, job)
-        JobFolder(job).write_config(resolve_config(
+        JobFolder(job).write_config(internal_config(
             PRESET, {**exclude_overrides(capture.name), **capture.overrides,
                      **VARIANTS[variant]}))
         start = time.perf_counter()

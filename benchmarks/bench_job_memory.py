@@ -101,7 +101,7 @@ def measure(megapixels: float, n: int, quick: bool) -> dict[str, Any]:
 LARGEST_PASS = """
 import sys, numpy as np, torch
 from cadnerf_core.cameras import intrinsics_from_fov, orbit_pose
-from cadnerf_core.config import resolve_config
+from cadnerf_core.config import internal_config
 from cadnerf_core.config_bounds import MAX_POINT_WIDTH
 from cadnerf_core.nerf import phases
 from cadnerf_core.nerf.device import adam
@@ -113,11 +113,11 @@ phase, width = sys.argv[1], int(sys.argv[2])
 c2w = np.stack([orbit_pose(a, 20.0, 4.0) for a in (0.0, 120.0, 240.0)])
 if phase == 'phase1':
     points = MAX_POINT_WIDTH // width
-    config = resolve_config('preview', {'field.hidden': width, 'phase1.batch_points': points})
+    config = internal_config('preview', {'field.hidden': width, 'phase1.batch_points': points})
 else:
     rays = MAX_POINT_WIDTH // width // 64
     points = rays * 64
-    config = resolve_config('preview', {
+    config = internal_config('preview', {
         'use_deformation': True, 'field.hidden': width, 'field.deform_hidden': width,
         'field.color_hidden': width, 'render.samples_per_ray': 64, 'render.use_grid': False,
         'render.train_pass_rays': rays, 'phase3.rays': rays, 'phase3.steps': 1,

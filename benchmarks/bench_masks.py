@@ -209,7 +209,7 @@ def training(name: str, paths: list[Path], mask_paths: list[Path], library: Any,
     ``overrides`` set in both jobs). One seed's difference is mostly chance (the section
     lists each seed's): hence the mean over seeds."""
     from cadnerf_cli.reconstruct_cmd import stage_inputs
-    from cadnerf_core.config import resolve_config
+    from cadnerf_core.config import internal_config
     from cadnerf_core.jobfolder import JobFolder
     from cadnerf_core.pipeline import run_job
 
@@ -221,7 +221,7 @@ def training(name: str, paths: list[Path], mask_paths: list[Path], library: Any,
             try:
                 stage_inputs(paths, masks, job)
                 values = {**exclude_overrides(name), "seed": seed, **(overrides or {})}
-                JobFolder(job).write_config(resolve_config("preview", values))
+                JobFolder(job).write_config(internal_config("preview", values))
                 summary = run_job(job, library)
                 psnr[label] = float((JobFolder(job).read_metrics() or {})["mean_psnr"])
                 model[label] = summary["model_id"]

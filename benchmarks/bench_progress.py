@@ -79,7 +79,7 @@ def measure(mesh: str, fov: float, quick: bool, threads: int,
 
     from app.state import default_stage_seconds
     from app.state.work import scaled, stage_work
-    from cadnerf_core.config import resolve_config
+    from cadnerf_core.config import internal_config
     from cadnerf_core.evaluation.dataset import load_dataset
     from cadnerf_core.evaluation.jobio import first_views, write_job
     from cadnerf_core.library.format import load_library
@@ -94,7 +94,7 @@ def measure(mesh: str, fov: float, quick: bool, threads: int,
     job_dir = WORK_DIR / "progress_job"
     shutil.rmtree(job_dir, ignore_errors=True)
     write_job(job_dir, first_views(load_dataset(walk), plan.views), PRESET, overrides, False)
-    config = resolve_config(PRESET, overrides)
+    config = internal_config(PRESET, overrides)
     expected = scaled(default_stage_seconds(PRESET, "cpu"), stage_work(config))
     with Recorder(expected) as recorder:
         run_job(job_dir, library, Progress(recorder.report), "cpu")

@@ -47,7 +47,7 @@ Usage: ``python -m benchmarks.bench_training [--quick] [--threads N] [--meshes N
 with ``--preset standard --device cuda --size 256``; ``--runs`` keeps only the named runs (of
 "full", the ablations and the oracle), as when one ablation is checked on more meshes;
 ``--exif-focal`` gives the photos their true focal length in EXIF, as a phone's photos have;
-``--overrides JSON`` sets configuration values in every run (``'{"field.deform_freqs": 2}'``).
+``--overrides JSON`` sets configuration values in every run (``'{"field.dir_freqs": 2}'``).
 """
 
 from __future__ import annotations

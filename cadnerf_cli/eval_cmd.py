@@ -82,8 +82,9 @@ def eval_command(
                                    "--test-views, or a NeRF-synthetic scene)."),
     views: str = typer.Option("3,6,9", "--views", help="Comma-separated numbers of input views."),
     preset: str = typer.Option("preview", "--preset", help="Pipeline preset."),
-    overrides: list[str] = typer.Option([], "--set", help="Config override key=value "
-                                        "(dotted keys, JSON values); repeatable."),
+    overrides: list[str] = typer.Option([], "--set", help="A setting key=value (dotted keys, "
+                                        "JSON values; `cadnerf config --schema` lists them); "
+                                        "repeatable."),
     seed: int = typer.Option(0, "--seed", help="Random seed of the job."),
     exclude_models: list[str] = typer.Option([], "--exclude-models", help=EXCLUDE_HELP),
     as_json: bool = typer.Option(False, "--json", help="Print the reports as JSON."),
@@ -99,6 +100,8 @@ def eval_command(
                                          "views at this side in pixels (default: dataset's)."),
 ) -> None:
     """Evaluate novel views and camera poses on DATASET for each number of input views."""
+    from cadnerf_cli.config_cmd import settings_error
+    from cadnerf_core.config import resolve_config
     from cadnerf_core.errors import CadNerfError
     from cadnerf_core.evaluation.evaluate import evaluate_dataset
     from cadnerf_core.evaluation.metrics import load_lpips
@@ -109,6 +112,11 @@ def eval_command(
     excluded = parse_model_ids(exclude_models)
     if excluded:
         config["retrieval.exclude_models"] = list(excluded)
+    try:
+        resolve_config(preset, config)  # --set takes the settings a client may send, no more
+    except ValueError as exc:
+        typer.echo(f"error: {settings_error(exc)}", err=True)
+        raise typer.Exit(code=2) from None
     weights = os.environ.get(LPIPS_ENV)
     lpips_net = load_lpips(Path(weights) if weights else None)
     reports = []

@@ -40,6 +40,8 @@ def _register() -> None:
     dataset_cmd.register(app)
     from cadnerf_cli import masks_cmd
     masks_cmd.register(app)
+    from cadnerf_cli import config_cmd
+    config_cmd.register(app)
 
 
 _register()

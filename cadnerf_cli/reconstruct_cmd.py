@@ -8,6 +8,7 @@ from typing import Any
 
 import typer
 
+from cadnerf_cli.config_cmd import settings_error
 from cadnerf_cli.eval_cmd import EXCLUDE_HELP, parse_model_ids, parse_overrides
 from cadnerf_cli.retrieve_cmd import (
     FOCAL_HELP,
@@ -63,8 +64,9 @@ def reconstruct(
                                            help="Your own ONNX background-removal model for "
                                            "the learned masks (default: the built-in one)."),
     exclude_models: list[str] = typer.Option([], "--exclude-models", help=EXCLUDE_HELP),
-    settings: list[str] = typer.Option([], "--set", help="Config override key=value (dotted "
-                                       "keys, JSON values, e.g. phase2.steps=300); repeatable."),
+    settings: list[str] = typer.Option([], "--set", help="A setting key=value (dotted keys, JSON "
+                                       "values, e.g. phase2.steps=300; `cadnerf config "
+                                       "--schema` lists them); repeatable."),
 ) -> None:
     """Poses, novel views, an orbit video and a mesh from ordered photos of an object."""
     from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
@@ -106,7 +108,7 @@ def reconstruct(
 
             summary = run_job(out, library, CoreProgress(report), device, mask_model)
     except (CadNerfError, ValueError, OSError) as exc:
-        typer.echo(f"error: {exc}", err=True)
+        typer.echo(f"error: {settings_error(exc)}", err=True)
         raise typer.Exit(2) from exc
     metrics = summary["metrics"]
     logging.getLogger(__name__).debug("summary: %s", summary)

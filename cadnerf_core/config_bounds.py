@@ -3,7 +3,7 @@ scales a job's work or memory, and the budget on points per pass x network width
 class of its sections.
 
 Each bound is several times what the largest preset uses, so no sensible job is refused;
-with ``MAX_POINT_WIDTH`` they keep the largest accepted job within a 6 GiB worker
+with ``MAX_POINT_WIDTH`` they keep the largest accepted job within a worker's memory
 (``docs/reliability.md``, section 6).
 """
 
@@ -35,8 +35,8 @@ MAX_SEED = 2**31 - 1  # numpy and torch take it on every platform
 MAX_MATCH_SIZE = 2048  # long side of the crops features are found in
 MAX_POINT_WIDTH = 2**26
 """Most (points evaluated in one training pass) x (widest network): the activations a pass keeps
-for its backward pass, the memory that grows with a configuration (``benchmarks.bench_job_memory
---largest-pass``). ``standard`` and ``paper`` are at it on a GPU (one pass of all rays)."""
+for its backward pass, the memory that grows with a configuration. ``standard`` and ``paper``
+are at it on a GPU (one pass of all rays)."""
 MAX_RENDER_POINT_WIDTH = 4 * MAX_POINT_WIDTH
 """The same for a rendering chunk, which keeps no activations for a backward pass."""
 

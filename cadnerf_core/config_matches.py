@@ -32,14 +32,10 @@ class MatchesConfig(Frozen):
     """Share of the object's box (its width and height) added on each side in which features
     are looked for too, with their own share (the object keeps all of its own): what stands
     still round the object while you walk round it (a table, a placemat, the floor) shares
-    points where the object's own surface (polished metal, glass, plain paint) does not.
-    Measured at 0.5: the real espresso photos get 6 pairs with 20 inliers or more instead of
-    1, the synthetic walks (plain background) the same; but the robot photos' ``preview``
-    training PSNR with built-in masks fell by 0.27-0.29 dB (seeds 0, 1), and the espresso
-    job's refined cameras stay the same (23.2 degrees from the metadata poses, look-alike left
-    out: every new pair's turn is over ``nerf.epipolar.PRIOR_DEG`` from the starting cameras',
-    so the loss leaves it out), so it is off (0: the object alone; keep 0 for a turntable,
-    where the background does not turn with the object)."""
+    points where the object's own surface (polished metal, glass, plain paint) does not. Off
+    (0: the object alone): the extra pairs did not improve the cameras, and training with
+    them was slightly worse (``docs/presets.md``); keep 0 for a turntable, where the
+    background does not turn with the object."""
     fuse: bool = True
     """Fuse the retrieved cameras with the rotations the matched pairs measured before
     training (rotation averaging anchored to the CAD model's frame; ``retrieval.fusion``)."""
@@ -58,16 +54,8 @@ class MatchesConfig(Frozen):
     camera (highlights, reflections, shading), larger ones mismatched repeats."""
     evidence_per_pair: float = Field(default=1.25, ge=0.0, le=100.0)
     """Direction evidence each consecutive pair with a usable turn adds, in the texture cue's
-    unit (``RetrievalConfig.appearance_weight`` converts it to IoU: 0.5 a pair at its default
-    0.2); none at all when their signs are split (``matches.AGREEMENT``)."""
-
-    step_weight: float = Field(default=0.0, ge=0.0, le=10.0)
-    """IoU the DP's walk loses, at most, where a step between consecutive photos differs from
-    the turn their matches measured. 0 (off): measured no better on level walks, where the
-    retrieved poses' error is mostly in elevation, which the steps do not constrain."""
-    step_tolerance_deg: float = Field(default=15.0, ge=1.0, le=180.0)
-    """Difference in degrees between a walk's step and the measured turn at which the loss
-    reaches ``step_weight`` (quadratic below)."""
+    unit (``RetrievalConfig.appearance_weight`` converts it to IoU); none at all when their
+    signs are split (``matches.AGREEMENT``)."""
 
     @model_validator(mode="after")
     def _check_range(self) -> MatchesConfig:

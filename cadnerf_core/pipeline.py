@@ -210,19 +210,16 @@ def _run_phase(phase: int, state: TrainState, library: Library, model_id: str,
     from cadnerf_core.nerf import phases
 
     cfg = state.config
-    sampler: phases.OccupancySampler | None = None
-    if cfg.use_cad_init:
-        grid = library.occupancy(model_id)
-        # Its own generator per phase: a resumed phase draws what an uninterrupted run drew.
-        rng = np.random.default_rng(cfg.seed if phase == 1 else [cfg.seed, phase])
-        sampler = partial(sample_occupancy, grid, near_surface=cfg.phase1.near_surface, rng=rng)
     if phase == 1:
-        if sampler is not None:
-            phases.run_phase1(state, sampler, progress)
+        if cfg.use_cad_init:
+            rng = np.random.default_rng(cfg.seed)
+            phases.run_phase1(state, partial(sample_occupancy, library.occupancy(model_id),
+                                              near_surface=cfg.phase1.near_surface, rng=rng),
+                              progress)
     elif phase == 2:
-        phases.run_phase2(state, data, progress, sampler)
+        phases.run_phase2(state, data, progress)
     else:
-        phases.run_phase3(state, data, progress, sampler)
+        phases.run_phase3(state, data, progress)
 
 
 def train(job_dir: Path, library: Library, retrieval: RetrievalResult, data: TrainData,

@@ -1,8 +1,12 @@
 """The test suite's own job configuration: a whole job in seconds on the CPU.
 
-Not a public preset: tests send it over HTTP as the ``preview`` preset with these overrides (the
-same validation a user's overrides get), and core tests resolve it directly. The numbers only
-need to exercise every code path; G is on so phase two's deformation runs too.
+Not a public preset: importing this module registers it as the preset ``tiny`` in the test
+process (``cadnerf_core.config.PRESETS``), so tests send it over HTTP as any client sends a
+preset, with only the settings a client may send on top (the same validation a user's get).
+Child processes the tests start (an API, a worker, ``cadnerf serve``) run through
+``tests/tiny_cli.py``, which imports this module first. Core tests may set any field on top
+(``tiny_config``, the internal path). The numbers only need to exercise every code path; G is on
+so phase two's deformation runs too.
 """
 
 from __future__ import annotations
@@ -10,9 +14,10 @@ from __future__ import annotations
 import json
 from typing import Any
 
-from cadnerf_core.config import PipelineConfig, resolve_config
+from cadnerf_core.config import PRESETS, PipelineConfig, internal_config, resolve_config
 
-TINY_PRESET = "preview"
+TINY_PRESET = "tiny"
+TINY_BASE = "preview"
 TINY_OVERRIDES: dict[str, Any] = {
     "image_size": 32,
     "use_deformation": True,
@@ -29,17 +34,15 @@ TINY_OVERRIDES: dict[str, Any] = {
     # found; the tests of the robust start ask for more.
     "retrieval": {"hypotheses": 1, "hypothesis_steps": 4, "hypothesis_size": 16},
 }
+"""The tiny preset's values on top of ``TINY_BASE``."""
+
+PRESETS[TINY_PRESET] = internal_config(TINY_BASE, TINY_OVERRIDES).model_copy(
+    update={"preset": TINY_PRESET})
 
 
 def tiny_request(**overrides: Any) -> dict[str, Any]:
-    """The ``config`` form field of a tiny job (extra overrides merged on top, one level deep)."""
-    merged = {k: (dict(v) if isinstance(v, dict) else v) for k, v in TINY_OVERRIDES.items()}
-    for key, value in overrides.items():
-        if isinstance(value, dict) and isinstance(merged.get(key), dict):
-            merged[key].update(value)
-        else:
-            merged[key] = value
-    return {"preset": TINY_PRESET, "overrides": merged}
+    """The ``config`` form field of a tiny job: the preset and a client's ``overrides``."""
+    return {"preset": TINY_PRESET, "overrides": overrides}
 
 
 def tiny_request_json(**overrides: Any) -> str:
@@ -48,9 +51,14 @@ def tiny_request_json(**overrides: Any) -> str:
 
 
 def tiny_config(**overrides: Any) -> PipelineConfig:
-    """The tiny configuration, resolved and validated like a job's."""
-    request = tiny_request(**overrides)
-    return resolve_config(request["preset"], request["overrides"])
+    """The tiny configuration with any fields overridden (the internal path: core tests set
+    fields a client may not)."""
+    return internal_config(TINY_PRESET, overrides)
+
+
+def tiny_client_config(**overrides: Any) -> PipelineConfig:
+    """The tiny configuration with a client's settings, resolved as the service resolves them."""
+    return resolve_config(TINY_PRESET, overrides)
 
 
 def tiny_cli_options(**overrides: Any) -> list[str]:

@@ -20,7 +20,14 @@ from app.deps import (
     StoreDep,
 )
 from app.errors import ApiError
-from app.schemas import DeleteResult, ErrorBody, JobList, JobResult, JobStatus
+from app.schemas import (
+    DeleteResult,
+    ErrorBody,
+    JobList,
+    JobResult,
+    JobStatus,
+    job_create_schema,
+)
 
 router = APIRouter(prefix="/v1/jobs", tags=["jobs"])
 
@@ -41,11 +48,12 @@ _UPLOAD_BODY: dict[str, Any] = {
                                       "order."},
             "masks": {"type": "array", "items": {"type": "string", "format": "binary"},
                       "description": "Optional: one mask per photo, same order and size."},
-            "config": {"type": "string",
-                       "description": 'JSON: {"preset": "preview", "overrides": {...}}'},
+            "config": {**job_create_schema(),
+                       "description": 'JSON: {"preset": "preview", "overrides": {...}}; '
+                                      "the settings a client may send are `overrides`'s."},
             "webhook_url": {"type": "string", "format": "uri",
                             "description": "Called with a signed JSON body when done."},
-        }}}}}}
+        }}, "encoding": {"config": {"contentType": "application/json"}}}}}}
 
 
 @router.post("", status_code=202, response_model=JobStatus, responses=_UPLOAD_ERRORS,

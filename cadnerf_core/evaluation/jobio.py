@@ -11,7 +11,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 from PIL import Image
 
-from cadnerf_core.config import resolve_config
+from cadnerf_core.config import internal_config
 from cadnerf_core.evaluation.dataset import Dataset
 from cadnerf_core.jobfolder import JobFolder
 
@@ -58,7 +58,7 @@ def write_job(job_dir: Path, train: Dataset, preset: str, overrides: dict[str, A
     Raises:
         ValueError: an invalid configuration, or ``job_dir`` already has photos.
     """
-    config = resolve_config(preset, overrides)
+    config = internal_config(preset, overrides)
     folder = JobFolder(job_dir)
     if folder.photos():
         raise ValueError(f"{job_dir} already holds a job")

@@ -78,8 +78,7 @@ class DeformationField(nn.Module):
 
     def __init__(self, cfg: FieldConfig) -> None:
         super().__init__()
-        freqs = cfg.pos_freqs if cfg.deform_freqs is None else cfg.deform_freqs
-        self.encoding = PositionalEncoding(freqs)
+        self.encoding = PositionalEncoding(cfg.pos_freqs)
         self.mlp = _mlp(self.encoding.out_dim, cfg.deform_hidden, cfg.deform_layers, 4)
         last = self.mlp[-1]
         assert isinstance(last, nn.Linear)

@@ -68,43 +68,13 @@ def run_phase1(state: TrainState, sampler: OccupancySampler,
         _report(progress, "phase1", step, cfg.steps)
 
 
-class CadPrior:
-    """CAD occupancy points drawn once, for anchoring D to the template in phases two and three
-    (``prior_weight``): a batch's BCE of D at its own, undeformed points."""
-
-    def __init__(self, state: TrainState, sampler: OccupancySampler, pool: int = 1 << 16) -> None:
-        pts, occ = sampler(pool)
-        self.points = torch.from_numpy(np.asarray(pts, np.float32)).to(state.device)
-        self.occupancy = torch.from_numpy(np.asarray(occ, np.float32)).to(state.device)
-
-    def loss(self, state: TrainState, n: int) -> torch.Tensor:
-        """BCE of D's logit against the CAD occupancy at ``n`` pool points (CPU draws)."""
-        idx = upload(torch.randint(0, self.points.shape[0], (n,)), state.device)
-        with autocast(state):
-            logit, _ = state.fields.density(self.points[idx])
-        return F.binary_cross_entropy_with_logits(logit.float(), self.occupancy[idx])
-
-
-def make_prior(state: TrainState, sampler: OccupancySampler | None,
-               weight: float) -> CadPrior | None:
-    """The CAD prior when it applies: a weight, a template (CAD init) and a deformation G."""
-    if weight <= 0 or sampler is None or state.fields.deformation is None \
-            or not state.config.use_cad_init:
-        return None
-    return CadPrior(state, sampler)
-
-
-def _pass_loss(state: TrainState, loss: torch.Tensor, out: RenderOutput,
-               cfg: Phase2Config | Phase3Config, share: float,
-               prior: CadPrior | None) -> torch.Tensor:
+def _pass_loss(loss: torch.Tensor, out: RenderOutput, cfg: Phase2Config | Phase3Config,
+               share: float) -> torch.Tensor:
     """One pass's loss: its re-rendering ``loss`` plus the deformation regularisers, scaled by
-    the pass's ``share`` of the step's rays (the passes then add up to the step's means), and
-    the CAD prior, given to one pass of the step only."""
+    the pass's ``share`` of the step's rays (the passes then add up to the step's means)."""
     loss = loss + cfg.lambda_offset * out.offset_norm + cfg.lambda_correction * out.correction_abs
     if share < 1.0:
         loss = loss * share
-    if prior is not None:
-        loss = loss + cfg.prior_weight * prior.loss(state, cfg.prior_points)
     return loss
 
 
@@ -118,8 +88,7 @@ def _matches_pass(state: TrainState, data: TrainData, weight: float,
 
 
 def phase2_step(state: TrainState, data: TrainData, optimizer: torch.optim.Optimizer | None,
-                pose_optimizer: torch.optim.Optimizer | None, step: int,
-                prior: CadPrior | None = None) -> float:
+                pose_optimizer: torch.optim.Optimizer | None, step: int) -> float:
     """One silhouette step: G (or D) and, inside the window, the poses (with the photos'
     matches, ``phase2.lambda_matches``). Returns the loss."""
     cfg = state.config.phase2
@@ -128,12 +97,12 @@ def phase2_step(state: TrainState, data: TrainData, optimizer: torch.optim.Optim
     img, x, y = sample_pixels(data, cfg.rays)
 
     def losses() -> Iterator[torch.Tensor]:
-        for i, (part, share) in enumerate(ray_passes(state, len(img))):
+        for part, share in ray_passes(state, len(img)):
             out = render_batch(state, data, img[part], x[part], y[part], False,
                                pose_optimizer is not None)
             weight = pixel_weights(data, img[part], x[part], y[part])
             loss = weighted_mse(out.acc, data.masks[img[part], y[part], x[part]], weight)
-            yield _pass_loss(state, loss, out, cfg, share, prior if i == 0 else None)
+            yield _pass_loss(loss, out, cfg, share)
         yield from _matches_pass(state, data, cfg.lambda_matches, pose_optimizer is not None)
 
     return apply_step(losses(), optimizer, pose_optimizer)
@@ -149,13 +118,10 @@ def _phase2_params(state: TrainState) -> list[torch.nn.Parameter]:
     return density if deformation is None else [*deformation.parameters(), *density]
 
 
-def run_phase2(state: TrainState, data: TrainData, progress: Progress | None = None,
-               sampler: OccupancySampler | None = None) -> None:
-    """Phase two: deformation and poses from the silhouettes (``sampler``: the CAD occupancy,
-    for ``prior_weight``)."""
+def run_phase2(state: TrainState, data: TrainData, progress: Progress | None = None) -> None:
+    """Phase two: deformation and poses from the silhouettes."""
     cfg = state.config.phase2
     torch.manual_seed(state.config.seed + 2)
-    prior = make_prior(state, sampler, cfg.prior_weight)
     shape = _phase2_params(state)
     optimizer = adam(shape, cfg.lr, state.device) if shape else None
     pose_optimizer = adam(state.poses.optimizer_groups(cfg.pose_lr, state.config.phase2.focal_lr),
@@ -170,8 +136,7 @@ def run_phase2(state: TrainState, data: TrainData, progress: Progress | None = N
             # Nothing to fit outside the pose window when the shape is held.
             _report(progress, "phase2", step, cfg.steps)
             continue
-        loss = phase2_step(state, data, optimizer, pose_optimizer if active else None, step,
-                           prior)
+        loss = phase2_step(state, data, optimizer, pose_optimizer if active else None, step)
         state.log("phase2/loss", loss)
         update_grids(state, step)
         _report(progress, "phase2", step, cfg.steps)
@@ -181,7 +146,7 @@ def run_phase2(state: TrainState, data: TrainData, progress: Progress | None = N
 
 def phase3_step(state: TrainState, data: TrainData, optimizer: torch.optim.Optimizer,
                 pose_optimizer: torch.optim.Optimizer | None = None, scene: bool = False,
-                targets: torch.Tensor | None = None, prior: CadPrior | None = None) -> float:
+                targets: torch.Tensor | None = None) -> float:
     """One colour step (D, G and colour; the background too in scene mode; the poses inside
     phase three's window, with the photos' matches, ``phase3.lambda_matches``). Returns the
     loss."""
@@ -193,7 +158,7 @@ def phase3_step(state: TrainState, data: TrainData, optimizer: torch.optim.Optim
     white = None if scene else torch.ones(3, device=state.device)
 
     def losses() -> Iterator[torch.Tensor]:
-        for i, (part, share) in enumerate(ray_passes(state, len(img))):
+        for part, share in ray_passes(state, len(img)):
             pimg, px, py = img[part], x[part], y[part]
             out = render_batch(state, data, pimg, px, py, True, pose_optimizer is not None,
                                white, cull=True)
@@ -203,19 +168,16 @@ def phase3_step(state: TrainState, data: TrainData, optimizer: torch.optim.Optim
                 weight = pixel_weights(data, pimg, px, py)
                 loss = loss + cfg.mask_weight * weighted_mse(out.acc, data.masks[pimg, py, px],
                                                              weight)
-            yield _pass_loss(state, loss, out, cfg, share, prior if i == 0 else None)
+            yield _pass_loss(loss, out, cfg, share)
         yield from _matches_pass(state, data, cfg.lambda_matches, pose_optimizer is not None)
 
     return apply_step(losses(), optimizer, pose_optimizer)
 
 
-def run_phase3(state: TrainState, data: TrainData, progress: Progress | None = None,
-               sampler: OccupancySampler | None = None) -> None:
-    """Phase three: colour re-rendering on white; then, in scene mode, with the background
-    (``sampler``: the CAD occupancy, for ``prior_weight``)."""
+def run_phase3(state: TrainState, data: TrainData, progress: Progress | None = None) -> None:
+    """Phase three: colour re-rendering on white; then, in scene mode, with the background."""
     cfg = state.config.phase3
     torch.manual_seed(state.config.seed + 3)
-    prior = make_prior(state, sampler, cfg.prior_weight)
     state.fields.set_anneal(1.0)
     background = state.fields.background
     params = [p for name, p in state.fields.named_parameters()
@@ -236,7 +198,7 @@ def run_phase3(state: TrainState, data: TrainData, progress: Progress | None = N
         targets = blurred[sigma] if active and sigma > 0 else None
         state.log("phase3/loss", phase3_step(state, data, optimizer,
                                              pose_optimizer if active else None,
-                                             targets=targets, prior=prior))
+                                             targets=targets))
         update_grids(state, step)
         _report(progress, "phase3", step, total)
     if scene_steps and background is not None:

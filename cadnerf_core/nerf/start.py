@@ -99,7 +99,6 @@ def coarse_fit(hypothesis: RetrievalResult, photos: Sequence[Any],
     K[:, :2] *= size / kept[0].box.size  # K_canon is for the job's crop size
     data = TrainData.from_numpy(rgb, crops, K, device)
     grid = None
-    sampler = None
     if cfg.use_cad_init:
         occupancy = library.occupancy(hypothesis.model_id)
         grid = grid_from_occupancy(occupancy.query, cfg.render.grid_resolution, cfg.render.bound,
@@ -112,7 +111,7 @@ def coarse_fit(hypothesis: RetrievalResult, photos: Sequence[Any],
     else:
         state = TrainState.create(cfg, np.stack([m.c2w for m in kept]), device, None,
                                   learn_focal)
-    phases.run_phase2(state, data, progress, sampler)
+    phases.run_phase2(state, data, progress)
     model = TrainedModel(state)
     with torch.no_grad():
         K_fit = state.poses.intrinsics(data.K).cpu().numpy()

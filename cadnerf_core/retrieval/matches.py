@@ -392,13 +392,3 @@ def walk_evidence(pairs: Sequence[PairMatch], n_photos: int, config: MatchesConf
     if not signs or (len(signs) + abs(total)) / 2.0 < AGREEMENT * len(signs):
         return 0.0
     return config.evidence_per_pair * total
-
-
-def measured_steps(pairs: Sequence[PairMatch], n_photos: int,
-                   config: MatchesConfig) -> np.ndarray:
-    """The size in degrees of the turn from photo p - 1 to photo p where a usable pair
-    (``usable_turns``) measured it, else NaN. Returns [n_photos] float64 (entry 0 NaN)."""
-    steps = np.full(n_photos, np.nan)
-    for p in usable_turns(pairs, n_photos, config):
-        steps[p.j] = abs(float(p.turn_deg or 0.0))
-    return steps

@@ -41,9 +41,7 @@ run for every first-photo bin and direction at once; with ``cyclic=False`` the b
 pass the end of the turn (bin ``n_az - 1`` going up, bin 0 going down), as in the paper. An
 optional ``backward_cost`` is subtracted from the objective of a decreasing walk (not from
 the returned score); at equal objectives the increasing walk (the paper's order), then fewer
-discards, win. Optional measured ``steps`` (the turns between consecutive photos that their
-shared points give, ``matches``) add a robust penalty on each kept photo's step from the last
-kept one where it differs from the measured one.
+discards, win.
 """
 
 from __future__ import annotations
@@ -146,7 +144,6 @@ def _gap_gain(n_az: int, spread_weight: float) -> np.ndarray:
 
 
 def _forward(table: np.ndarray, drop: np.ndarray, max_discard: int, gap: np.ndarray,
-             step_gain_per_photo: np.ndarray | None = None,
              ) -> tuple[np.ndarray, list[tuple[np.ndarray, ...]]]:
     """Run the DP for a batch of bin-reordered tables (the first kept photo sits at bin 0).
 
@@ -155,8 +152,6 @@ def _forward(table: np.ndarray, drop: np.ndarray, max_discard: int, gap: np.ndar
         drop: [P] gain of discarding photo p.
         max_discard: D, the most discards.
         gap: [n_az + 1] gain of a gap of g bins.
-        step_gain_per_photo: [P, n_az + 1] extra gain of a step of g bins from the last kept
-            photo to photo p (None: none).
     Returns:
         G [B, D + 1, n_az]: best score of all photos with d discards and the last kept photo
         at bin j (before the closing gap); and per photo the back pointers (previous bin
@@ -171,10 +166,7 @@ def _forward(table: np.ndarray, drop: np.ndarray, max_discard: int, gap: np.ndar
     empty[0] = 0.0
     pointers: list[tuple[np.ndarray, ...]] = []
     for p in range(n_photos):
-        own = step_gain
-        if step_gain_per_photo is not None:
-            own = step_gain + step_gain_per_photo[p][np.clip(step, 0, n_az)]
-        moves = g[..., :, None] + own  # [B, D + 1, j_prev, j]
+        moves = g[..., :, None] + step_gain  # [B, D + 1, j_prev, j]
         prev = moves.argmax(axis=2)
         keep = np.take_along_axis(moves, prev[:, :, None, :], axis=2)[:, :, 0, :]
         first = np.zeros(keep.shape, dtype=bool)
@@ -215,9 +207,7 @@ def _walks(n_az: int, both_directions: bool) -> tuple[list[int], np.ndarray]:
 
 def cyclic_dp(iou: np.ndarray, az_index: np.ndarray, n_az: int, discard_penalty: float = 0.3,
               max_discard: int = 2, both_directions: bool = True, cyclic: bool = True,
-              backward_cost: float = 0.0, spread_weight: float = 0.0,
-              steps: np.ndarray | None = None, step_weight: float = 0.0,
-              step_tolerance: float = 1.0) -> PoseSearchResult:
+              backward_cost: float = 0.0, spread_weight: float = 0.0) -> PoseSearchResult:
     """Exact cyclic-order pose search by dynamic programming (see the module docstring).
 
     Args:
@@ -233,10 +223,6 @@ def cyclic_dp(iou: np.ndarray, az_index: np.ndarray, n_az: int, discard_penalty:
         backward_cost: subtracted from the objective of a decreasing walk (not counted in the
             returned score), so it must win by this much to be chosen.
         spread_weight: weight of the gap-spread term (0: none).
-        steps: [P] measured size in bins of the step from photo p - 1 to photo p (NaN where
-            unknown; ``steps[0]`` unused): a kept photo whose step from the last kept photo
-            differs by ``delta`` bins loses ``step_weight * min(1, (delta / step_tolerance)^2)``
-            (robust: a wrong measurement costs at most ``step_weight``).
     Returns:
         Chosen views (``-1`` = discarded), the objective's value, and the walking direction.
     """
@@ -250,12 +236,7 @@ def cyclic_dp(iou: np.ndarray, az_index: np.ndarray, n_az: int, discard_penalty:
         table = np.where(((unrolled < 0) | (unrolled >= n_az))[:, None, :], NEG_INF, table)
     drop = iou.max(axis=1) - discard_penalty  # a discarded photo: its own best, less the fee
     gap = _gap_gain(n_az, spread_weight)
-    per_photo = None
-    if steps is not None and step_weight > 0 and np.isfinite(steps[1:]).any():
-        delta = (np.arange(n_az + 1)[None, :] - np.asarray(steps, np.float64)[:, None])
-        per_photo = np.nan_to_num(-step_weight * np.minimum(1.0, (delta / step_tolerance) ** 2))
-        per_photo[0] = 0.0
-    g, pointers = _forward(table, drop, min(max_discard, n_photos - 1), gap, per_photo)
+    g, pointers = _forward(table, drop, min(max_discard, n_photos - 1), gap)
     ends = g + gap[n_az - np.arange(n_az)]  # the closing gap, [B, D + 1, n_az]
     charged = ends - np.array([backward_cost if s < 0 else 0.0 for s in signs])[:, None, None]
     per_discard = charged.max(axis=(0, 2))

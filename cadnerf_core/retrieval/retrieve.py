@@ -27,7 +27,6 @@ from cadnerf_core.retrieval.matches import (
     PairMatch,
     inlier_table,
     match_photos,
-    measured_steps,
     reindexed,
     walk_evidence,
 )
@@ -189,19 +188,17 @@ def _retrieve(seen: _Seen, names: Sequence[str], library: Library, allowed: np.n
     from cadnerf_core.retrieval.direction import walk_direction_evidence
 
     evidence = 0.0
-    steps = None
     n_photos = len(seen.sizes)
     if seen.appearance is not None and config.solver == "dp" and config.appearance_weight > 0:
         evidence = walk_direction_evidence(*seen.appearance)
         if seen.pairs:
             turns = walk_evidence(seen.pairs, n_photos, config.matches)
-            steps = measured_steps(seen.pairs, n_photos, config.matches)
             log.info("walking-direction evidence: matches %+.2f, texture %+.2f", turns,
                      evidence)
             evidence += turns
     photos = _Photos(names, seen.sizes, seen.crops, seen.boxes, evidence, focals,
                      crop_size or library.spec.silhouette_size, allowed,
-                     seen.pairs, steps)
+                     seen.pairs)
 
     near = library.near
     known = [f for f in focals or [] if f is not None]
@@ -317,7 +314,6 @@ class _Photos:
     crop_size: int  # side of the crop that K_canon and box refer to
     allowed: np.ndarray  # [M'] library indices of the models that may be chosen
     pairs: list[PairMatch]  # the verified matches between photo pairs
-    steps: np.ndarray | None  # [P] measured turn (degrees) from photo p - 1 to p, or NaN
 
 
 def _retrieve_from(photos: _Photos, library: Library, config: RetrievalConfig,
@@ -336,16 +332,14 @@ def _retrieve_from(photos: _Photos, library: Library, config: RetrievalConfig,
     if progress is not None:
         progress.step("retrieval", steps[0] + 1, steps[1])
     az_index = azimuth_bins(library.az_el, spec.n_azimuths)
-    m, found = choose_walk(iou, voted, ranking, az_index, spec.n_azimuths, config, evidence,
-                           photos.steps)
+    m, found = choose_walk(iou, voted, ranking, az_index, spec.n_azimuths, config, evidence)
     ambiguous = (found.direction_lead is not None
                  and found.direction_lead < config.ambiguity_margin
                  and abs(evidence) < config.appearance_threshold)
     if ambiguous and found.direction < 0 and config.ambiguous_walk == "ccw":
         ccw = config.model_copy(update={"walk": "ccw"})
         lead = found.direction_lead
-        m, found = choose_walk(iou, voted, ranking, az_index, spec.n_azimuths, ccw, evidence,
-                               photos.steps)
+        m, found = choose_walk(iou, voted, ranking, az_index, spec.n_azimuths, ccw, evidence)
         found = dataclasses.replace(found, direction_lead=lead)
     models = [library.models[i] for i in allowed]
     top = [{"model_id": models[i].id, "category": models[i].category,
@@ -361,7 +355,7 @@ def _retrieve_from(photos: _Photos, library: Library, config: RetrievalConfig,
                               walk.direction, walk.score, evidence, perspective=perspective,
                               pairs=photos.pairs)
               for o, walk in alternatives(iou, ranking, az_index, spec.n_azimuths, config,
-                                          evidence, photos.steps, (m, found.direction))]
+                                          evidence, (m, found.direction))]
     return RetrievalResult(models[m].id, models[m].category, top, matches, config.solver,
                            found.direction, found.score, evidence, found.direction_lead,
                            perspective=perspective, direction_ambiguous=ambiguous,

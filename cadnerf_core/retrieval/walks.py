@@ -19,8 +19,7 @@ BOUND_SLACK = 1e-4  # summed IoU: float32 rounding of ``vote_models``' sums, wit
 
 
 def solve_poses(iou: np.ndarray, az_index: np.ndarray, n_azimuths: int,
-                config: RetrievalConfig, evidence: float = 0.0,
-                steps: np.ndarray | None = None) -> PoseSearchResult:
+                config: RetrievalConfig, evidence: float = 0.0) -> PoseSearchResult:
     """Run the configured pose solver on one model's IoU table.
 
     Args:
@@ -29,9 +28,6 @@ def solve_poses(iou: np.ndarray, az_index: np.ndarray, n_azimuths: int,
         n_azimuths: number of azimuth bins.
         evidence: texture evidence for the walking direction (> 0: increasing azimuth),
             used by the DP when it reaches ``config.appearance_threshold``.
-        steps: [P] size in degrees of the turn from photo p - 1 to photo p that the photos'
-            matches measured (NaN where unknown), a prior on the DP's steps
-            (``MatchesConfig.step_weight``); None: none.
     Returns:
         chosen views (-1 = discarded), score and direction.
     """
@@ -41,7 +37,7 @@ def solve_poses(iou: np.ndarray, az_index: np.ndarray, n_azimuths: int,
         # view indices do not depend on the bins' numbering.
         bins = az_index if given > 0 else (-np.asarray(az_index)) % n_azimuths
         forward = config.model_copy(update={"walk": "auto", "both_directions": False})
-        found = solve_poses(iou, bins, n_azimuths, forward, steps=steps)
+        found = solve_poses(iou, bins, n_azimuths, forward)
         return dataclasses.replace(found, direction=given, direction_lead=None)
     if config.solver == "paper":
         found = paper_algorithm1(iou, az_index, config.top_k, config.max_discard)
@@ -54,27 +50,23 @@ def solve_poses(iou: np.ndarray, az_index: np.ndarray, n_azimuths: int,
     if abs(evidence) >= config.appearance_threshold:
         # Each direction gains (or loses) weight * evidence: the decreasing walk pays twice.
         backward_cost += 2.0 * config.appearance_weight * evidence
-    bin_deg = 360.0 / n_azimuths
     return cyclic_dp(iou, az_index, n_azimuths, config.discard_penalty, config.max_discard,
                      config.both_directions, config.cyclic, backward_cost=backward_cost,
-                     spread_weight=config.spread_weight,
-                     steps=None if steps is None else steps / bin_deg,
-                     step_weight=config.matches.step_weight,
-                     step_tolerance=config.matches.step_tolerance_deg / bin_deg)
+                     spread_weight=config.spread_weight)
 
 
 def choose_walk(iou: np.ndarray, m: int, ranking: Sequence[tuple[int, int, float]],
                 az_index: np.ndarray, n_azimuths: int, config: RetrievalConfig,
-                evidence: float, steps: np.ndarray | None) -> tuple[int, PoseSearchResult]:
+                evidence: float) -> tuple[int, PoseSearchResult]:
     """The model and its walk: the voted model ``m``'s, or (``model_choice`` "walk", DP) the
     best walk of the ``walk_models`` most voted. Returns (model index, its walk)."""
-    found = solve_poses(iou[:, m, :], az_index, n_azimuths, config, evidence, steps)
+    found = solve_poses(iou[:, m, :], az_index, n_azimuths, config, evidence)
     if config.model_choice == "walk" and config.solver == "dp":
         for entry in walk_pool(ranking, config)[1:]:
             if walk_bound(entry, len(iou), config) <= found.score:
                 continue  # no walk of this model can score more
             other = entry[0]
-            walk = solve_poses(iou[:, other, :], az_index, n_azimuths, config, evidence, steps)
+            walk = solve_poses(iou[:, other, :], az_index, n_azimuths, config, evidence)
             if walk.score > found.score:
                 m, found = other, walk
     return m, found
@@ -91,15 +83,15 @@ def walk_bound(entry: tuple[int, int, float], n_photos: int, config: RetrievalCo
     """The most any walk of the model of ``entry`` (a ``vote_models`` ranking entry: model,
     votes, summed best IoU) can score: every photo at its own best view, less, for the DP, the
     least spread penalty (gaps summing to one turn over at most ``n_photos`` kept photos cost
-    at least ``spread_weight / n_photos``; discards and the matches' step prior only lower
-    it). A little above it, for the float32 sum of the ranking."""
+    at least ``spread_weight / n_photos``; discards only lower it). A little above it, for the
+    float32 sum of the ranking."""
     spread = config.spread_weight / n_photos if config.solver == "dp" else 0.0
     return entry[2] - spread + BOUND_SLACK
 
 
 def alternatives(iou: np.ndarray, ranking: Sequence[tuple[int, int, float]],
                  az_index: np.ndarray, n_azimuths: int, config: RetrievalConfig,
-                 evidence: float, steps: np.ndarray | None,
+                 evidence: float,
                  chosen: tuple[int, int]) -> list[tuple[int, PoseSearchResult]]:
     """The best walks after the ``chosen`` (model, direction), best score first: each of the
     ``walk_models`` most voted models walked each allowed way round; ``config.hypotheses`` - 1
@@ -115,7 +107,7 @@ def alternatives(iou: np.ndarray, ranking: Sequence[tuple[int, int, float]],
             continue  # none of its walks can join the best
         other = entry[0]
         for given in walks:
-            result = solve_poses(iou[:, other, :], az_index, n_azimuths, given, evidence, steps)
+            result = solve_poses(iou[:, other, :], az_index, n_azimuths, given, evidence)
             if (other, result.direction) != chosen:
                 found.append((other, result))
         found.sort(key=lambda pair: -pair[1].score)  # stable: ties stay most voted first

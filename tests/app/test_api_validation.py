@@ -161,6 +161,33 @@ def test_config_is_validated_by_the_core(client: TestClient, settings: Settings,
     _assert_no_job_folder(settings)
 
 
+@pytest.mark.parametrize(("overrides", "name"), [
+    ({"phase2": {"prior_weight": 1.0}}, "phase2.prior_weight"),  # deleted
+    ({"retrieval.hypotheses": 3}, "retrieval.hypotheses"),  # the preset's own
+    ({"field": {"hidden": 8}}, "field.hidden"),  # a section a client may not touch
+])
+def test_a_setting_a_client_may_not_send_answers_422_naming_it(
+        client: TestClient, settings: Settings, photos, overrides: dict[str, object],
+        name: str) -> None:
+    config = json.dumps({"preset": "preview", "overrides": overrides})
+    error = _error(client.post("/v1/jobs", files=photos(), data={"config": config}), 422,
+                   "invalid_config")
+    assert error["field"] == "config"
+    assert error["message"].startswith(f"{name}: not a setting a client may send"), error
+    _assert_no_job_folder(settings)
+
+
+def test_openapi_types_the_config_field_by_the_client_settings(client: TestClient) -> None:
+    from cadnerf_core.config_client import CLIENT_SETTINGS, client_schema
+
+    body = client.get("/openapi.json").json()["paths"]["/v1/jobs"]["post"]["requestBody"]
+    form = body["content"]["multipart/form-data"]
+    assert form["encoding"]["config"]["contentType"] == "application/json"
+    config = form["schema"]["properties"]["config"]
+    assert config["properties"]["overrides"]["properties"] == client_schema()["properties"]
+    assert "$ref" not in json.dumps(config) and len(CLIENT_SETTINGS) <= 30
+
+
 def test_overrides_are_kept_with_the_job(client: TestClient, settings: Settings, photos) -> None:
     config = {"preset": "preview", "overrides": {"phase2.steps": 3}}
     job = client.post("/v1/jobs", files=photos(), data={"config": json.dumps(config)}).json()

@@ -32,7 +32,7 @@ from app.state import (
     stage_work,
 )
 from cadnerf_core.config import PRESETS, resolve_config
-from tests.configs import TINY_PRESET, tiny_config, tiny_request_json
+from tests.configs import TINY_PRESET, tiny_client_config, tiny_request_json
 
 TEST_JOB_S = 2.0 * len(STAGES)  # the fake history: 2 s per stage
 
@@ -182,14 +182,16 @@ def test_the_api_reports_queue_position_and_eta(client: TestClient, clean_redis:
     """Through the routes: POST, GET and the list carry the position; a delete moves up."""
     _history(clean_redis)
     Workers(clean_redis).beat("worker-a", 30)
-    config = {"config": tiny_request_json()}
+    shorter = {"phase3": {"steps": 3}, "export": {"orbit_size": 16}}
+    config = {"config": tiny_request_json(**shorter)}
     first = client.post("/v1/jobs", files=photos(), data=config)
     second = client.post("/v1/jobs", files=photos(), data=config)
     assert first.status_code == 202 and second.status_code == 202, second.text
     assert first.json()["queue_position"] == 0
     assert second.json()["queue_position"] == 1
-    tiny_s = sum(scaled({stage: 2.0 for stage in STAGES}, stage_work(tiny_config())).values())
-    assert tiny_s < TEST_JOB_S  # the tiny overrides shrink every training and export stage
+    tiny_s = sum(scaled({stage: 2.0 for stage in STAGES},
+                        stage_work(tiny_client_config(**shorter))).values())
+    assert tiny_s < TEST_JOB_S  # the overrides shrink phase three and the render
     assert second.json()["eta_s"] == pytest.approx(2 * tiny_s, abs=0.1)
     listed = {j["id"]: j for j in client.get("/v1/jobs").json()["items"]}
     assert listed[second.json()["id"]]["queue_position"] == 1
@@ -204,8 +206,8 @@ _PREVIEW = PRESETS[TINY_PRESET]
 @pytest.mark.parametrize(("overrides", "stage", "low", "high"), [
     # Ten times phase three's steps: its 2 s become 20 s.
     ({"phase3.steps": 10 * _PREVIEW.phase3.steps}, "phase3", 10.0, 10.0),
-    # Twice the rays a step: phase three costs twice as much.
-    ({"phase3.rays": 2 * _PREVIEW.phase3.rays}, "phase3", 2.0, 2.0),
+    # Twice phase two's steps: phase two costs twice as much.
+    ({"phase2.steps": 2 * _PREVIEW.phase2.steps}, "phase2", 2.0, 2.0),
     # Twice the orbit's side: four times its pixels; the views' pixels stay. The orbit holds
     # most of preview's rendered pixels, so the render stage grows by 2 to 4 times.
     ({"export.orbit_size": 2 * _PREVIEW.export.orbit_size}, "render", 2.0, 4.0),
@@ -213,7 +215,7 @@ _PREVIEW = PRESETS[TINY_PRESET]
     ({"image_size": 2 * _PREVIEW.image_size}, "render", 1.0, 4.0),
     # Half the working size: fewer pixels to render, a shorter render stage.
     ({"image_size": _PREVIEW.image_size // 2}, "render", 0.25, 1.0),
-], ids=["phase3.steps x10", "phase3.rays x2", "export.orbit_size x2", "image_size x2",
+], ids=["phase3.steps x10", "phase2.steps x2", "export.orbit_size x2", "image_size x2",
         "image_size /2"])
 def test_the_eta_scales_with_the_overrides(client: TestClient, clean_redis: redis.Redis,
                                            photos: Callable[..., list[Any]],

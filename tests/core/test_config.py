@@ -13,9 +13,10 @@ from cadnerf_core.config import (
     PRESETS,
     PipelineConfig,
     RetrievalConfig,
+    internal_config,
     resolve_config,
 )
-from tests.configs import tiny_config
+from tests.configs import TINY_PRESET, tiny_config
 
 # The values that decide `preview`'s and `standard`'s results (docs/presets.md): a change to
 # the config's shape must leave every one as it is.
@@ -27,7 +28,7 @@ PINNED: dict[str, dict[str, object]] = {
         "render.samples_per_ray": 32, "render.grid_resolution": 32, "render.bound": 1.1,
         "phase1.steps": 200, "phase1.batch_points": 4096, "phase1.lr": 1e-3,
         "phase2.steps": 400, "phase2.rays": 1024, "phase2.pose_window": (0.5, 1.0),
-        "phase2.pose_lr": 2e-3, "phase2.train_density": True, "phase2.prior_weight": 0.0,
+        "phase2.pose_lr": 2e-3, "phase2.train_density": True,
         "phase3.steps": 2000, "phase3.rays": 1024, "phase3.lr": 5e-4,
         "phase3.pose_window": (0.0, 0.75), "phase3.pose_lr": 2e-3, "phase3.pose_blur": 0.0625,
         "phase3.mask_weight": 0.1, "phase3.lambda_offset": 0.1,
@@ -63,7 +64,9 @@ def test_preset_values_are_pinned(name: str) -> None:
 
 
 def test_every_preset_resolves_to_itself() -> None:
-    assert set(PRESETS) == {"paper", "standard", "preview"}  # the test suite's config is its own
+    # The test suite's config is its own preset, registered by tests/configs.py only (a fresh
+    # interpreter's presets: test_config_module_does_not_import_torch).
+    assert set(PRESETS) == {"paper", "standard", "preview", TINY_PRESET}
     for name, preset in PRESETS.items():
         assert resolve_config(name, {}) == preset
         assert preset.preset == name
@@ -82,10 +85,72 @@ def test_paper_preset_keeps_the_papers_values() -> None:
 
 def test_overrides_nested_and_dotted() -> None:
     cfg = resolve_config("preview", {"phase2": {"steps": 7}, "export.orbit_frames": 12,
-                                     "use_deformation": True})
+                                     "retrieval": {"matches.enabled": False}})
     assert cfg.phase2.steps == 7 and cfg.export.orbit_frames == 12
-    assert PRESETS["preview"].use_deformation is False and cfg.use_deformation is True
+    assert cfg.retrieval.matches.enabled is False
     assert cfg.phase2.rays == PRESETS["preview"].phase2.rays  # untouched values stay
+    assert cfg.retrieval.matches.size == PRESETS["preview"].retrieval.matches.size
+    inner = internal_config("preview", {"phase2": {"steps": 7}, "use_deformation": True})
+    assert PRESETS["preview"].use_deformation is False and inner.use_deformation is True
+    assert inner.phase2.steps == 7
+
+
+@pytest.mark.parametrize("key", ["use_deformation", "phase2.rays", "field.hidden",
+                                 "retrieval.hypotheses", "retrieval.matches.size",
+                                 "masks.doubt_weight", "preset"])
+def test_a_client_may_not_set_what_the_presets_hold(key: str) -> None:
+    """The preset's own values are refused from a client, by name; the internal path takes
+    them."""
+    value = {"use_deformation": True, "preset": "paper", "retrieval.hypotheses": 3,
+             "masks.doubt_weight": 0.5}.get(key, 512)
+    with pytest.raises(ValidationError) as caught:
+        resolve_config("preview", {key: value})
+    from cadnerf_core.config_client import refused_names
+
+    errors = caught.value.errors()
+    assert [refused_names(err["loc"], err["input"]) for err in errors] == [key]
+    assert errors[0]["type"] == "extra_forbidden"
+    if key != "preset":
+        internal_config("preview", {key: value})
+
+
+def test_deleted_settings_are_gone() -> None:
+    """Levers no preset or benchmark used are not settings, even internally."""
+    for key in ("phase2.prior_weight", "phase3.prior_points", "field.deform_freqs",
+                "retrieval.matches.step_weight", "retrieval.matches.step_tolerance_deg"):
+        with pytest.raises(ValidationError, match=key.rsplit(".", 1)[1]):
+            internal_config("preview", {key: 1})
+
+
+def test_client_settings_are_few_and_each_documented() -> None:
+    from cadnerf_core.config_client import (
+        CLIENT_SETTINGS,
+        MAX_CLIENT_SETTINGS,
+        client_schema,
+        schema_leaves,
+    )
+
+    leaves = schema_leaves(client_schema())
+    assert list(leaves) == list(CLIENT_SETTINGS)
+    assert 0 < len(leaves) <= MAX_CLIENT_SETTINGS == 30
+    for path, prop in leaves.items():
+        description = prop.get("description", "")
+        assert description and "\n" not in description, path
+        value = PRESETS["preview"].model_dump(mode="json")
+        for part in path.split("."):
+            value = value[part]  # every setting is a field of the pipeline config
+        assert resolve_config("preview", {path: value}) == PRESETS["preview"], path
+
+
+def test_the_points_budget_bounds_what_a_preset_multiplies() -> None:
+    """Each field within its own bound can still multiply past memory: the budget names it."""
+    for overrides, field in (({"phase2.rays": 65536, "render.samples_per_ray": 512},
+                              "phase2.rays"),
+                             ({"phase1.batch_points": 262144, "field.hidden": 512},
+                              "phase1.batch_points")):
+        with pytest.raises(ValueError, match=field) as caught:
+            internal_config("preview", overrides)
+        assert "67108864" in str(caught.value)
 
 
 @pytest.mark.parametrize("overrides", [
@@ -97,9 +162,10 @@ def test_overrides_nested_and_dotted() -> None:
     {"export.orbit_size": 33},
     {"seed": "abc"},
 ])
-def test_invalid_overrides_are_rejected(overrides: dict[str, object]) -> None:
+@pytest.mark.parametrize("resolve", [resolve_config, internal_config])
+def test_invalid_overrides_are_rejected(overrides: dict[str, object], resolve) -> None:
     with pytest.raises(ValidationError):
-        resolve_config("preview", overrides)
+        resolve("preview", overrides)
 
 
 def test_unknown_preset_and_malformed_overrides() -> None:
@@ -132,9 +198,10 @@ def test_every_field_is_documented() -> None:
 
 
 def test_config_module_does_not_import_torch() -> None:
-    code = "import sys, cadnerf_core.config; print('torch' in sys.modules)"
+    code = ("import sys, cadnerf_core.config, cadnerf_core.config_client; "
+            "print('torch' in sys.modules, sorted(cadnerf_core.config.PRESETS))")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
-    assert out.stdout.strip() == "False"
+    assert out.stdout.strip() == "False ['paper', 'preview', 'standard']"
 
 
 def test_one_retrieval_config_for_jobs_and_retrieve() -> None:
@@ -142,7 +209,7 @@ def test_one_retrieval_config_for_jobs_and_retrieve() -> None:
     from a job and the bounds are one set."""
     from cadnerf_core.retrieval import retrieve as module
 
-    cfg = resolve_config("preview", {"retrieval.spread_weight": 0.0, "retrieval.walk": "cw"})
+    cfg = internal_config("preview", {"retrieval.spread_weight": 0.0, "retrieval.walk": "cw"})
     assert type(cfg.retrieval) is RetrievalConfig
     assert cfg.retrieval == RetrievalConfig(spread_weight=0.0, walk="cw")
     assert module.RetrievalConfig is RetrievalConfig
@@ -150,4 +217,4 @@ def test_one_retrieval_config_for_jobs_and_retrieve() -> None:
         with pytest.raises(ValidationError):
             RetrievalConfig(**bad)  # type: ignore[arg-type]
         with pytest.raises(ValidationError):
-            resolve_config("preview", {"retrieval": bad})
+            internal_config("preview", {"retrieval": bad})

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 import torch
 
-from cadnerf_core.config import resolve_config
+from cadnerf_core.config import internal_config
 from cadnerf_core.intake.crop import canonical_box
 from cadnerf_core.intake.masks import doubt_map, photo_masks
 from cadnerf_core.intake.photos import Photo, doubt_weights
@@ -70,9 +70,9 @@ def _intake_with_doubts() -> Intake:
 def test_a_jobs_doubt_weight_decides_the_weights_training_gets() -> None:
     intake = _intake_with_doubts()
     cpu = torch.device("cpu")
-    counted = training_data(intake, resolve_config("preview"), 0.1, cpu)
+    counted = training_data(intake, internal_config("preview"), 0.1, cpu)
     assert counted.weights is None  # the default: doubtful pixels count as any other
-    left_out = training_data(intake, resolve_config("preview", {"masks.doubt_weight": 0}), 0.1,
+    left_out = training_data(intake, internal_config("preview", {"masks.doubt_weight": 0}), 0.1,
                              cpu)
     assert left_out.weights is not None
     half = left_out.height // 2  # the object fills the crop but for its margin
@@ -80,7 +80,7 @@ def test_a_jobs_doubt_weight_decides_the_weights_training_gets() -> None:
     assert left_out.weights[0, half + 2:].min().item() == 1.0  # its sure bottom half
     assert left_out.weights[1].min().item() == 1.0  # the second photo has no doubt map
     with pytest.raises(ValueError):
-        resolve_config("preview", {"masks.doubt_weight": 1.5})
+        internal_config("preview", {"masks.doubt_weight": 1.5})
 
 
 def test_weighted_mse_counts_each_ray_by_its_weight() -> None:

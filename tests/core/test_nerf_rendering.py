@@ -138,18 +138,14 @@ def test_missed_rays_give_finite_pose_gradients() -> None:
     assert rays_o.grad is not None and torch.isfinite(rays_o.grad).all()
 
 
-def test_deformation_bands_follow_their_own_setting() -> None:
-    """G reads ``deform_freqs`` bands (``pos_freqs`` when unset); D keeps ``pos_freqs``, and a
-    band-limited G still starts as the identity."""
+def test_deformation_reads_the_points_bands_and_starts_as_the_identity() -> None:
+    """G encodes its input with D's ``pos_freqs`` bands and starts as the identity."""
     from cadnerf_core.config import FieldConfig
     from cadnerf_core.nerf.fields import CadNerfFields
 
-    same = CadNerfFields(FieldConfig(pos_freqs=5), use_deformation=True)
-    assert same.deformation is not None
-    assert same.deformation.encoding.n_freqs == 5
-    fields = CadNerfFields(FieldConfig(pos_freqs=5, deform_freqs=1), use_deformation=True)
+    fields = CadNerfFields(FieldConfig(pos_freqs=5), use_deformation=True)
     assert fields.deformation is not None
-    assert fields.deformation.encoding.n_freqs == 1
+    assert fields.deformation.encoding.n_freqs == 5
     assert fields.density.encoding.n_freqs == 5
     offset, correction = fields.deformation(torch.rand(7, 3) * 2 - 1)
     assert offset.shape == (7, 3) and correction.shape == (7,)

@@ -210,19 +210,3 @@ def test_spread_term_prefers_a_walk_round_the_object() -> None:
     # Evenly spread gaps of 4 bins cost 5 * (4 / 20) ** 2 of the weight; the collapsed walk
     # (one gap of 20 bins) would cost all of it.
     assert np.isclose(spread.score, 4.0 - 3.0 * 5 * 0.04)
-
-
-def test_measured_steps_choose_among_equal_walks() -> None:
-    n_az = 12
-    iou = np.full((3, n_az), 0.5)  # the silhouettes say nothing
-    az = np.arange(n_az)
-    steps = np.array([np.nan, 3.0, 5.0])
-    found = cyclic_dp(iou, az, n_az, both_directions=False, steps=steps, step_weight=1.0)
-    assert np.diff(found.views).tolist() == [3, 5]
-    assert np.isclose(found.score, 1.5)  # the measured steps met: nothing lost
-    plain = cyclic_dp(iou, az, n_az, both_directions=False)
-    assert np.diff(plain.views).tolist() == [0, 0]  # every walk ties: the first
-    wrong = cyclic_dp(iou, az, n_az, both_directions=False, steps=np.array([np.nan, 30.0, 1.0]),
-                      step_weight=0.2, step_tolerance=2.0)
-    assert np.isclose(wrong.score, 1.5 - 0.2)  # an impossible step costs step_weight, no more
-    assert np.diff(wrong.views).tolist()[1] == 1

@@ -23,7 +23,8 @@ WEBGL_LAUNCH_ARGS = ["--headless", "--no-sandbox", "--use-angle=swiftshader",
                      "--disable-component-update", "--disable-sync"]
 AXE = ROOT / "node_modules" / "axe-core" / "axe.min.js"
 # The suite's tiny config is no public preset: the page sends the preset it offers, and this
-# script merges the tiny overrides into the config field it posts, as an API client could.
+# script swaps in the tiny preset (which the test process registered) and merges the given
+# settings into the config field it posts, as an API client could.
 _CONFIG_SCRIPT = """
 (() => {
   const tiny = TINY_JSON;
@@ -31,6 +32,7 @@ _CONFIG_SCRIPT = """
   FormData.prototype.append = function (name, value, ...rest) {
     if (name === "config") {
       const config = JSON.parse(value);
+      config.preset = TINY_NAME;
       const overrides = config.overrides || {};
       for (const [key, val] of Object.entries(tiny)) {
         overrides[key] = (val && typeof val === "object" && overrides[key])
@@ -48,7 +50,9 @@ _CONFIG_SCRIPT = """
 def tiny_config_script(**overrides: Any) -> str:
     """The init script that makes the page send the tiny config, with ``overrides`` merged on
     top as ``tests.configs.tiny_request`` merges them."""
-    return _CONFIG_SCRIPT.replace("TINY_JSON", json.dumps(tiny_request(**overrides)["overrides"]))
+    request = tiny_request(**overrides)
+    return (_CONFIG_SCRIPT.replace("TINY_JSON", json.dumps(request["overrides"]))
+            .replace("TINY_NAME", json.dumps(request["preset"])))
 
 
 TINY_CONFIG_SCRIPT = tiny_config_script()

@@ -13,7 +13,7 @@ import pytest
 
 from app.embedded import free_port
 from cadnerf_core.config_bounds import MAX_STEPS
-from tests.configs import TINY_OVERRIDES, TINY_PRESET, tiny_request
+from tests.configs import TINY_PRESET, tiny_request
 from tests.e2e.conftest import _start_api
 
 pytestmark = pytest.mark.slow
@@ -122,7 +122,7 @@ def test_the_demo_command_follows_a_job_to_its_orbit(live_service, tmp_path: Pat
                                                       capsys: pytest.CaptureFixture[str]) -> None:
     from cadnerf_cli.service_cmd import run_demo
 
-    final = run_demo(live_service.url, preset=TINY_PRESET, overrides=TINY_OVERRIDES, views=4,
+    final = run_demo(live_service.url, preset=TINY_PRESET, overrides={"seed": 1}, views=4,
                      size=64, out=tmp_path)
     assert final["state"] == "succeeded"
     assert (tmp_path / "orbit.mp4").read_bytes()[4:8] == b"ftyp"

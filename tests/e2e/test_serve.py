@@ -52,7 +52,7 @@ def _start_serve(tmp_path: Path, library: Path,
     env.update(CADNERF_DATA_ROOT=str(tmp_path / "data" / "jobs"),
                CADNERF_LIBRARY_DIR=str(library), CADNERF_DEVICE="cpu", TMPDIR=str(tmp_path))
     log = (tmp_path / "serve.log").open("wb")
-    serve = subprocess.Popen([sys.executable, "-m", "cadnerf_cli.main", "serve", "--port",
+    serve = subprocess.Popen([sys.executable, "-m", "tests.tiny_cli", "serve", "--port",
                               str(port), *extra], cwd=ROOT, env=env, stdout=log,
                              stderr=subprocess.STDOUT)
     return serve, f"http://127.0.0.1:{port}", log

@@ -89,7 +89,7 @@ CASES: dict[str, Callable[[], Case]] = {
         photo_files(3), _config('{"overrides": {"phase1": {"steps": 1e400}}}'), 422,
         "invalid_config", "config"),
     "config_nan": lambda: Case(
-        photo_files(3), _config('{"overrides": {"phase1": {"lr": NaN}}}'), 422,
+        photo_files(3), _config('{"overrides": {"retrieval": {"focal_35mm": NaN}}}'), 422,
         "invalid_config", "config"),
     "config_deep_nesting": lambda: Case(photo_files(3), _config("[" * 20000 + "]" * 20000),
                                         422, "invalid_config", "config"),

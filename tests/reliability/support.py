@@ -223,11 +223,12 @@ def start_process(args: list[str], env: dict[str, str], log: Path) -> Proc:
 
 
 def start_api(env: dict[str, str], log: Path, port: int | None = None) -> tuple[Proc, str]:
-    """A real uvicorn process serving ``app.main:create_app``; returns it and its base URL."""
+    """A real uvicorn process serving ``app.main:create_app`` (through ``tests.tiny_cli``, which
+    knows the tiny preset); returns it and its base URL."""
     port = port or free_port()
-    proc = start_process([sys.executable, "-m", "uvicorn", "--factory", "app.main:create_app",
-                          "--host", "127.0.0.1", "--port", str(port), "--log-level", "warning"],
-                         env, log)
+    proc = start_process([sys.executable, "-m", "uvicorn", "--factory",
+                          "tests.tiny_cli:create_app", "--host", "127.0.0.1", "--port",
+                          str(port), "--log-level", "warning"], env, log)
     url = f"http://127.0.0.1:{port}"
     ok = wait_for(lambda: httpx.get(f"{url}/healthz", timeout=2).status_code == 200, 60)
     if not ok:
@@ -237,8 +238,8 @@ def start_api(env: dict[str, str], log: Path, port: int | None = None) -> tuple[
 
 
 def start_worker(env: dict[str, str], log: Path) -> Proc:
-    """A real ``cadnerf worker`` process."""
-    return start_process([sys.executable, "-m", "cadnerf_cli.main", "worker", "--loglevel",
+    """A real ``cadnerf worker`` process (knowing the tiny preset, the default of its env)."""
+    return start_process([sys.executable, "-m", "tests.tiny_cli", "worker", "--loglevel",
                           "INFO"], env, log)
 
 

@@ -147,9 +147,10 @@ def _serve(library: Path, folder: Path) -> Iterator[tuple[Proc, str, set[int]]]:
     """`cadnerf serve` (embedded Redis, its own worker) until ready; yields it, its URL and a set
     that collects its children's pids. Afterwards stops it and removes any child it left."""
     port = free_port()
-    env = service_env("", folder / "jobs", library)
+    # Its worker is serve's own `cadnerf worker`, which knows no tiny preset: jobs name it.
+    env = service_env("", folder / "jobs", library, default_preset="preview")
     env.pop("CADNERF_REDIS_URL")
-    serve = start_process([sys.executable, "-m", "cadnerf_cli.main", "serve", "--port",
+    serve = start_process([sys.executable, "-m", "tests.tiny_cli", "serve", "--port",
                            str(port)], env, folder / "serve.log")
     url = f"http://127.0.0.1:{port}"
     children: set[int] = set()
