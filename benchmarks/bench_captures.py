@@ -31,22 +31,26 @@ import logging
 import shutil
 import sys
 import tempfile
-import time
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
+from benchmarks.harness import (
+    ABSENT,
+    CAPTURES,
+    EVAL_ROOT,
+    LIBRARY_DIR,
+    PHOTOS,
+    PRESET,
+    run_job,
+    section_head,
+)
 from benchmarks.lookalikes import exclude_overrides
-from benchmarks.retrieval_walks import EVAL_ROOT
 
 log = logging.getLogger("benchmarks.captures")
 
-ROOT = Path(__file__).resolve().parents[1]
-LIBRARY_DIR = ROOT / "library_data" / "build"
-CAPTURES = EVAL_ROOT / "captures"
-PRESET = "preview"
 UNTEXTURED = {"dino_ring": "matte white ceramic"}
 """Captures whose object shows next to no texture (the acceptance's median leaves them out)."""
 VARIANTS: dict[str, dict[str, Any]] = {
@@ -102,7 +106,7 @@ def capture_names() -> list[str]:
     """Every capture found, then the espresso photos."""
     names = sorted(p.name for p in CAPTURES.iterdir() if (p / "cameras.json").is_file()) \
         if CAPTURES.is_dir() else []
-    if (EVAL_ROOT / "photos" / "ners_espresso").is_dir():
+    if (PHOTOS / "ners_espresso").is_dir():
         names.append("ners_espresso")
     return names
 
@@ -110,28 +114,20 @@ def capture_names() -> list[str]:
 def run_capture(capture: Capture, library: Any, variant: str) -> dict[str, Any]:
     """One ``preview`` job on the capture. Returns its row: errors in degrees per stage, focal
     error (share), PSNR, seconds, pairs and fused photos."""
-    from cadnerf_cli.reconstruct_cmd import stage_inputs
     from cadnerf_core.cameras import pose_errors
     from cadnerf_core.config import internal_config
     from cadnerf_core.evaluation.jobio import read_job_cameras
-    from cadnerf_core.jobfolder import JobFolder
     from cadnerf_core.nerf.model import TrainedModel
-    from cadnerf_core.pipeline import run_job
 
     job = Path(tempfile.mkdtemp(prefix="bench_captures_"))
     try:
-        stage_inputs(capture.photos, capture.masks, job)
-        JobFolder(job).write_config(internal_config(
-            PRESET, {**exclude_overrides(capture.name), **capture.overrides,
-                     **VARIANTS[variant]}))
-        start = time.perf_counter()
-        run_job(job, library, device="cpu")
-        seconds = time.perf_counter() - start
+        run = run_job(job, library, photos=capture.photos, masks=capture.masks,
+                      config=internal_config(PRESET, {**exclude_overrides(capture.name),
+                                                     **capture.overrides, **VARIANTS[variant]}))
         cams = read_job_cameras(job, TrainedModel.load(job, "cpu"))
-        retrieval = JobFolder(job).read_retrieval() or {}
-        metrics = JobFolder(job).read_metrics() or {}
     finally:
         shutil.rmtree(job, ignore_errors=True)
+    retrieval, metrics, seconds = run.retrieval, run.metrics, run.seconds
     truth = capture.c2w[cams.kept]
     by_index = {int(m["index"]): m for m in retrieval["matches"]}
     retrieved = np.array([by_index[k].get("c2w_retrieved", by_index[k]["c2w"])
@@ -210,10 +206,9 @@ def run(quick: bool, library_dir: Path = LIBRARY_DIR, names: list[str] | None = 
         variants: list[str] | None = None, rows_file: Path | None = None,
         sets: list[str] | None = None) -> str:
     """Run the benchmark. Returns its markdown section."""
-    head = ["## Cameras on real captures and textured walks", "",
-            f"Command: `python -m benchmarks.bench_captures{' --quick' if quick else ''}`", ""]
+    head = section_head("Cameras on real captures and textured walks", "bench_captures", quick)
     if not EVAL_ROOT.is_dir():
-        return "\n".join([*head, "Not run: `../shared/eval` is absent.", ""])
+        return "\n".join([*head, ABSENT, ""])
     if quick:
         return "\n".join([*head, "Not run in QUICK: 26 whole jobs (about 80 minutes on 2 "
                           "cores); run without `--quick`.", ""])

@@ -23,12 +23,10 @@ from pathlib import Path
 from typing import Any
 
 from benchmarks.bench_matches import PAINTED
-from benchmarks.retrieval_walks import EVAL_ROOT
+from benchmarks.harness import ABSENT, LIBRARY_DIR, MESHES, section_head
 
 log = logging.getLogger(__name__)
 
-ROOT = Path(__file__).resolve().parents[1]
-LIBRARY_DIR = ROOT / "library_data" / "build"
 PHOTO_SIZE = 512
 MANY_VIEWS = 10
 WEIGHT = 0.01  # the default of ``phase2.lambda_matches`` and ``phase3.lambda_matches``
@@ -51,7 +49,6 @@ def _matches_used(job: Path) -> int:
 
 def run_mesh(name: str, views: int, library: Any, work: Path) -> dict[float, dict[str, Any]]:
     """One walk of ``name`` with the loss at ``WEIGHT`` and off. Returns weight -> scores."""
-    from benchmarks.bench_eval import mesh_file
     from benchmarks.bench_training import run_one
 
     out: dict[float, dict[str, Any]] = {}
@@ -62,8 +59,8 @@ def run_mesh(name: str, views: int, library: Any, work: Path) -> dict[float, dic
             out[weight] = out[WEIGHT]
             break
         label = f"{views}v_{'on' if weight else 'off'}"
-        row = run_one(mesh_file(EVAL_ROOT / "meshes" / name), work / str(views), library,
-                      label, _overrides(weight), tta=False, views=views, size=PHOTO_SIZE)
+        row = run_one(name, work / str(views), library, label, _overrides(weight), tta=False,
+                      views=views, size=PHOTO_SIZE)
         row["matches"] = _matches_used(work / str(views) / name / label)
         out[weight] = row
         log.info("%s, %d views, weight %g: %.2f dB, %.1f deg, %d matches", name, views,
@@ -76,10 +73,9 @@ def run(quick: bool, library_dir: Path = LIBRARY_DIR) -> str:
     from cadnerf_core.library.format import load_library
     from cadnerf_core.nerf.epipolar import PRIOR_DEG
 
-    head = ["## Training with the matches (epipolar loss)", "",
-            f"Command: `python -m benchmarks.bench_epipolar{' --quick' if quick else ''}`", ""]
-    if not (EVAL_ROOT / "meshes").is_dir():
-        return "\n".join([*head, "Not run: `../shared/eval` is absent.", ""])
+    head = section_head("Training with the matches (epipolar loss)", "bench_epipolar", quick)
+    if not MESHES.is_dir():
+        return "\n".join([*head, ABSENT, ""])
     library = load_library(library_dir)
     meshes = QUICK if quick else PAINTED
     lines = [*head, f"`preview` jobs on walks rendered at {PHOTO_SIZE} px (trained on 128-px "

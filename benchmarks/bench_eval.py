@@ -35,23 +35,28 @@ import sys
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Literal
+from typing import Any
 
 from benchmarks import eval_report
 from benchmarks.eval_tables import with_mean
-from benchmarks.lookalikes import Protocol, exclude_overrides, excluded
+from benchmarks.harness import (
+    DOCS,
+    LIBRARY_DIR,
+    MESHES,
+    QUICK_MESHES,
+    QUICK_OVERRIDES,
+    WORK_ROOT,
+    eval_meshes,
+    evaluate_walk,
+    render_walk,
+    torch_threads,
+)
+from benchmarks.lookalikes import Protocol, excluded
 
 log = logging.getLogger(__name__)
 
-ROOT = Path(__file__).resolve().parents[1]
-EVAL_ROOT = ROOT / ".." / "shared" / "eval"
-LIBRARY_DIR = ROOT / "library_data" / "build"
-WORK_DIR = ROOT / "out" / "bench_eval"
-PICTURES_DIR = ROOT / "docs" / "bench"
-MESH_SUFFIXES = (".glb", ".gltf", ".obj", ".ply", ".off", ".stl")
-# Meshes whose files are Z-up (checked by rendering them); the others are Y-up.
-Z_UP = frozenset({"YcbMustardBottle", "YcbPowerDrill", "ycb_mug", "fuze", "os_plane"})
-QUICK_MESHES = ("armchair", "CesiumMilkTruck", "ycb_mug")
+WORK_DIR = WORK_ROOT / "bench_eval"
+PICTURES_DIR = DOCS / "bench"
 
 # "ours" is the paper's full method, G included, whatever the preset's default (`preview`
 # runs without G); each ablation removes one part of it.
@@ -88,31 +93,12 @@ class BenchPlan:
     eval_size: int | None = None  # side of the scored held-out views (None: dataset size)
 
 
-# QUICK: the preview networks on 48 px crops with short phases (ours, the paper is silent),
-# held-out views scored at 64 px: every job must take seconds for the run to fit in minutes.
-QUICK_OVERRIDES: dict[str, Any] = {
-    "image_size": 48, "phase1.steps": 60, "phase1.batch_points": 1024,
-    "phase2.steps": 60, "phase2.rays": 256, "phase3.steps": 120, "phase3.rays": 256,
-    "render.samples_per_ray": 24, "export.orbit_frames": 2, "export.orbit_size": 32,
-    "export.novel_views": 0, "export.mesh_resolution": 16,
-}
-
-
 def make_plan(quick: bool) -> BenchPlan:
     """The plan of the quick or the full benchmark."""
     if quick:
         return BenchPlan(meshes=QUICK_MESHES, views=(3, 6, 9), preset="preview",
                          overrides=QUICK_OVERRIDES, eval_size=64)
-    meshes = tuple(sorted(p.name for p in (EVAL_ROOT / "meshes").iterdir() if p.is_dir()))
-    return BenchPlan(meshes=meshes, views=(3, 6, 9), preset="preview")
-
-
-def mesh_file(folder: Path) -> Path:
-    """The mesh file in one of the eval mesh folders."""
-    found = sorted(p for p in folder.iterdir() if p.suffix.lower() in MESH_SUFFIXES)
-    if not found:
-        raise FileNotFoundError(f"no mesh file in {folder}")
-    return found[0]
+    return BenchPlan(meshes=eval_meshes(), views=(3, 6, 9), preset="preview")
 
 
 def prepare_datasets(name: str, plan: BenchPlan, work: Path) -> dict[int, Path]:
@@ -124,18 +110,14 @@ def prepare_datasets(name: str, plan: BenchPlan, work: Path) -> dict[int, Path]:
     Returns:
         view count -> dataset folder.
     """
-    from cadnerf_core.evaluation.dataset import render_dataset
-
-    mesh = mesh_file(EVAL_ROOT / "meshes" / name)
-    up: Literal["y", "z"] = "z" if name in Z_UP else "y"
     counts = sorted(set(plan.views) | {plan.ablation_views}, reverse=True)
-    base = render_dataset(mesh, work / name / f"v{counts[0]}", counts[0], plan.size, plan.seed,
-                          up=up, test_views=plan.test_views)
+    base = render_walk(name, work / name / f"v{counts[0]}", counts[0], size=plan.size,
+                       seed=plan.seed, test_views=plan.test_views)
     distance = float(json.loads((base / "dataset.json").read_text())["distance"])
     out = {counts[0]: base}
     for n in counts[1:]:
-        folder = render_dataset(mesh, work / name / f"v{n}", n, plan.size, plan.seed, up=up,
-                                distance=distance)
+        folder = render_walk(name, work / name / f"v{n}", n, size=plan.size, seed=plan.seed,
+                             distance=distance)
         shutil.copytree(base / "test", folder / "test")
         shutil.copy2(base / "transforms_test.json", folder / "transforms_test.json")
         out[n] = folder
@@ -152,17 +134,14 @@ def _jobs(plan: BenchPlan) -> list[tuple[str, int]]:
 def run_job_once(name: str, variant: str, n: int, plan: BenchPlan, library: Any,
                  lpips_net: Any, work: Path, suffix: str = "") -> Any:
     """One evaluation job. Returns its EvalReport, or the exception it raised."""
-    from cadnerf_core.evaluation.evaluate import evaluate_dataset
-
     protocol: Protocol = "with look-alike" if variant == "ours_lookalike" else "leave-out"
-    overrides = {**plan.overrides, **exclude_overrides(name, protocol), **VARIANTS[variant],
-                 "seed": plan.seed}
+    overrides = {**plan.overrides, **VARIANTS[variant], "seed": plan.seed}
     start = time.perf_counter()
     try:
-        report = evaluate_dataset(
-            work / name / f"v{n}", n, library, preset=plan.preset, overrides=overrides,
-            job_dir=work / name / f"job_{variant}_{n}{suffix}", lpips_net=lpips_net,
-            device="cpu", eval_size=plan.eval_size)
+        report = evaluate_walk(
+            work / name / f"v{n}", n, library, name, overrides,
+            work / name / f"job_{variant}_{n}{suffix}", protocol=protocol, preset=plan.preset,
+            lpips_net=lpips_net, device="cpu", eval_size=plan.eval_size)
     except Exception as exc:  # noqa: BLE001 - one failed job is a row, not a crash
         log.exception("%s %s %d views failed", name, variant, n)
         return exc
@@ -196,19 +175,13 @@ def repeat_check(plan: BenchPlan, results: dict[str, dict[tuple[str, int], Any]]
 
 def run(quick: bool) -> str:
     """Run the evaluation benchmark. Returns its markdown section."""
-    import torch
-
     plan = make_plan(quick)
-    if not (EVAL_ROOT / "meshes").is_dir():
+    if not MESHES.is_dir():
         return "## Evaluation (paper tables)\n\nNot run: `../shared/eval/meshes` is absent.\n"
     # The jobs are small: one thread each avoids OpenMP oversubscription, which made them
     # up to 8x slower on a shared 2-core machine (same results, measured).
-    threads = torch.get_num_threads()
-    torch.set_num_threads(1)
-    try:
+    with torch_threads(1):
         return _run_plan(plan, quick)
-    finally:
-        torch.set_num_threads(threads)
 
 
 def _run_plan(plan: BenchPlan, quick: bool) -> str:

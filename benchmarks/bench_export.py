@@ -28,7 +28,8 @@ from typing import Any
 
 import numpy as np
 
-LIBRARY_DIR = Path(__file__).resolve().parents[1] / "library_data" / "build"
+from benchmarks.harness import LIBRARY_DIR, run_job
+
 MODEL = "mug"
 N_PHOTOS = 6
 PHOTO_SIZE = 256
@@ -135,7 +136,7 @@ def measure(library_dir: Path, model_id: str, work: Path,
     from cadnerf_core.jobfolder import JobFolder
     from cadnerf_core.library.format import load_library
     from cadnerf_core.nerf.model import TrainedModel
-    from cadnerf_core.pipeline import read_job_config, run_intake, run_job, training_data
+    from cadnerf_core.pipeline import read_job_config, run_intake, training_data
     from cadnerf_core.progress import Progress
 
     library = load_library(library_dir)
@@ -143,7 +144,7 @@ def measure(library_dir: Path, model_id: str, work: Path,
     if not JobFolder(job_dir).has_config():
         write_photos(job_dir, library, model_id)
     if not export_only:
-        run_job(job_dir, library, None, "cpu")
+        run_job(job_dir, library)
     model = TrainedModel.load(job_dir, "cpu")
     config = read_job_config(job_dir)
     intake = run_intake(job_dir, library, config, Progress(), None)

@@ -18,10 +18,10 @@ from __future__ import annotations
 
 import argparse
 import logging
-from pathlib import Path
 
-ROOT = Path(__file__).resolve().parents[1]
-RECORD = ROOT / "docs" / "bench_training_gpu.md"
+from benchmarks.harness import DOCS, ROOT
+
+RECORD = DOCS / "bench_training_gpu.md"
 RUNS = ["full"]
 PRESETS = {"preview": 128, "standard": 256}  # each preset at its own photo size
 

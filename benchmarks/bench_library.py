@@ -6,7 +6,6 @@ on 8 models instead of all; everything else is the same).
 
 from __future__ import annotations
 
-import argparse
 import json
 import shutil
 import subprocess
@@ -17,12 +16,11 @@ from pathlib import Path
 
 import numpy as np
 
+from benchmarks.harness import LIBRARY_DIR as SHIPPED
+from benchmarks.harness import MESHES, ROOT, section_head
 from cadnerf_core.errors import LibraryError
 from cadnerf_core.library.format import MANIFEST, load_library, read_manifest
 
-ROOT = Path(__file__).resolve().parents[1]
-EVAL = ROOT / ".." / "shared" / "eval"
-SHIPPED = ROOT / "library_data" / "build"
 IMPORTS = ("teapot/teapot.obj", "fsu_big_dodge/big_dodge.ply", "Duck/Duck.glb")
 QUICK_MODELS = ("chair_office", "mug", "bookshelf", "bicycle", "car_suv", "lamp", "cylinder",
                 "sphere")
@@ -81,7 +79,7 @@ def _imports(root: Path) -> list[str]:
     """Table rows for ``cadnerf library add`` on real meshes of three formats."""
     rows, added = [], []
     for relative in IMPORTS:
-        path = EVAL / "meshes" / relative
+        path = MESHES / relative
         if not path.is_file():
             rows.append(f"| {relative} | skipped (../shared/eval absent) | | |")
             continue
@@ -91,7 +89,7 @@ def _imports(root: Path) -> list[str]:
         rows.append(f"| {relative} | {seconds:.1f} | `{out}` |")
         added.append(len(rows) - 1)
     library = load_library(root)
-    for row, relative in zip(added, [r for r in IMPORTS if (EVAL / "meshes" / r).is_file()],
+    for row, relative in zip(added, [r for r in IMPORTS if (MESHES / r).is_file()],
                              strict=True):
         watertight = library.mesh(_import_id(relative)).is_watertight
         rows[row] += f" {'yes' if watertight else 'NO'} |"
@@ -134,14 +132,11 @@ def run(quick: bool) -> str:
     categories = len({m["category"] for m in data["models"] if m["kind"] == "object"})
     spec = data["spec"]
     views = spec["n_azimuths"] * len(spec["elevations"])
-    command = "python -m benchmarks.bench_library" + (" --quick" if quick else "")
     return "\n".join([
-        "## CAD mini library",
-        "",
-        f"Command: `{command}`. {len(ids)} models ({objects} objects in {categories} categories,"
-        f" {len(ids) - objects} basic shapes), {views} poses each, {spec['grid_size']}^3 "
-        "occupancy. 2 CPU cores shared with other work.",
-        "",
+        *section_head("CAD mini library", "bench_library", quick,
+                      f". {len(ids)} models ({objects} objects in {categories} categories, "
+                      f"{len(ids) - objects} basic shapes), {views} poses each, "
+                      f"{spec['grid_size']}^3 occupancy. 2 CPU cores shared with other work."),
         "| figure | value | target |",
         "| --- | ---: | ---: |",
         f"| `cadnerf library build --jobs 2` (fresh process) | {build_s:.1f} s | < 180 s |",
@@ -168,12 +163,7 @@ def run(quick: bool) -> str:
     ])
 
 
-def main() -> None:
-    """Print the section."""
-    parser = argparse.ArgumentParser(description=__doc__)
-    parser.add_argument("--quick", action="store_true", help="occupancy check on 8 models")
-    print(run(parser.parse_args().quick))
-
-
 if __name__ == "__main__":
-    main()
+    from benchmarks.run import area_main
+
+    sys.exit(area_main(run, __doc__ or "", library=False, quick_help="occupancy check on 8 models"))

@@ -35,15 +35,13 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from benchmarks.harness import LIBRARY_DIR, PHOTOS, PRESET, run_job, section_head
 from benchmarks.lookalikes import PROTOCOLS, exclude_overrides, excluded
 from benchmarks.retrieval_real import real_set_photos
-from benchmarks.retrieval_walks import EVAL_ROOT
 
 if TYPE_CHECKING:
     from cadnerf_core.intake.masks import MaskMethod
 
-ROOT = Path(__file__).resolve().parents[1]
-LIBRARY_DIR = ROOT / "library_data" / "build"
 SETS = ("ners_espresso", "raydiffusion_robot")
 METHODS: tuple[MaskMethod, ...] = ("learned", "grabcut", "auto")
 TARGET_IOU = 0.90
@@ -208,10 +206,7 @@ def training(name: str, paths: list[Path], mask_paths: list[Path], library: Any,
     each of ``seeds`` and their mean (the set's look-alikes left out of the library;
     ``overrides`` set in both jobs). One seed's difference is mostly chance (the section
     lists each seed's): hence the mean over seeds."""
-    from cadnerf_cli.reconstruct_cmd import stage_inputs
     from cadnerf_core.config import internal_config
-    from cadnerf_core.jobfolder import JobFolder
-    from cadnerf_core.pipeline import run_job
 
     runs = []
     for seed in seeds:
@@ -219,12 +214,11 @@ def training(name: str, paths: list[Path], mask_paths: list[Path], library: Any,
         for label, masks in (("built-in", None), ("shipped", mask_paths)):
             job = Path(tempfile.mkdtemp(prefix="bench_masks_job_"))
             try:
-                stage_inputs(paths, masks, job)
                 values = {**exclude_overrides(name), "seed": seed, **(overrides or {})}
-                JobFolder(job).write_config(internal_config("preview", values))
-                summary = run_job(job, library)
-                psnr[label] = float((JobFolder(job).read_metrics() or {})["mean_psnr"])
-                model[label] = summary["model_id"]
+                run = run_job(job, library, photos=paths, masks=masks,
+                              config=internal_config(PRESET, values), device="auto")
+                psnr[label] = float(run.metrics["mean_psnr"])
+                model[label] = run.summary["model_id"]
             finally:
                 shutil.rmtree(job, ignore_errors=True)
         runs.append((psnr, model))
@@ -243,9 +237,8 @@ def training(name: str, paths: list[Path], mask_paths: list[Path], library: Any,
 
 def run(quick: bool, library_dir: Path = LIBRARY_DIR) -> str:
     """Run the mask benchmark. Returns its markdown section."""
-    head = ["## Masks", "", f"Command: `python -m benchmarks.bench_masks"
-            f"{' --quick' if quick else ''}`", ""]
-    present = [n for n in SETS if (EVAL_ROOT / "photos" / n / "masks").is_dir()]
+    head = section_head("Masks", "bench_masks", quick)
+    present = [n for n in SETS if (PHOTOS / n / "masks").is_dir()]
     if not present:
         return "\n".join([*head, "Not run: `../shared/eval/photos` is absent.", ""])
     library = None
@@ -307,7 +300,7 @@ def retrieval_only(argv: list[str]) -> int:
 
     library = load_library(args.library)
     for name in SETS:
-        if (EVAL_ROOT / "photos" / name / "masks").is_dir():
+        if (PHOTOS / name / "masks").is_dir():
             shipped = _load(name)[0]
             learned = [r.mask for r in photo_masks([Photo(p.name, p.rgb) for p in shipped],
                                                    "learned")]

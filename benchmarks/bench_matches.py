@@ -29,16 +29,24 @@ from typing import Any
 
 import numpy as np
 
-from benchmarks.bench_eval import Z_UP, mesh_file
+from benchmarks.harness import (
+    ABSENT,
+    DOCS,
+    LIBRARY_DIR,
+    MESHES,
+    PHOTOS,
+    SEED,
+    render_walk,
+    rotation_error,
+    section_head,
+)
 from benchmarks.lookalikes import excluded
 from benchmarks.retrieval_real import real_set_photos
-from benchmarks.retrieval_walks import EVAL_ROOT, SEED, VIEW_COUNTS, rotation_error
+from benchmarks.retrieval_walks import VIEW_COUNTS
 
 log = logging.getLogger(__name__)
 
-ROOT = Path(__file__).resolve().parents[1]
-LIBRARY_DIR = ROOT / "library_data" / "build"
-PICTURE = ROOT / "docs" / "matches_espresso.png"
+PICTURE = DOCS / "matches_espresso.png"
 SIZE = 512
 TEXTURED = ("CesiumMilkTruck", "Duck", "spot", "fuze", "YcbMustardBottle", "YcbPowerDrill",
             "armchair")
@@ -77,13 +85,12 @@ def walk(name: str, views: int, direction: int, library: Any, work: Path,
     """Render one walk at ``SIZE`` px and retrieve it with the matches on and off."""
     import json
 
-    from cadnerf_core.evaluation.dataset import load_dataset, render_dataset
+    from cadnerf_core.evaluation.dataset import load_dataset
     from cadnerf_core.retrieval.retrieve import retrieve
 
-    folder = render_dataset(mesh_file(EVAL_ROOT / "meshes" / name),
-                            work / f"{name}_{views}_{direction}_{elevations[0]:g}", views, SIZE,
-                            SEED + views, up="z" if name in Z_UP else "y", direction=direction,
-                            elevation_range=elevations)
+    folder = render_walk(name, work / f"{name}_{views}_{direction}_{elevations[0]:g}", views,
+                         size=SIZE, seed=SEED + views, direction=direction,
+                         elevation_range=elevations)
     data = load_dataset(folder)
     azimuths = json.loads((folder / "dataset.json").read_text())["azimuths"]
     results = {on: retrieve(list(data.masks), data.names, library, _config(name, on),
@@ -241,10 +248,9 @@ def run(quick: bool, library_dir: Path = LIBRARY_DIR) -> str:
     """Run the benchmark. Returns its markdown section."""
     from cadnerf_core.library.format import load_library
 
-    head = ["## Matches between the photos", "",
-            f"Command: `python -m benchmarks.bench_matches{' --quick' if quick else ''}`", ""]
-    if not (EVAL_ROOT / "meshes").is_dir():
-        return "\n".join([*head, "Not run: `../shared/eval` is absent.", ""])
+    head = section_head("Matches between the photos", "bench_matches", quick)
+    if not MESHES.is_dir():
+        return "\n".join([*head, ABSENT, ""])
     library = load_library(library_dir)
     work = Path(tempfile.mkdtemp(prefix="bench_matches_"))
     meshes = QUICK if quick else TEXTURED + MIRRORED
@@ -267,7 +273,7 @@ def run(quick: bool, library_dir: Path = LIBRARY_DIR) -> str:
              f"Level walks of the meshes with texture: {LEVEL_VIEWS} views, elevations "
              f"{LEVEL_ELEVATIONS[0]:g}-{LEVEL_ELEVATIONS[1]:g} (a person walking round with "
              "a phone), both directions:", "", *walk_lines(level), ""]
-    if (EVAL_ROOT / "photos" / "ners_espresso").is_dir():
+    if (PHOTOS / "ners_espresso").is_dir():
         lines += [*espresso_lines(library), speed_line()]
     return "\n".join([*lines, ""])
 

@@ -34,14 +34,22 @@ from typing import Any
 
 import numpy as np
 
-from benchmarks.bench_eval import Z_UP, mesh_file
+from benchmarks.harness import (
+    LIBRARY_DIR,
+    MESHES,
+    PHOTOS,
+    QUICK_MESHES,
+    SEED,
+    eval_meshes,
+    load_walk,
+    rotation_error,
+    section_head,
+)
 from benchmarks.lookalikes import excluded
-from benchmarks.retrieval_walks import EVAL_ROOT, QUICK_MESHES, SEED, SIZE, VIEW_COUNTS
+from benchmarks.retrieval_walks import VIEW_COUNTS
 
 log = logging.getLogger(__name__)
 
-ROOT = Path(__file__).resolve().parents[1]
-LIBRARY_DIR = ROOT / "library_data" / "build"
 SHUFFLES = 3  # fixed seeds 0 .. SHUFFLES - 1 per walk (QUICK: 1)
 REAL_SETS = ("ners_espresso", "raydiffusion_robot")
 WIDE_FOVS = (55.0, 70.0)
@@ -66,6 +74,25 @@ class Walk:
     alike: int = 0  # neighbouring pairs of the walk among its most alike pairs (``alike_hits``)
 
 
+def photo_likeness(masks: list[np.ndarray], images: list[np.ndarray], library: Any,
+                   config: Any = None) -> np.ndarray:
+    """[P, P] how alike the photos look, as retrieval's order search weighs it (colours and
+    outlines, and the matches between them where the object has texture).
+
+    Args:
+        masks, images: the photos' masks [H, W] bool and RGB [H, W, 3] in walking order.
+        library: the loaded CAD library (its crop size and margin).
+        config: a ``RetrievalConfig`` (None: the defaults).
+    """
+    from cadnerf_core.config import RetrievalConfig
+    from cadnerf_core.retrieval import retrieve
+
+    seen = retrieve._look(masks, images, None, library, config or RetrievalConfig())
+    found = retrieve._likeness(seen)
+    assert found is not None, "photos given"
+    return found
+
+
 def alike_hits(likeness: np.ndarray) -> int:
     """How many of a walk's ``P`` neighbouring pairs (photo i and i + 1, the last and the first)
     are among its ``P`` most alike pairs by ``likeness`` [P, P] (photos in walking order)."""
@@ -80,7 +107,6 @@ def _retrieve(data: Any, perm: np.ndarray, library: Any, mode: str, exclude: tup
     """Retrieve the walk's photos in the order ``perm`` with ``order`` = ``mode``. Returns
     the median rotation error, whether the walk's cyclic order was found and whether the
     result said the order is a guess."""
-    from benchmarks.retrieval_walks import rotation_error
     from cadnerf_core.config import RetrievalConfig
     from cadnerf_core.retrieval.ordering import same_cycle
     from cadnerf_core.retrieval.retrieve import retrieve
@@ -97,15 +123,9 @@ def _retrieve(data: Any, perm: np.ndarray, library: Any, mode: str, exclude: tup
 def walk_set(name: str, views: int, direction: int, library: Any, work: Path,
              shuffles: int) -> Walk:
     """Render one walk of a mesh and retrieve it in order and shuffled."""
-    from cadnerf_core.evaluation.dataset import load_dataset, render_dataset
-
     def render(fov: float) -> Any:
-        return load_dataset(render_dataset(
-            mesh_file(EVAL_ROOT / "meshes" / name),
-            work / f"{name}_{views}_{direction}_{fov:g}", views, SIZE, SEED + views,
-            up="z" if name in Z_UP else "y", direction=direction, fov_deg=fov))
-
-    from cadnerf_core.retrieval.retrieve import photo_likeness
+        return load_walk(name, work / f"{name}_{views}_{direction}_{fov:g}", views,
+                         seed=SEED + views, direction=direction, fov_deg=fov)
 
     data = render(40.0)
     alike = alike_hits(photo_likeness(list(data.masks), list(data.images), library))
@@ -179,7 +199,7 @@ def real_lines(library: Any, shuffles: int) -> list[str]:
 
     lines = []
     for name in REAL_SETS:
-        if not (EVAL_ROOT / "photos" / name).is_dir():
+        if not (PHOTOS / name).is_dir():
             continue
         paths, mask_paths, _ = real_set_photos(name)
         photos = load_photos(paths, mask_paths)
@@ -295,13 +315,12 @@ def run(quick: bool, library_dir: Path = LIBRARY_DIR) -> str:
     """Run the order benchmark. Returns its markdown section."""
     from cadnerf_core.library.format import load_library
 
-    head = ["## Order", "", f"Command: `python -m benchmarks.bench_order"
-            f"{' --quick' if quick else ''}`", ""]
+    head = section_head("Order", "bench_order", quick)
     library = load_library(library_dir)
     lines = [*head, *solver_lines(library), ""]
-    if not (EVAL_ROOT / "meshes").is_dir():
+    if not MESHES.is_dir():
         return "\n".join([*lines, "Walks not run: `../shared/eval` is absent.", ""])
-    meshes = QUICK_MESHES if quick else sorted(p.name for p in (EVAL_ROOT / "meshes").iterdir())
+    meshes = QUICK_MESHES if quick else eval_meshes()
     shuffles = 1 if quick else SHUFFLES
     walks = []
     with tempfile.TemporaryDirectory() as tmp:

@@ -25,7 +25,8 @@ import time
 from pathlib import Path
 from typing import Any
 
-from benchmarks.bench_unseen import PRESET, WORK_DIR, make_plan, render_walk
+from benchmarks.bench_unseen import WORK_DIR, make_plan
+from benchmarks.harness import LIBRARY_DIR, MESHES, PRESET, fov_walk, run_job
 from benchmarks.lookalikes import exclude_overrides
 
 MESH = "ycb_mug"
@@ -83,23 +84,21 @@ def measure(mesh: str, fov: float, quick: bool, threads: int,
     from cadnerf_core.evaluation.dataset import load_dataset
     from cadnerf_core.evaluation.jobio import first_views, write_job
     from cadnerf_core.library.format import load_library
-    from cadnerf_core.pipeline import run_job
     from cadnerf_core.progress import Progress
 
     torch.set_num_threads(threads)
     library = load_library(library_dir)
     plan = make_plan(quick, [mesh], ["leave-out"], [fov])
     overrides = {**plan.overrides, **exclude_overrides(mesh, "leave-out"), "seed": 0}
-    walk = render_walk(mesh, fov, WORK_DIR)
+    walk = fov_walk(mesh, fov, WORK_DIR)
     job_dir = WORK_DIR / "progress_job"
     shutil.rmtree(job_dir, ignore_errors=True)
     write_job(job_dir, first_views(load_dataset(walk), plan.views), PRESET, overrides, False)
     config = internal_config(PRESET, overrides)
     expected = scaled(default_stage_seconds(PRESET, "cpu"), stage_work(config))
     with Recorder(expected) as recorder:
-        run_job(job_dir, library, Progress(recorder.report), "cpu")
+        metrics = run_job(job_dir, library, progress=Progress(recorder.report)).metrics
         total = time.monotonic() - recorder.start
-    metrics = json.loads((job_dir / "metrics.json").read_text())
     return {"mesh": mesh, "fov": fov, "threads": threads, "total_s": total,
             "timings": metrics["timings_s"], "still": longest_still(recorder.trace),
             "quarter": quarter_eta(recorder.trace, total),
@@ -195,10 +194,7 @@ def section(result: dict[str, Any], quick: bool) -> str:
 
 def run(quick: bool, library: Path | None = None) -> str:
     """``make bench``'s section."""
-    from benchmarks.bench_eval import EVAL_ROOT
-    from benchmarks.bench_unseen import LIBRARY_DIR
-
-    if not (EVAL_ROOT / "meshes").is_dir():
+    if not MESHES.is_dir():
         return ("## A preview job: time per stage, progress and ETA\n\n"
                 "Not run: `../shared/eval` is absent.\n")
     return section(measure(MESH, FOV, quick, 2, library or LIBRARY_DIR), quick)
@@ -206,8 +202,6 @@ def run(quick: bool, library: Path | None = None) -> str:
 
 def main(argv: list[str] | None = None) -> int:
     import logging
-
-    from benchmarks.bench_unseen import LIBRARY_DIR
 
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--mesh", default=MESH)

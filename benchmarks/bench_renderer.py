@@ -5,8 +5,8 @@ Run: ``.venv/bin/python -m benchmarks.bench_renderer [--quick]``.
 
 from __future__ import annotations
 
-import argparse
 import platform
+import sys
 import tempfile
 import time
 from collections.abc import Callable
@@ -15,12 +15,12 @@ from pathlib import Path
 import numpy as np
 import trimesh
 
+from benchmarks.harness import MESHES, section_head
 from cadnerf_core.cameras import intrinsics_from_fov, library_poses
 from cadnerf_core.evaluation.dataset import render_dataset
 from cadnerf_core.mesh.meshio import load_mesh, normalise_mesh
 from cadnerf_core.mesh.renderer import MeshRenderer, render_silhouette_polygons
 
-EVAL = Path(__file__).resolve().parents[1] / ".." / "shared" / "eval"
 SIZE = 128
 
 
@@ -39,7 +39,7 @@ def _meshes() -> list[tuple[str, trimesh.Trimesh]]:
     """The benchmark meshes: a synthetic ~50k-triangle sphere, and real meshes when present."""
     meshes = [("uv_sphere(count=[112, 112])", trimesh.creation.uv_sphere(count=[112, 112]))]
     for name in ("os_boot/boot.obj", "spot/spot_triangulated.obj"):
-        path = EVAL / "meshes" / name
+        path = MESHES / name
         if path.is_file():
             meshes.append((name, load_mesh(path)))
     return [(name, normalise_mesh(mesh)) for name, mesh in meshes]
@@ -62,7 +62,7 @@ def _bench_mesh(name: str, mesh: trimesh.Trimesh, repeats: int) -> str:
 
 def _bench_dataset(n_views: int) -> str:
     """Seconds to write a spot dataset (load, auto distance, render, PNG writing)."""
-    spot = EVAL / "meshes" / "spot" / "spot_triangulated.obj"
+    spot = MESHES / "spot" / "spot_triangulated.obj"
     if not spot.is_file():
         return "Dataset rendering: skipped (../shared/eval absent)."
     with tempfile.TemporaryDirectory() as folder:
@@ -77,14 +77,12 @@ def run(quick: bool) -> str:
     """Markdown section with the renderer's timings."""
     repeats = 10 if quick else 50
     rows = [_bench_mesh(name, mesh, repeats) for name, mesh in _meshes()]
-    command = "python -m benchmarks.bench_renderer" + (" --quick" if quick else "")
     return "\n".join([
-        "## Mesh renderer",
-        "",
-        f"Command: `{command}` ({repeats} views per mesh cycling through the library poses, "
-        f"{SIZE}x{SIZE} px, fov 40, distance 4; CPU `{platform.processor() or platform.machine()}`"
-        ", shared with other processes). Times in ms, median / p90.",
-        "",
+        *section_head("Mesh renderer", "bench_renderer", quick,
+                      f" ({repeats} views per mesh cycling through the library poses, {SIZE}x"
+                      f"{SIZE} px, fov 40, distance 4; CPU "
+                      f"`{platform.processor() or platform.machine()}`, shared with other "
+                      "processes). Times in ms, median / p90."),
         "| mesh | triangles | Embree build | colour render | ray silhouette | polygon silhouette |",
         "| --- | ---: | ---: | ---: | ---: | ---: |",
         *rows,
@@ -94,12 +92,7 @@ def run(quick: bool) -> str:
     ])
 
 
-def main() -> None:
-    """Print the section."""
-    parser = argparse.ArgumentParser(description=__doc__)
-    parser.add_argument("--quick", action="store_true", help="fewer repetitions")
-    print(run(parser.parse_args().quick))
-
-
 if __name__ == "__main__":
-    main()
+    from benchmarks.run import area_main
+
+    sys.exit(area_main(run, __doc__ or "", library=False, quick_help="fewer repetitions"))

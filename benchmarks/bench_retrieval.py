@@ -33,23 +33,22 @@ from typing import Any
 
 import numpy as np
 
-from benchmarks.retrieval_real import real_set
-from benchmarks.retrieval_tables import phone_summary, phone_table, synthetic_table
-from benchmarks.retrieval_walks import (
-    EVAL_ROOT,
-    PHONE_FOV,
+from benchmarks.harness import (
+    ABSENT,
+    DOCS,
+    LIBRARY_DIR,
+    MESHES,
+    PHOTOS,
     QUICK_MESHES,
     SIZE,
-    VIEW_COUNTS,
-    phone_set,
-    synthetic_set,
+    eval_meshes,
+    section_head,
 )
+from benchmarks.retrieval_real import real_set
+from benchmarks.retrieval_tables import phone_summary, phone_table, synthetic_table
+from benchmarks.retrieval_walks import PHONE_FOV, VIEW_COUNTS, phone_set, synthetic_set
 
 log = logging.getLogger(__name__)
-
-ROOT = Path(__file__).resolve().parents[1]
-LIBRARY_DIR = ROOT / "library_data" / "build"
-DOCS = ROOT / "docs"
 
 
 def _median_seconds(function: Any, repeats: int) -> float:
@@ -112,13 +111,11 @@ def run(quick: bool, library_dir: Path = LIBRARY_DIR) -> str:
     """Run the retrieval benchmark. Returns its markdown section."""
     from cadnerf_core.library.format import load_library
 
-    head = ["## Retrieval", "", f"Command: `python -m benchmarks.bench_retrieval"
-            f"{' --quick' if quick else ''}`", ""]
-    if not (EVAL_ROOT / "meshes").is_dir():
-        return "\n".join([*head, "Not run: `../shared/eval` is absent.", ""])
+    head = section_head("Retrieval", "bench_retrieval", quick)
+    if not MESHES.is_dir():
+        return "\n".join([*head, ABSENT, ""])
     library = load_library(library_dir)
-    names = QUICK_MESHES if quick else tuple(sorted(
-        p.name for p in (EVAL_ROOT / "meshes").iterdir() if p.is_dir()))
+    names = QUICK_MESHES if quick else eval_meshes()
     work = Path(tempfile.mkdtemp(prefix="bench_retrieval_"))
     results, nine = [], None
     try:
@@ -160,7 +157,7 @@ def run(quick: bool, library_dir: Path = LIBRARY_DIR) -> str:
              "only):", ""]
     for name, picture in (("ners_espresso", "retrieval_espresso.png"),
                           ("raydiffusion_robot", "retrieval_robot.png")):
-        if (EVAL_ROOT / "photos" / name).is_dir():
+        if (PHOTOS / name).is_dir():
             lines += real_set(name, library, DOCS / picture)
             lines.append(f"- picture: `docs/{picture}`")
     return "\n".join([*lines, ""])

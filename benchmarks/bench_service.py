@@ -7,7 +7,6 @@ Standalone: ``.venv/bin/python -m benchmarks.bench_service [--quick]``.
 
 from __future__ import annotations
 
-import argparse
 import asyncio
 import io
 import os
@@ -175,12 +174,7 @@ def run(quick: bool) -> str:
     ])
 
 
-def main() -> None:
-    """Print the section."""
-    parser = argparse.ArgumentParser(description=__doc__)
-    parser.add_argument("--quick", action="store_true", help="fewer requests and uploads")
-    print(run(parser.parse_args().quick))
-
-
 if __name__ == "__main__":
-    main()
+    from benchmarks.run import area_main
+
+    sys.exit(area_main(run, __doc__ or "", library=False, quick_help="fewer requests and uploads"))

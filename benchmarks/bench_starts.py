@@ -34,13 +34,26 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from benchmarks.bench_eval import EVAL_ROOT, LIBRARY_DIR, QUICK_MESHES
-from benchmarks.bench_unseen import FOVS, SEED, SIZE, VIEWS, render_walk
+from benchmarks.bench_unseen import FOVS
+from benchmarks.harness import (
+    ABSENT,
+    LIBRARY_DIR,
+    MESHES,
+    PRESET,
+    QUICK_MESHES,
+    SEED,
+    SIZE,
+    VIEWS,
+    eval_meshes,
+    fov_walk,
+    rotation_error,
+    section_head,
+    torch_threads,
+)
 from benchmarks.lookalikes import exclude_overrides
 
 log = logging.getLogger(__name__)
 
-PRESET = "preview"
 DIRECTIONS = (1, -1)  # counter-clockwise, clockwise seen from above
 RIGHT_DEG = 90.0  # a walk further off than this after alignment went the wrong way round
 
@@ -71,13 +84,12 @@ def start_row(name: str, fov: float, direction: int, library: Any, work: Path) -
     """Render one walk, run a job's intake and robust start on it, and score both."""
     import torch
 
-    from benchmarks.retrieval_walks import rotation_error
     from cadnerf_core.evaluation.dataset import load_dataset
     from cadnerf_core.evaluation.jobio import first_views, write_job
     from cadnerf_core.pipeline import read_job_config, robust_start, run_intake
     from cadnerf_core.progress import Progress
 
-    walk = first_views(load_dataset(render_walk(name, fov, work, direction=direction)), VIEWS)
+    walk = first_views(load_dataset(fov_walk(name, fov, work, direction=direction)), VIEWS)
     job_dir = work / name / f"job_fov{fov:g}_{direction:+d}"
     shutil.rmtree(job_dir, ignore_errors=True)
     write_job(job_dir, walk, PRESET, {**exclude_overrides(name, "leave-out"), "seed": SEED})
@@ -135,27 +147,17 @@ def table_lines(rows: list[StartRow]) -> list[str]:
 def run(quick: bool, meshes: list[str] | None = None, fovs: list[float] | None = None,
         library_dir: Path = LIBRARY_DIR) -> str:
     """Run the benchmark. Returns its markdown section."""
-    import torch
-
     from cadnerf_core.library.format import load_library
 
-    flags = " --quick" if quick else ""
-    head = ["## The start on walks both ways round", "",
-            f"Command: `python -m benchmarks.bench_starts{flags}`", ""]
-    if not (EVAL_ROOT / "meshes").is_dir():
-        return "\n".join([*head, "Not run: `../shared/eval` is absent.", ""])
-    names = meshes or (list(QUICK_MESHES) if quick else
-                       sorted(p.name for p in (EVAL_ROOT / "meshes").iterdir() if p.is_dir()))
+    head = section_head("The start on walks both ways round", "bench_starts", quick)
+    if not MESHES.is_dir():
+        return "\n".join([*head, ABSENT, ""])
+    names = meshes or list(QUICK_MESHES if quick else eval_meshes())
     angles = fovs or ([40.0] if quick else list(FOVS))
     library = load_library(library_dir)
-    threads = torch.get_num_threads()
-    torch.set_num_threads(1)
-    try:
-        with tempfile.TemporaryDirectory() as tmp:
-            rows = [start_row(name, fov, direction, library, Path(tmp))
-                    for name in names for fov in angles for direction in DIRECTIONS]
-    finally:
-        torch.set_num_threads(threads)
+    with torch_threads(1), tempfile.TemporaryDirectory() as tmp:
+        rows = [start_row(name, fov, direction, library, Path(tmp))
+                for name in names for fov in angles for direction in DIRECTIONS]
     intro = (f"{len(names)} meshes ({', '.join(names)}), walks of {VIEWS} views at {SIZE} px, "
              f"fields of view {', '.join(f'{f:g}' for f in angles)} deg, each walked both "
              "ways round; look-alikes left out; preset `preview`, one torch thread. A walk is "

@@ -62,24 +62,27 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from benchmarks.bench_eval import Z_UP
-from benchmarks.lookalikes import Protocol, exclude_overrides
+from benchmarks.harness import (
+    DEVICE,
+    LIBRARY_DIR,
+    PRESET,
+    SEED,
+    TEST_VIEWS,
+    evaluate_walk,
+    render_walk,
+)
+from benchmarks.harness import VIEWS as TRAIN_VIEWS
+from benchmarks.lookalikes import Protocol
 from benchmarks.training_plan import (
     ABLATIONS,
-    DEVICE,
     FOV_DEG,
     IMAGE_SIZE,
-    LIBRARY,
     LIGHT_EXPORT,
     ORACLE,
     ORACLE_OVERRIDES,
     ORBIT_FRAME,
-    PRESET,
-    SEED,
-    TEST_VIEWS,
-    TRAIN_VIEWS,
     TTA_STEPS,
-    mesh_files,
+    mesh_names,
     results_table,
     run_plan,
     stages_table,
@@ -93,7 +96,7 @@ if TYPE_CHECKING:
 log = logging.getLogger(__name__)
 
 
-def run_one(mesh: Path, work: Path, library: Library, name: str, overrides: dict[str, Any],
+def run_one(mesh: str, work: Path, library: Library, name: str, overrides: dict[str, Any],
             tta: bool, oracle: bool = False, exif_focal: bool = False,
             fov_deg: float = FOV_DEG, views: int = TRAIN_VIEWS, preset: str = PRESET,
             device: str = DEVICE, size: int = IMAGE_SIZE,
@@ -104,21 +107,14 @@ def run_one(mesh: Path, work: Path, library: Library, name: str, overrides: dict
     do, with ``exif_focal``; the photos' field of view ``fov_deg``; ``views`` training
     photos; ``protocol``: the mesh's look-alikes left out of retrieval or not,
     ``benchmarks.lookalikes``), and add this benchmark's numbers."""
-    from cadnerf_core.evaluation.dataset import render_dataset
-    from cadnerf_core.evaluation.evaluate import evaluate_dataset
-
-    dataset_dir = work / mesh.parent.name / "dataset"
-    if not dataset_dir.exists():
-        render_dataset(mesh, dataset_dir, views, size, seed=SEED,
-                       test_views=TEST_VIEWS, up="z" if mesh.parent.name in Z_UP else "y",
-                       fov_deg=fov_deg)
-    job = work / mesh.parent.name / name.replace(" ", "_")
+    dataset_dir = render_walk(mesh, work / mesh / "dataset", views, size=size, seed=SEED,
+                              once=True, test_views=TEST_VIEWS, fov_deg=fov_deg)
+    job = work / mesh / name.replace(" ", "_")
     with true_cameras(dataset_dir) if oracle else contextlib.nullcontext():
-        report = evaluate_dataset(dataset_dir, views, library, preset=preset,
-                                  overrides={**exclude_overrides(mesh.parent.name, protocol),
-                                             **overrides}, job_dir=job, device=device,
-                                  intrinsics="estimated", align="photometric",
-                                  exif_focal=exif_focal)
+        report = evaluate_walk(dataset_dir, views, library, mesh, overrides, job,
+                               protocol=protocol, preset=preset, device=device,
+                               intrinsics="estimated", align="photometric",
+                               exif_focal=exif_focal)
     return score_report(report, tta, device)
 
 
@@ -160,12 +156,12 @@ def run(quick: bool, threads: int | None = None, names: list[str] | None = None,
     unknown = set(only or ()) - {*ABLATIONS, ORACLE}
     if unknown:
         raise ValueError(f"unknown runs {sorted(unknown)}; choose from {[*ABLATIONS, ORACLE]}")
-    meshes = mesh_files(quick, names)
-    if not meshes or not LIBRARY.is_dir():
+    meshes = mesh_names(quick, names)
+    if not meshes or not LIBRARY_DIR.is_dir():
         return "## Training\n\nSkipped: no ../shared/eval/meshes or no built library.\n"
     if threads:
         torch.set_num_threads(threads)
-    library = load_library(LIBRARY)
+    library = load_library(LIBRARY_DIR)
     rows: list[tuple[str, str, dict[str, Any]]] = []
     orbit_note = ""
     with tempfile.TemporaryDirectory() as tmp:
@@ -184,11 +180,11 @@ def run(quick: bool, threads: int | None = None, names: list[str] | None = None,
                                      oracle=oracle, exif_focal=exif_focal, fov_deg=fov_deg,
                                      views=views, preset=preset, device=device, size=size,
                                      protocol=protocol)
-                    rows.append((mesh.parent.name, name, {**result, "seed": seed}))
-                    log.info("%s %s: %s", mesh.parent.name, label, result)
+                    rows.append((mesh, name, {**result, "seed": seed}))
+                    log.info("%s %s: %s", mesh, label, result)
             if i == 0 and names is None and first_seed == 0 \
                     and (only is None or "full" in only):
-                save_orbit_frame(work / mesh.parent.name / "full")
+                save_orbit_frame(work / mesh / "full")
                 orbit_note = ("An orbit frame of the first mesh's full run: "
                               "`docs/orbit_frame.png`.")
     flags = " --quick" if quick else ""

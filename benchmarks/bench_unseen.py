@@ -51,27 +51,29 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from benchmarks.bench_eval import (
-    EVAL_ROOT,
+from benchmarks.eval_tables import markdown_table
+from benchmarks.harness import (
     LIBRARY_DIR,
+    MESHES,
+    PRESET,
     QUICK_MESHES,
     QUICK_OVERRIDES,
-    Z_UP,
-    mesh_file,
+    SEED,
+    SIZE,
+    TEST_VIEWS,
+    VIEWS,
+    WORK_ROOT,
+    eval_meshes,
+    evaluate_walk,
+    fov_walk,
+    torch_threads,
 )
-from benchmarks.eval_tables import markdown_table
-from benchmarks.lookalikes import Protocol, exclude_overrides
+from benchmarks.lookalikes import Protocol
 
 log = logging.getLogger(__name__)
 
-ROOT = Path(__file__).resolve().parents[1]
-WORK_DIR = ROOT / "out" / "bench_unseen"
+WORK_DIR = WORK_ROOT / "bench_unseen"
 FOVS = (40.0, 55.0, 70.0)
-VIEWS = 6
-SIZE = 128
-TEST_VIEWS = 12
-SEED = 0
-PRESET = "preview"
 
 # Each lever: (label, the override that turns it off, the one that turns it on). The
 # variant run is the one that differs from the default; the default is the leave-out row.
@@ -115,7 +117,7 @@ def make_plan(quick: bool, names: list[str] | None = None,
     """The quick or the full plan (``names``: only these meshes; ``variants``: only these
     rows, of "leave-out", "with look-alike" and ``lever_variants``; ``fovs``: only these
     fields of view; ``views``: photos a walk)."""
-    every = tuple(sorted(p.name for p in (EVAL_ROOT / "meshes").iterdir() if p.is_dir()))
+    every = eval_meshes()
     only = tuple(variants) if variants else None
     chosen = tuple(float(f) for f in fovs) if fovs else FOVS
 
@@ -149,38 +151,21 @@ def lever_variants() -> dict[str, tuple[str, dict[str, Any]]]:
     return out
 
 
-def render_walk(name: str, fov: float, work: Path, views: int = VIEWS,
-                direction: int | None = None) -> Path:
-    """The walk of ``views`` photos of mesh ``name`` at ``fov`` degrees (rendered once);
-    ``direction`` +1 / -1: walked counter-clockwise / clockwise (None: the seed's way)."""
-    from cadnerf_core.evaluation.dataset import render_dataset
-
-    folder = work / name / (f"fov{fov:g}" if views == VIEWS else f"fov{fov:g}_{views}views")
-    if direction is not None:
-        folder = folder.with_name(f"{folder.name}_{'ccw' if direction > 0 else 'cw'}")
-    if not (folder / "transforms_test.json").is_file():
-        render_dataset(mesh_file(EVAL_ROOT / "meshes" / name), folder, views, SIZE, SEED,
-                       up="z" if name in Z_UP else "y", test_views=TEST_VIEWS, fov_deg=fov,
-                       direction=direction)
-    return folder
-
-
 def run_job(name: str, fov: float, variant: str, overrides: dict[str, Any],
             protocol: Protocol, plan: Plan, library: Any, work: Path,
             device: str = "cpu", exif: bool = False) -> dict[str, Any]:
     """One job, scored (``exif``: the photos carry their true focal length, as the files a
     phone wrote do). Returns its row (``error`` set when it failed)."""
-    from cadnerf_core.evaluation.evaluate import evaluate_dataset
     from cadnerf_core.jobfolder import JobFolder
 
     row: dict[str, Any] = {"mesh": name, "fov": fov, "variant": variant, "views": plan.views}
-    config = {**plan.overrides, **exclude_overrides(name, protocol), **overrides, "seed": SEED}
+    config = {**plan.overrides, **overrides, "seed": SEED}
     try:
-        walk = render_walk(name, fov, work, plan.views,
-                           direction=-1 if variant == CW_VARIANT else None)
-        report = evaluate_dataset(walk, plan.views, library, preset=PRESET, overrides=config,
-                                  job_dir=walk.parent / f"job_{variant}_{walk.name}",
-                                  device=device, eval_size=plan.eval_size, exif_focal=exif)
+        walk = fov_walk(name, fov, work, plan.views,
+                        direction=-1 if variant == CW_VARIANT else None)
+        report = evaluate_walk(walk, plan.views, library, name, config,
+                               walk.parent / f"job_{variant}_{walk.name}", protocol=protocol,
+                               device=device, eval_size=plan.eval_size, exif_focal=exif)
     except Exception as exc:  # noqa: BLE001 - one failed job is a row, not a crash
         log.exception("%s %s at %g deg failed", name, variant, fov)
         return {**row, "error": f"{type(exc).__name__}: {exc}"}
@@ -422,11 +407,10 @@ def run(quick: bool, names: list[str] | None = None, variants: list[str] | None 
     rows, for ``from_rows``; ``views``: photos a walk, one section per count; ``workers``: jobs
     at a time from one queue; ``threads``: torch threads of a job run one at a time, 2 for a
     job as a user's runs alone on 2 cores). Returns its markdown sections."""
-    import torch
 
     from cadnerf_core.library.format import load_library
 
-    if not (EVAL_ROOT / "meshes").is_dir():
+    if not MESHES.is_dir():
         return "## Objects the library has not seen\n\nNot run: `../shared/eval` is absent.\n"
     plans = [make_plan(quick, names, variants, fovs, v)
              for v in ([views] if isinstance(views, int) else views)]
@@ -441,13 +425,9 @@ def run(quick: bool, names: list[str] | None = None, variants: list[str] | None 
         rows = list(done.values()) + run_queue(queue, work, device, workers, rows_file)
     else:
         library = load_library(LIBRARY_DIR)
-        previous = torch.get_num_threads()
-        torch.set_num_threads(threads)  # 1 as bench_eval: no OpenMP oversubscription
-        try:
+        with torch_threads(threads):  # 1 as bench_eval: no OpenMP oversubscription
             rows = [row for plan in plans
                     for row in run_rows(plan, library, work, device, shard, rows_file)]
-        finally:
-            torch.set_num_threads(previous)
     seconds = time.perf_counter() - start
     where = (CPU_WHERE if device == "cpu" and workers == 1 and threads == 1
              else f"CPU, {threads} torch threads, one job at a time" if device == "cpu"

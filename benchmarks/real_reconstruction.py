@@ -15,16 +15,14 @@ from __future__ import annotations
 import argparse
 import sys
 import tempfile
-import time
 from pathlib import Path
 
 import numpy as np
 
+from benchmarks.harness import DOCS, LIBRARY_DIR, PHOTOS, ROOT, run_job
 from benchmarks.retrieval_real import real_set_photos
 
-ROOT = Path(__file__).resolve().parents[1]
-LIBRARY = ROOT / "library_data" / "build"
-PICTURE = ROOT / "docs" / "espresso_reconstruction.png"
+PICTURE = DOCS / "espresso_reconstruction.png"
 SET = "ners_espresso"
 TILE = 128
 
@@ -59,21 +57,14 @@ def picture(job: Path, photos: list[Path], masks: list[Path], out: Path) -> None
 
 def run(preset: str, job: Path) -> str:
     """Run the job into ``job`` (an empty or absent folder) and write the picture."""
-    from cadnerf_cli.reconstruct_cmd import stage_inputs
     from cadnerf_core.config import resolve_config
-    from cadnerf_core.jobfolder import JobFolder
     from cadnerf_core.library.format import load_library
-    from cadnerf_core.pipeline import run_job
 
     photos, masks, _ = real_set_photos(SET)
-    stage_inputs(photos, masks, job)
-    JobFolder(job).write_config(resolve_config(preset))
-    start = time.perf_counter()
-    run_job(job, load_library(LIBRARY), device="cpu")
-    seconds = time.perf_counter() - start
+    run = run_job(job, load_library(LIBRARY_DIR), photos=photos, masks=masks,
+                  config=resolve_config(preset))
     picture(job, photos, masks, PICTURE)
-    retrieval = JobFolder(job).read_retrieval() or {}
-    metrics = JobFolder(job).read_metrics() or {}
+    retrieval, metrics, seconds = run.retrieval, run.metrics, run.seconds
     return (f"{SET}, preset {preset}: model {retrieval['model_id']} ({retrieval['category']}), "
             f"silhouette set {retrieval['perspective']}, {len(photos)} photos, "
             f"{len(retrieval['discarded'])} discarded; training PSNR {metrics['mean_psnr']:.2f} "
@@ -86,7 +77,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--preset", default="preview")
     parser.add_argument("--out", type=Path, default=None, help="job folder (default: temporary)")
     args = parser.parse_args(argv)
-    if not (ROOT / ".." / "shared" / "eval" / "photos" / SET).is_dir():
+    if not (PHOTOS / SET).is_dir():
         sys.stdout.write("Not run: ../shared/eval is absent.\n")
         return 0
     job = args.out or Path(tempfile.mkdtemp(prefix="cadnerf-real-"))

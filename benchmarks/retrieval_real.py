@@ -10,15 +10,15 @@ from typing import Any
 
 import numpy as np
 
+from benchmarks.harness import PHOTOS, rotation_error
 from benchmarks.lookalikes import excluded
-from benchmarks.retrieval_walks import EVAL_ROOT, rotation_error
 
 
 def real_set_photos(name: str) -> tuple[list[Path], list[Path], np.ndarray | None]:
     """Photos in walking order, their shipped masks, and coarse ground truth c2w (or None)."""
     from cadnerf_core.cameras import orbit_pose
 
-    folder = EVAL_ROOT / "photos" / name
+    folder = PHOTOS / name
     photos = sorted((folder / "images").iterdir())
     gt = None
     meta = folder / "metadata.json"

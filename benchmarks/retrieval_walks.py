@@ -10,15 +10,10 @@ from typing import Any
 
 import numpy as np
 
-from benchmarks.bench_eval import Z_UP, mesh_file
+from benchmarks.harness import SEED, load_walk, rotation_error
 from benchmarks.lookalikes import excluded
 
-ROOT = Path(__file__).resolve().parents[1]
-EVAL_ROOT = ROOT / ".." / "shared" / "eval"
-QUICK_MESHES = ("armchair", "CesiumMilkTruck", "ycb_mug")
 VIEW_COUNTS = (6, 9)
-SIZE = 128
-SEED = 0
 
 
 # Variants retrieved on every synthetic walk: ours (defaults), the paper's Algorithm 1, the bare
@@ -80,17 +75,6 @@ class SetResult:
     1 discards 1-2 photos on many walks, and its median is over the rest)."""
 
 
-def rotation_error(result: Any, c2w_gt: np.ndarray, only: set[int] | None = None) -> float:
-    """Median rotation error (degrees) of the kept photos (of those in ``only``, if given)
-    after similarity alignment."""
-    from cadnerf_core.cameras import pose_errors
-
-    kept = [m for m in result.matches if not m.discarded and (only is None or m.index in only)]
-    pred = np.stack([m.c2w for m in kept])
-    rot, _ = pose_errors(pred, c2w_gt[[m.index for m in kept]])
-    return float(np.median(rot))
-
-
 def retrieve_all(masks: list[np.ndarray], names: list[str], library: Any,
                  images: list[np.ndarray], direction: int,
                  focals: list[float] | None = None,
@@ -118,12 +102,8 @@ def retrieve_all(masks: list[np.ndarray], names: list[str], library: Any,
 def synthetic_set(name: str, views: int, direction: int, library: Any, work: Path) -> SetResult:
     """Render one walk of a mesh and retrieve it with every variant (its look-alikes left
     out but by the "lookalike" variant)."""
-    from cadnerf_core.evaluation.dataset import load_dataset, render_dataset
-
-    folder = render_dataset(mesh_file(EVAL_ROOT / "meshes" / name), work / f"{name}_{views}_"
-                            f"{direction}", views, SIZE, SEED + views, up="z" if name in Z_UP
-                            else "y", direction=direction)
-    data = load_dataset(folder)
+    data = load_walk(name, work / f"{name}_{views}_{direction}", views, seed=SEED + views,
+                     direction=direction)
     results = retrieve_all(list(data.masks), data.names, library, list(data.images), direction,
                            [float(K[0, 0]) for K in data.K], excluded(name))
     dp, paper = results["dp"], results["paper"]
@@ -137,7 +117,6 @@ def synthetic_set(name: str, views: int, direction: int, library: Any, work: Pat
                      dp.direction_lead if dp.direction_lead is not None else float("nan"),
                      dp.direction_ambiguous,
                      rotation_error(dp, data.c2w, {m.index for m in paper.kept}))
-
 
 
 @dataclass
@@ -158,13 +137,10 @@ def phone_set(name: str, views: int, direction: int, library: Any, work: Path,
     frame: from nearer at a wider angle) and retrieve it with the photos' focal length known,
     the mesh's look-alikes left out."""
     from cadnerf_core.config import RetrievalConfig
-    from cadnerf_core.evaluation.dataset import load_dataset, render_dataset
     from cadnerf_core.retrieval.retrieve import retrieve
 
-    folder = render_dataset(mesh_file(EVAL_ROOT / "meshes" / name), work / f"fov{fov:g}_{name}_"
-                            f"{views}_{direction}", views, SIZE, SEED + views,
-                            up="z" if name in Z_UP else "y", direction=direction, fov_deg=fov)
-    data = load_dataset(folder)
+    data = load_walk(name, work / f"fov{fov:g}_{name}_{views}_{direction}", views,
+                     seed=SEED + views, direction=direction, fov_deg=fov)
     focals = [float(K[0, 0]) for K in data.K]
     results = {key: retrieve(list(data.masks), data.names, library,
                              RetrievalConfig(perspective=key,  # type: ignore[arg-type]

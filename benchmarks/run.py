@@ -28,6 +28,8 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
+from benchmarks.harness import DOCS, LIBRARY_DIR, ROOT
+
 log = logging.getLogger("benchmarks")
 
 AREAS = ("renderer", "library", "retrieval", "training", "service", "eval")
@@ -37,20 +39,22 @@ AREAS = ("renderer", "library", "retrieval", "training", "service", "eval")
 FULL_ONLY = {"training": "the preview-preset training benchmark (ablations on two meshes, the "
                          "full method on every mesh) takes about 2 hours on 2 cores; run "
                          "`make bench` (without QUICK) for it"}
-ROOT = Path(__file__).resolve().parents[1]
 
 
-def area_main(run: Callable[[bool, Path], str], description: str,
-              argv: list[str] | None = None) -> int:
-    """The command line of one area's module: ``[--quick] [--library DIR]``, its section on
+def area_main(run: Callable[[bool, Path], str] | Callable[[bool], str], description: str,
+              argv: list[str] | None = None, library: bool = True, quick_help: str = "") -> int:
+    """The command line of one area's module: ``[--quick] [--library DIR]`` (``--library``
+    only where ``library``: ``run(quick, library)``, else ``run(quick)``), its section on
     standard output, progress logged."""
     parser = argparse.ArgumentParser(description=description)
-    parser.add_argument("--quick", action="store_true")
-    parser.add_argument("--library", type=Path, default=ROOT / "library_data" / "build")
+    parser.add_argument("--quick", action="store_true", help=quick_help or None)
+    if library:
+        parser.add_argument("--library", type=Path, default=LIBRARY_DIR)
     args = parser.parse_args(argv)
     logging.basicConfig(level=logging.INFO,
                         format="%(asctime)s %(levelname)s %(name)s: %(message)s")
-    sys.stdout.write(run(args.quick, args.library))
+    section = run(args.quick, args.library) if library else run(args.quick)  # type: ignore[call-arg]
+    sys.stdout.write(section)
     return 0
 
 
@@ -257,7 +261,7 @@ def main(argv: list[str] | None = None) -> int:
     """Command-line entry point; returns the exit status."""
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--quick", action="store_true", help="the reduced benchmark (<15 min)")
-    parser.add_argument("--out", type=Path, default=ROOT / "docs" / "benchmarks.md")
+    parser.add_argument("--out", type=Path, default=DOCS / "benchmarks.md")
     parser.add_argument("--only", nargs="*", choices=all_areas(),
                         help="run only these areas; the others' sections in --out are kept")
     args = parser.parse_args(argv)

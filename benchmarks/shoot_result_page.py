@@ -22,18 +22,17 @@ from typing import Any
 
 from app.client import JobClient
 from app.routes.pages import VENDOR
+from benchmarks.harness import DOCS, EVAL_ROOT, LIBRARY_DIR, PHOTOS, ROOT
 from cadnerf_cli.service_cmd import _StatusPrinter
 from tests.e2e.pages import CHROMIUM, WEBGL_LAUNCH_ARGS, drag_across
 from tests.e2e.test_serve import _ready_workers, _start_serve, _stop
 
-ROOT = Path(__file__).resolve().parents[1]
-EVAL = ROOT.parent / "shared" / "eval"
 VIEWPORT_WIDTH, VIEWPORT_HEIGHT = 1280, 900  # a laptop's browser window
 
 
 def _photos(set_name: str) -> tuple[list[Path], list[Path]]:
     """The set's photos and one mask per photo (same stem, PNG), in name order."""
-    folder = EVAL / "photos" / set_name
+    folder = PHOTOS / set_name
     photos = sorted(p for p in (folder / "images").iterdir()
                     if p.suffix.lower() in (".jpg", ".jpeg", ".png"))
     masks = [folder / "masks" / f"{p.stem}.png" for p in photos]
@@ -104,12 +103,13 @@ def shoot(url: str, job_id: str, out: Path) -> dict[str, Any]:
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--out", type=Path, default=ROOT / "docs" / "result_viewer.png")
+    parser.add_argument("--out", type=Path, default=DOCS / "result_viewer.png")
     parser.add_argument("--set", dest="set_name", default="raydiffusion_robot",
                         help="a folder of ../shared/eval/photos")
     args = parser.parse_args()
-    if not EVAL.is_dir():
-        sys.exit(f"error: {EVAL} is absent: the real photo sets live there (shared/eval beside "
+    if not EVAL_ROOT.is_dir():
+        sys.exit(f"error: {EVAL_ROOT} is absent: the real photo sets live there (shared/eval "
+                 "beside "
                  "the repository); nothing was shot")
     if CHROMIUM is None:
         sys.exit("error: chromium is not installed (apt-get install chromium)")
@@ -117,7 +117,7 @@ def main() -> None:
         sys.exit("error: @google/model-viewer is not installed: run `npm ci` (or `make setup`)")
     photos, masks = _photos(args.set_name)
     with tempfile.TemporaryDirectory(prefix="cadnerf-shot-") as tmp:
-        serve, url, log = _start_serve(Path(tmp), ROOT / "library_data" / "build")
+        serve, url, log = _start_serve(Path(tmp), LIBRARY_DIR)
         try:
             _ready_workers(url, 300)
             job_id, wall_s = run_job(url, photos, masks)

@@ -17,8 +17,7 @@ import numpy as np
 import trimesh
 from PIL import Image
 
-from benchmarks.bench_eval import Z_UP, mesh_file
-from benchmarks.retrieval_walks import EVAL_ROOT
+from benchmarks.harness import MESHES, mesh_file, mesh_up
 
 TEXTURED = ("spot", "Duck", "CesiumMilkTruck", "fuze", "armchair")
 """The evaluation meshes that carry a colour texture."""
@@ -62,8 +61,7 @@ def render_walk(name: str, out: Path, direction: int = 1) -> tuple[list[Path], l
     from cadnerf_core.mesh.renderer import MeshRenderer
 
     rng = np.random.default_rng(SEED)
-    mesh = normalise_mesh(load_mesh(mesh_file(EVAL_ROOT / "meshes" / name)),
-                          up="z" if name in Z_UP else "y")
+    mesh = normalise_mesh(load_mesh(mesh_file(MESHES / name)), up=mesh_up(name))
     azimuths, elevations = walking_angles(VIEWS, rng, direction, ELEVATIONS)
     angles = list(zip(azimuths, elevations, strict=True))
     distance = auto_distance(mesh, angles, FOV_DEG) * 1.15  # a little room round it

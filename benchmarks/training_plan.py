@@ -3,16 +3,14 @@ dataset settings, and the markdown tables of the results (``benchmarks.bench_tra
 
 from __future__ import annotations
 
-from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-ROOT = Path(__file__).resolve().parents[1]
-EVAL = ROOT / ".." / "shared" / "eval" / "meshes"
-LIBRARY = ROOT / "library_data" / "build"
-ORBIT_FRAME = ROOT / "docs" / "orbit_frame.png"
-QUICK_MESHES = ("Duck", "CesiumMilkTruck")
+from benchmarks.harness import DOCS, LIBRARY_FOV, SIZE, eval_meshes
+
+ORBIT_FRAME = DOCS / "orbit_frame.png"
+QUICK_MESHES = ("Duck", "CesiumMilkTruck")  # the paper's Table 5 meshes
 # The paper's full method and its Table 5 ablations, whatever the preset's own default. "no
 # deformation": nothing deforms the density in phase two, whose poses are refined against the
 # CAD shape (D learns in phase three), the paper's pipeline without its deformation. "no G":
@@ -29,32 +27,19 @@ ORACLE_OVERRIDES: dict[str, Any] = {"optimise_poses": False, "use_deformation": 
 # Ablation runs skip what does not change their score: a 2-frame orbit, a coarse mesh.
 LIGHT_EXPORT = {"export.orbit_frames": 2, "export.mesh_resolution": 16, "export.novel_views": 0}
 TTA_STEPS = 100  # test-time pose refinement steps per test view (BARF: optim.test_iter)
-IMAGE_SIZE = 128  # dataset side in pixels
-TRAIN_VIEWS = 6
-TEST_VIEWS = 12
-SEED = 0
-PRESET = "preview"
-DEVICE = "cpu"
-FOV_DEG = 40.0  # the photos' horizontal field of view: the library's own
+IMAGE_SIZE = SIZE  # dataset side in pixels
+FOV_DEG = LIBRARY_FOV  # the photos' horizontal field of view: the library's own
 
 
-def mesh_files(quick: bool, names: list[str] | None = None) -> list[Path]:
-    """One mesh file per folder of the evaluation set (``QUICK_MESHES`` with ``quick``, or the
-    folders ``names``)."""
-    out = []
+def mesh_names(quick: bool, names: list[str] | None = None) -> list[str]:
+    """The evaluation set's meshes (``QUICK_MESHES`` with ``quick``, or those of ``names``),
+    in the set's order."""
     wanted = names or (list(QUICK_MESHES) if quick else None)
-    for folder in sorted(EVAL.iterdir()) if EVAL.is_dir() else []:
-        if wanted is not None and folder.name not in wanted:
-            continue
-        files = sorted(p for p in folder.iterdir()
-                       if p.suffix.lower() in {".obj", ".glb", ".ply", ".off", ".stl"})
-        if files:
-            out.append(files[0])
-    return out
+    return [name for name in eval_meshes() if wanted is None or name in wanted]
 
 
-def run_plan(meshes: list[Path], every_run_everywhere: bool,
-             only: list[str] | None = None) -> list[tuple[Path, list[str]]]:
+def run_plan(meshes: list[str], every_run_everywhere: bool,
+             only: list[str] | None = None) -> list[tuple[str, list[str]]]:
     """Which runs each mesh gets: every selected run (``only``, or all of ``ABLATIONS`` and
     the oracle) on every mesh with ``every_run_everywhere`` (``--quick`` or ``--meshes``);
     otherwise (the whole evaluation set, ``make bench``) the ablations and the oracle only on
@@ -63,7 +48,7 @@ def run_plan(meshes: list[Path], every_run_everywhere: bool,
     selected = [name for name in (*ABLATIONS, ORACLE) if only is None or name in only]
     plan = []
     for mesh in meshes:
-        if every_run_everywhere or mesh.parent.name in QUICK_MESHES:
+        if every_run_everywhere or mesh in QUICK_MESHES:
             plan.append((mesh, selected))
         elif "full" in selected:
             plan.append((mesh, ["full"]))

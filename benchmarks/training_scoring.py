@@ -12,7 +12,8 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from benchmarks.training_plan import DEVICE, TTA_STEPS
+from benchmarks.harness import DEVICE
+from benchmarks.training_plan import TTA_STEPS
 
 if TYPE_CHECKING:
     from cadnerf_core.evaluation.evaluate import EvalReport

@@ -213,7 +213,9 @@ def settings_markdown() -> str:
     names = list(REFERENCE_PRESETS)
     presets = {name: PRESETS[name] for name in names}
     head = ["setting", "type", *(f"`{name}`" for name in names), "what"]
-    rows = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
+    rows = ["Generated from `cadnerf_core/config_client.py` by `cadnerf config --write "
+            "docs/guide.md`; a preset's column gives its value.", "",
+            "| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
     for path, prop in schema_leaves(client_schema()).items():
         values = []
         for name in names:

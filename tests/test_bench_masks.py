@@ -34,7 +34,7 @@ def test_training_sets_the_overrides_in_both_jobs(tmp_path: Path,
                                                   monkeypatch: pytest.MonkeyPatch) -> None:
     seen: list[dict[str, Any]] = []
 
-    def fake_job(job: Path, library: Any) -> dict[str, Any]:
+    def fake_job(job: Path, library: Any, *args: Any) -> dict[str, Any]:
         folder = JobFolder(job)
         config = folder.read_config()
         seen.append({"doubt": config.masks.doubt_weight, "seed": config.seed,
@@ -59,7 +59,7 @@ def test_training_runs_both_jobs_for_each_seed_and_reports_the_mean(
     seeds: list[int] = []
     psnr = {0: (24.0, 26.0), 1: (25.0, 25.5)}  # seed: (built-in, shipped)
 
-    def fake_job(job: Path, library: Any) -> dict[str, Any]:
+    def fake_job(job: Path, library: Any, *args: Any) -> dict[str, Any]:
         folder = JobFolder(job)
         seed = folder.read_config().seed
         shipped = len(seeds) % 2  # each seed: the built-in masks' job, then the shipped one's

@@ -8,7 +8,7 @@ from pathlib import Path
 
 import pytest
 
-from benchmarks import bench_unseen
+from benchmarks import bench_unseen, harness
 
 
 @pytest.fixture
@@ -16,7 +16,8 @@ def meshes(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> list[str]:
     names = ["armchair", "CesiumMilkTruck", "ycb_mug", "Duck"]
     for name in names:
         (tmp_path / "meshes" / name).mkdir(parents=True)
-    monkeypatch.setattr(bench_unseen, "EVAL_ROOT", tmp_path)
+    monkeypatch.setattr(harness, "MESHES", tmp_path / "meshes")
+    monkeypatch.setattr(bench_unseen, "MESHES", tmp_path / "meshes")
     return names
 
 
@@ -116,7 +117,7 @@ def test_jobs_of_walks_with_other_photo_counts_get_folders_of_their_own(
         seen.append((views, job_dir))
         raise RuntimeError("not trained here")
 
-    monkeypatch.setattr(bench_unseen, "render_walk", fake_walk)
+    monkeypatch.setattr(bench_unseen, "fov_walk", fake_walk)
     monkeypatch.setattr(evaluate, "evaluate_dataset", refuse)
     for views in (6, 9):
         plan = bench_unseen.make_plan(False, variants=["leave-out"], fovs=[40.0], views=views)
@@ -183,7 +184,7 @@ def test_clockwise_rows_walk_the_other_way_in_full_runs_only(
     def refuse(*args: object, **kwargs: object) -> None:
         raise RuntimeError("not trained here")
 
-    monkeypatch.setattr(bench_unseen, "render_walk", fake_walk)
+    monkeypatch.setattr(bench_unseen, "fov_walk", fake_walk)
     monkeypatch.setattr(evaluate, "evaluate_dataset", refuse)
     plan = bench_unseen.make_plan(False, fovs=[40.0])
     for variant in ("leave-out", bench_unseen.CW_VARIANT):

@@ -271,15 +271,6 @@ def _likeness(seen: _Seen) -> np.ndarray | None:
     return similarity
 
 
-def photo_likeness(masks: Sequence[np.ndarray], images: Sequence[np.ndarray],
-                   library: Library, config: RetrievalConfig | None = None) -> np.ndarray:
-    """[P, P] how alike the photos look, as the order search weighs it (``_likeness``)."""
-    config = config or RetrievalConfig()
-    found = _likeness(_look(masks, images, None, library, config))
-    assert found is not None, "photos given"
-    return found
-
-
 def allowed_models(library: Library, exclude: Sequence[str]) -> np.ndarray:
     """Indices of the library models retrieval may choose: all but the ``exclude``d ids.
 
