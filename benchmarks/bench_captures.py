@@ -48,6 +48,7 @@ from benchmarks.harness import (
     section_head,
 )
 from benchmarks.lookalikes import exclude_overrides
+from benchmarks.results import Result, cpu_cores, record, today
 
 log = logging.getLogger("benchmarks.captures")
 
@@ -155,6 +156,28 @@ def _mirrored(row: dict[str, Any]) -> str:
     return "" if "mirrored" not in row else ("yes" if row["mirrored"] else "no")
 
 
+def textured_refined(rows: list[dict[str, Any]], variant: str) -> list[float]:
+    """The refined rotation errors of ``variant``'s jobs on captures with texture."""
+    return [r["refined"] for r in rows if r["variant"] == variant
+            and r["capture"] not in UNTEXTURED]
+
+
+def record_median(rows: list[dict[str, Any]], tag: str) -> None:
+    """The default variant's median refined rotation error over the textured captures of a
+    whole set (``tag``: "real" or "textured") as the README's figure."""
+    errors = textured_refined(rows, "matches")
+    if not errors:
+        return
+    what = (f"cameras on real captures ({len(errors)} textured sets with reference cameras)"
+            if tag == "real" else
+            f"cameras on textured synthetic walks ({len(errors)} meshes, 768 x 576)")
+    conditions = f"`{PRESET}`" if tag == "real" else "leave-out"
+    record(Result(f"captures_{tag}_rotation", what, float(np.median(errors)),
+                  "degrees (median)", 1, f"{conditions}, {cpu_cores()}",
+                  ".venv/bin/python -m benchmarks.bench_captures --sets real textured "
+                  "--rows ROWS", today()))
+
+
 def table(rows: list[dict[str, Any]]) -> list[str]:
     """The per-job table and the acceptance lines."""
     lines = ["| capture | variant | model | kept | retrieved (deg) | started (deg) | "
@@ -169,8 +192,7 @@ def table(rows: list[dict[str, Any]]) -> list[str]:
                      f"{r['seconds']:.0f} |")
     lines.append("")
     for variant in VARIANTS:
-        textured = [r["refined"] for r in rows if r["variant"] == variant
-                    and r["capture"] not in UNTEXTURED]
+        textured = textured_refined(rows, variant)
         if textured:
             flipped = sum(bool(r.get("mirrored")) for r in rows if r["variant"] == variant)
             lines.append(f"- {variant}: median refined rotation error over the {len(textured)} "
@@ -183,8 +205,9 @@ SETS = ("real", "textured")
 
 
 def _rows(captures: list[Capture], library: Any, variants: list[str], tag: str,
-          rows_file: Path | None) -> list[dict[str, Any]]:
-    """Each capture's job under each variant (rows already in ``rows_file`` kept)."""
+          rows_file: Path | None, whole: bool) -> list[dict[str, Any]]:
+    """Each capture's job under each variant (rows already in ``rows_file`` kept); ``whole``:
+    every capture of the set, whose figure is recorded (``record_median``)."""
     rows: list[dict[str, Any]] = []
     if rows_file is not None and rows_file.is_file():
         rows = json.loads(rows_file.read_text())
@@ -198,8 +221,11 @@ def _rows(captures: list[Capture], library: Any, variants: list[str], tag: str,
             if rows_file is not None:
                 rows_file.write_text(json.dumps(rows, indent=1))
     names = {c.name for c in captures}
-    return [r for r in rows if r["capture"] in names and r.get("set", "real") == tag
+    mine = [r for r in rows if r["capture"] in names and r.get("set", "real") == tag
             and r["variant"] in variants]
+    if whole:
+        record_median(mine, tag)
+    return mine
 
 
 def run(quick: bool, library_dir: Path = LIBRARY_DIR, names: list[str] | None = None,
@@ -229,12 +255,13 @@ def run(quick: bool, library_dir: Path = LIBRARY_DIR, names: list[str] | None = 
                 "with the matches' rotations); refined: after training. Focal error: the job's "
                 "focal length against the reference (no photo carries EXIF). The espresso "
                 "reference is the set's coarse metadata (azimuth, elevation); its photos carry "
-                "EXIF.", "", *table(_rows(captures, library, variants, "real", rows_file)), ""]
+                "EXIF.", "", *table(_rows(captures, library, variants, "real", rows_file,
+                                                     names is None)), ""]
     if "textured" in sets:
         with tempfile.TemporaryDirectory(prefix="bench_textured_") as work:
             captures = [textured_capture(n, Path(work)) for n in names or TEXTURED
                         if n in TEXTURED]
-            rows = _rows(captures, library, variants, "textured", rows_file)
+            rows = _rows(captures, library, variants, "textured", rows_file, names is None)
         out += ["### Textured synthetic walks\n\n8 photos at 768 x 576 through a 65 degree "
                 "lens (27 mm EXIF) round each textured mesh on a tiled floor, the mesh's "
                 "look-alikes left out of the library; columns as above.", "", *table(rows), ""]

@@ -37,12 +37,14 @@ import numpy as np
 
 from benchmarks.harness import LIBRARY_DIR, PHOTOS, PRESET, run_job, section_head
 from benchmarks.lookalikes import PROTOCOLS, exclude_overrides, excluded
+from benchmarks.results import Result, cpu_cores, record, today
 from benchmarks.retrieval_real import real_set_photos
 
 if TYPE_CHECKING:
     from cadnerf_core.intake.masks import MaskMethod
 
 SETS = ("ners_espresso", "raydiffusion_robot")
+SET_LABELS = {"ners_espresso": "espresso", "raydiffusion_robot": "robot"}  # in the README
 METHODS: tuple[MaskMethod, ...] = ("learned", "grabcut", "auto")
 TARGET_IOU = 0.90
 BIG_SIDES = (4000, 3000)  # a 12 MP phone photo, landscape
@@ -235,6 +237,15 @@ def training(name: str, paths: list[Path], mask_paths: list[Path], library: Any,
             f"**{built - shipped:+.2f} dB** (target within 1 dB). {seeds_text}.")
 
 
+def _record_iou(name: str, iou: float) -> None:
+    """The set's mean IoU of the default (``auto``) masks, as the README's figure."""
+    label = SET_LABELS.get(name, name)
+    record(Result(f"masks_iou_{label}", f"masks made for real phone photos ({label}), IoU "
+                  "with hand-made masks", iou, "", 3, cpu_cores(),
+                  ".venv/bin/python -m benchmarks.run --only masks --out docs/benchmarks.md",
+                  today()))
+
+
 def run(quick: bool, library_dir: Path = LIBRARY_DIR) -> str:
     """Run the mask benchmark. Returns its markdown section."""
     head = section_head("Masks", "bench_masks", quick)
@@ -254,6 +265,9 @@ def run(quick: bool, library_dir: Path = LIBRARY_DIR) -> str:
         loaded[name] = (shipped, paths, mask_paths)
         table, found = quality(name, shipped)
         lines += [*table, ""]
+        if not quick and "auto" in found:
+            _record_iou(name, float(np.mean([_iou(m, p.mask) for m, p in
+                                             zip(found["auto"], shipped, strict=True)])))
         if library is not None and "learned" in found:
             picks.append(retrieval(name, shipped, found["learned"], library))
     lines += ["Retrieval, model chosen with each set's masks:", "",

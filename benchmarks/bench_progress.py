@@ -28,6 +28,7 @@ from typing import Any
 from benchmarks.bench_unseen import WORK_DIR, make_plan
 from benchmarks.harness import LIBRARY_DIR, MESHES, PRESET, fov_walk, run_job
 from benchmarks.lookalikes import exclude_overrides
+from benchmarks.results import Result, cpu_cores, record, today
 
 MESH = "ycb_mug"
 FOV = 40.0
@@ -159,6 +160,12 @@ def quarter_eta(trace: list[tuple[float, str, float, float]], total: float) -> d
             "error_pct": 100.0 * (eta - actual) / actual}
 
 
+def command(result: dict[str, Any], quick: bool) -> str:
+    """The command that measures ``result``'s job."""
+    return (f"python -m benchmarks.bench_progress --mesh {result['mesh']} --fov "
+            f"{result['fov']:g} --threads {result['threads']}{' --quick' if quick else ''}")
+
+
 def section(result: dict[str, Any], quick: bool) -> str:
     """The markdown section of one measured job."""
     from benchmarks.run import cpu_summary
@@ -169,11 +176,9 @@ def section(result: dict[str, Any], quick: bool) -> str:
     rows = [f"| {key[:-2]} | {timings[key]:.1f} |" for key in order if key in timings]
     still = result["still"]
     quarter = result["quarter"]
-    command = (f"python -m benchmarks.bench_progress --mesh {result['mesh']} --fov "
-               f"{result['fov']:g} --threads {result['threads']}{' --quick' if quick else ''}")
     return "\n".join([
         "## A preview job: time per stage, progress and ETA", "",
-        f"Command: `{command}` ({cpu_summary()}, the job alone on the machine; "
+        f"Command: `{command(result, quick)}` ({cpu_summary()}, the job alone on the machine; "
         f"{'the cut-down QUICK schedule' if quick else 'preset `preview`'}, a walk of 6 views "
         f"of {result['mesh']} at {result['fov']:g} degrees, 128 px, look-alikes left out). "
         f"Whole job {result['total_s']:.0f} s.", "",
@@ -192,12 +197,22 @@ def section(result: dict[str, Any], quick: bool) -> str:
         "this job showed in its finished stages.", ""])
 
 
+def record_job(result: dict[str, Any], quick: bool) -> None:
+    """The whole job's seconds as the README's figure: the default job of a full run only."""
+    if quick or result["mesh"] != MESH or result["fov"] != FOV:
+        return
+    record(Result("preview_job_cpu", "a `preview` job, 6 photos", result["total_s"], "s", 0,
+                  cpu_cores(), f".venv/bin/{command(result, quick)}", today()))
+
+
 def run(quick: bool, library: Path | None = None) -> str:
     """``make bench``'s section."""
     if not MESHES.is_dir():
         return ("## A preview job: time per stage, progress and ETA\n\n"
                 "Not run: `../shared/eval` is absent.\n")
-    return section(measure(MESH, FOV, quick, 2, library or LIBRARY_DIR), quick)
+    result = measure(MESH, FOV, quick, 2, library or LIBRARY_DIR)
+    record_job(result, quick)
+    return section(result, quick)
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -212,6 +227,7 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(name)s: %(message)s")
     result = measure(args.mesh, args.fov, args.quick, args.threads, args.library)
+    record_job(result, args.quick)
     print(json.dumps(result, indent=1), file=sys.stderr)
     sys.stdout.write(section(result, args.quick))
     return 0

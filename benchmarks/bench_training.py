@@ -73,6 +73,7 @@ from benchmarks.harness import (
 )
 from benchmarks.harness import VIEWS as TRAIN_VIEWS
 from benchmarks.lookalikes import Protocol
+from benchmarks.results import Result, record, today
 from benchmarks.training_plan import (
     ABLATIONS,
     FOV_DEG,
@@ -116,6 +117,20 @@ def run_one(mesh: str, work: Path, library: Library, name: str, overrides: dict[
                                intrinsics="estimated", align="photometric",
                                exif_focal=exif_focal)
     return score_report(report, tta, device)
+
+
+def record_gpu_job(rows: list[tuple[str, str, dict[str, Any]]], quick: bool,
+                   names: list[str] | None) -> None:
+    """The mean whole-job seconds of the full method's default runs on a GPU, as the README's
+    figure."""
+    seconds = [r["seconds"] for _, name, r in rows if name == "full"]
+    if not seconds:
+        return
+    flags = (" --quick" if quick else "") + (f" --meshes {' '.join(names)}" if names else "")
+    record(Result("preview_job_gpu", f"a `{PRESET}` job, {TRAIN_VIEWS} photos",
+                  float(np.mean(seconds)), "s", 0, "one GPU",
+                  f".venv/bin/python -m benchmarks.bench_training{flags} --device cuda "
+                  "--runs full", today()))
 
 
 def save_orbit_frame(job: Path) -> None:
@@ -187,6 +202,10 @@ def run(quick: bool, threads: int | None = None, names: list[str] | None = None,
                 save_orbit_frame(work / mesh / "full")
                 orbit_note = ("An orbit frame of the first mesh's full run: "
                               "`docs/orbit_frame.png`.")
+    if device.startswith("cuda") and (preset, size, views, fov_deg) == (
+            PRESET, IMAGE_SIZE, TRAIN_VIEWS, FOV_DEG) and not (overrides or exif_focal) \
+            and protocol == "leave-out":
+        record_gpu_job(rows, quick, names)
     flags = " --quick" if quick else ""
     flags += f" --threads {threads}" if threads else ""
     flags += f" --meshes {' '.join(names)}" if names else ""

@@ -69,6 +69,7 @@ from benchmarks.harness import (
     torch_threads,
 )
 from benchmarks.lookalikes import Protocol
+from benchmarks.results import Result, cpu_cores, record, today
 
 log = logging.getLogger(__name__)
 
@@ -335,6 +336,24 @@ FULL_POINTER = ("The full benchmark (every mesh, preset `preview` itself, run in
                 "`docs/bench_unseen_full.md`.")
 
 
+def record_headline(plan: Plan, rows: list[dict[str, Any]], command: str,
+                    hardware: str) -> None:
+    """The README's figures from a full run that walked every mesh both ways round
+    (``BOTH_WAYS`` over every field of view): mean PSNR and median rotation error."""
+    if len(rows) < len(job_list(plan)) or any("error" in r for r in rows):
+        return  # a shard, or a run with failed jobs: not the whole benchmark
+    both = [r for r in summary_rows(rows) if r["variant"] == BOTH_WAYS and r["fov"] == "all"]
+    if not both:
+        return
+    jobs = both[0]["jobs"]
+    conditions = f"leave-out, {jobs} jobs, {hardware}"
+    record(Result("unseen_psnr", f"held-out view PSNR, {len(plan.meshes)} unseen meshes, "
+                  f"{plan.views} photos at {SIZE} px, `{PRESET}`", both[0]["psnr"], "dB", 2,
+                  conditions, command, today()))
+    record(Result("unseen_rotation", "camera rotation error after refinement, same jobs",
+                  both[0]["rot"], "degrees (median)", 1, conditions, command, today()))
+
+
 def section(plan: Plan, rows: list[dict[str, Any]], seconds: float, quick: bool,
             names: list[str] | None, where: str = CPU_WHERE, extra_flags: str = "") -> str:
     """The markdown section (``where``: what ran the jobs; ``extra_flags``: the command's
@@ -391,6 +410,9 @@ def section(plan: Plan, rows: list[dict[str, Any]], seconds: float, quick: bool,
     ]
     if quick:
         lines += ["", FULL_POINTER]
+    elif names is None and plan.views == VIEWS:
+        record_headline(plan, rows, f".venv/bin/python -m benchmarks.bench_unseen{flags}",
+                        "one GPU" if "--device cuda" in flags else cpu_cores())
     failed = [f"- {r['mesh']} {r['variant']} {r['fov']:g} deg: {r['error']}"
               for r in rows if "error" in r]
     if failed:

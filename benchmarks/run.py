@@ -28,6 +28,7 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
+from benchmarks import results
 from benchmarks.harness import DOCS, LIBRARY_DIR, ROOT
 
 log = logging.getLogger("benchmarks")
@@ -286,6 +287,11 @@ def main(argv: list[str] | None = None) -> int:
         kept = read_sections(args.out.read_text()) if args.only and args.out.is_file() else {}
         args.out.write_text(build_document(_ordered({**kept, **measured})))
     log.info("wrote %s", args.out)
+    try:
+        if results.update_readme():
+            log.info("wrote the results table of %s", results.README)
+    except ValueError as exc:
+        log.warning("README.md's results table not written: %s", exc)
     return 0
 
 

@@ -206,3 +206,23 @@ def test_summary_puts_both_walking_directions_together() -> None:
     assert both["40"]["base_psnr"] == pytest.approx(24.0)  # base: the counter-clockwise walk
     assert not any(s["variant"] == bench_unseen.BOTH_WAYS
                    for s in bench_unseen.summary_rows(rows[:2]))
+
+
+def test_a_whole_run_both_ways_records_the_readme_figures(
+        meshes: list[str], tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    from benchmarks import results
+
+    monkeypatch.setattr(results, "RESULTS", tmp_path / "results.json")
+    plan = bench_unseen.make_plan(False, variants=["leave-out", "clockwise"])
+    rows = [{"mesh": m, "fov": f, "variant": v, "psnr": 20.0 + i % 3, "rot": 5.0 + i % 5,
+             "focal_err": 1.0, "job_s": 100.0}
+            for i, (m, f, v, *_) in enumerate(bench_unseen.job_list(plan))]
+    failed = [*rows[:-1], {**rows[-1], "error": "RuntimeError: out of memory"}]
+    bench_unseen.record_headline(plan, failed, "cmd", "2 CPU cores")
+    assert results.read_results() == {}  # a failed job: not the whole benchmark
+    bench_unseen.record_headline(plan, rows, "cmd", "2 CPU cores")
+    found = results.read_results()
+    assert found["unseen_psnr"].value == pytest.approx(
+        sum(r["psnr"] for r in rows) / len(rows))
+    assert found["unseen_rotation"].conditions == f"leave-out, {len(rows)} jobs, 2 CPU cores"
+    assert f"{len(meshes)} unseen meshes" in found["unseen_psnr"].quantity
