@@ -2,7 +2,9 @@
 
 Usage: ``python -m benchmarks.run [--quick] [--only AREA ...] --out docs/benchmarks.md``.
 With ``--only``, the named areas are re-measured and the other areas' sections in ``--out``
-are kept as they were, each with the commit, date and command that made it.
+are kept as they were, each with the commit, date and command that made it. Writing the
+project's docs/benchmarks.md also renders the README's results table from docs/results.json
+(``benchmarks.results``), where the areas record their headline figures.
 
 Each area module ``benchmarks.bench_<area>`` has ``run(quick: bool) -> str`` returning a markdown
 section. The known areas run in a fixed order (any other ``bench_*.py`` found joins them before
@@ -287,11 +289,12 @@ def main(argv: list[str] | None = None) -> int:
         kept = read_sections(args.out.read_text()) if args.only and args.out.is_file() else {}
         args.out.write_text(build_document(_ordered({**kept, **measured})))
     log.info("wrote %s", args.out)
-    try:
-        if results.update_readme():
-            log.info("wrote the results table of %s", results.README)
-    except ValueError as exc:
-        log.warning("README.md's results table not written: %s", exc)
+    if args.out.resolve() == (DOCS / "benchmarks.md").resolve():  # the project's, not a copy
+        try:
+            if results.update_readme():
+                log.info("wrote the results table of %s", results.README)
+        except ValueError as exc:
+            log.warning("README.md's results table not written: %s", exc)
     return 0
 
 
