@@ -35,7 +35,7 @@ log = logging.getLogger(__name__)
 SERVE_FILE = "serve.json"  # beside the embedded Redis's data: the pids of a running serve
 PARENT_PID_ENV = "CADNERF_SERVE_PID"  # set for serve's worker: the pid it must die with
 _PR_SET_PDEATHSIG = 1
-CHILD_STOP_S = 8.0
+CHILD_STOP_S = 7.0
 """Seconds a supervised worker gets to hand its job back and exit before it is killed (it
 exits on its own within ``worker.shutdown.STOP_DEADLINE_S``; serve's whole stop stays in 10 s)."""
 

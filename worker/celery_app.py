@@ -18,7 +18,7 @@ from app.state import (
     open_checked_storage,
 )
 from worker.liveness import Liveness, worker_name
-from worker.shutdown import reclaim_stop_signals, request_stop
+from worker.shutdown import end_process, reclaim_stop_signals, request_stop
 
 log = logging.getLogger(__name__)
 
@@ -68,6 +68,7 @@ def _connect_signals(celery: Celery, settings: Settings) -> None:
     @worker_shutdown.connect(weak=False)
     def _shutdown(**_: Any) -> None:
         liveness.stop()
+        end_process()  # Celery is done: the interpreter's own teardown would take seconds
 
 
 def _preload_library(settings: Settings) -> None:
