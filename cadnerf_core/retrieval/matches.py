@@ -30,6 +30,7 @@ import numpy as np
 
 from cadnerf_core.config import MatchesConfig
 from cadnerf_core.intake.crop import mask_bbox
+from cadnerf_core.retrieval.orbit import object_centre, orbit_consistent
 
 RATIO = 0.8
 """Lowe's ratio test: a match is kept when its nearest descriptor is this much nearer than
@@ -264,15 +265,17 @@ def vertical_turn_deg(R: np.ndarray) -> float:
 
 
 def verify_pair(i: int, j: int, a: Features, b: Features, K_a: np.ndarray, K_b: np.ndarray,
-                config: MatchesConfig) -> PairMatch:
+                config: MatchesConfig,
+                centres: tuple[np.ndarray, np.ndarray] | None = None) -> PairMatch:
     """Match two photos' SIFT features (``mutual_matches``) and keep those the essential
     matrix explains (``verify_matches``)."""
     pairs = mutual_matches(a.descriptors, b.descriptors)
-    return verify_matches(i, j, a, b, pairs, K_a, K_b, config)
+    return verify_matches(i, j, a, b, pairs, K_a, K_b, config, centres)
 
 
 def verify_matches(i: int, j: int, a: Features, b: Features, pairs: np.ndarray,
-                   K_a: np.ndarray, K_b: np.ndarray, config: MatchesConfig) -> PairMatch:
+                   K_a: np.ndarray, K_b: np.ndarray, config: MatchesConfig,
+                   centres: tuple[np.ndarray, np.ndarray] | None = None) -> PairMatch:
     """Keep the matches between two photos that the essential matrix explains.
 
     Args:
@@ -280,6 +283,9 @@ def verify_matches(i: int, j: int, a: Features, b: Features, pairs: np.ndarray,
         pairs: [M, 2] int64 matched feature indices (into a, into b).
         K_a, K_b: [3, 3] their intrinsics in photo pixels (the focal length an estimate).
         config: ``threshold_px`` (RANSAC, in pixels of the searched crops) and ``min_inliers``.
+        centres: the photos' object centres (``orbit.object_centre``, photo pixels): a pose
+            that does not look at one object from both photos (``orbit.orbit_consistent``)
+            gives the pair no rotation, its inliers kept.
     Returns:
         The pair's matches.
     """
@@ -297,13 +303,14 @@ def verify_matches(i: int, j: int, a: Features, b: Features, pairs: np.ndarray,
                                      threshold)
     if E is None or E.shape != (3, 3):
         return PairMatch(i, j, len(pairs), 0, None, None, None, empty)
-    count, R, _, pose_mask = cv2.recoverPose(E, n_a, n_b, np.eye(3), mask=inlier.copy())
+    count, R, t, pose_mask = cv2.recoverPose(E, n_a, n_b, np.eye(3), mask=inlier.copy())
     keep = pose_mask.ravel() > 0
     inliers = int(keep.sum())
     F = np.linalg.inv(K_b).T @ E @ np.linalg.inv(K_a)
     sampson = float(np.median(sampson_errors(F, x_a[keep], x_b[keep]))) if inliers else None
     points = np.stack([x_a[keep], x_b[keep]], axis=1)
-    if inliers < config.min_inliers:
+    if inliers < config.min_inliers or (
+            centres is not None and not orbit_consistent(R, t, *centres, K_a, K_b)):
         return PairMatch(i, j, len(pairs), inliers, sampson, None, None, points)
     return PairMatch(i, j, len(pairs), inliers, sampson, vertical_turn_deg(R), R, points)
 
@@ -324,10 +331,12 @@ def match_photos(images: Sequence[np.ndarray], masks: Sequence[np.ndarray],
         P * (P - 1) / 2 pairs, (0, 1), (0, 2), ... (an empty mask gives a photo no features).
     """
     check = check or (lambda: None)
+    centres = [object_centre(mask) if mask.any() else np.zeros(2) for mask in masks]
     if config.method == "sift":
         found = [detect(image, mask, config.size, config.context) if mask.any()
                  else NO_FEATURES for image, mask in zip(images, masks, strict=True)]
-        return [verify_pair(i, j, found[i], found[j], intrinsics[i], intrinsics[j], config)
+        return [verify_pair(i, j, found[i], found[j], intrinsics[i], intrinsics[j], config,
+                            (centres[i], centres[j]))
                 for i in range(len(found)) for j in range(i + 1, len(found))]
     from cadnerf_core.retrieval import learned
 
@@ -339,7 +348,8 @@ def match_photos(images: Sequence[np.ndarray], masks: Sequence[np.ndarray],
                                                   np.zeros((0, 64), np.float32)))
     indices = learned.match_indices(features, learned.close_pairs(len(features)), check)
     return [verify_matches(i, j, features[i], features[j], pairs, intrinsics[i],
-                           intrinsics[j], config) for (i, j), pairs in indices.items()]
+                           intrinsics[j], config, (centres[i], centres[j]))
+            for (i, j), pairs in indices.items()]
 
 
 def reindexed(pairs: Sequence[PairMatch], position: Sequence[int]) -> list[PairMatch]:

@@ -25,6 +25,9 @@ PICTURE_HEIGHT = 480
 """Height in pixels of each photo in a pair's picture."""
 PICTURE_LINES = 150
 """Most matches drawn in a pair's picture (evenly chosen)."""
+CHECKS = "essential matrix, orbit"
+"""The checks a stored pair passed (``matches.verify_matches``): part of the cache's key, so a
+job rerun after they change matches again."""
 
 
 def cache_key(photos: Sequence[tuple[str, int]], settings: dict[str, Any],
@@ -115,7 +118,8 @@ def job_pairs(folder: JobFolder, inputs: Sequence[InputPhoto], images: Sequence[
     if not config.matches.enabled or config.solver != "dp":
         return None
     key = cache_key([(e.path.name, e.path.stat().st_size) for e in inputs],
-                    {"matches": config.matches.model_dump(mode="json"), "masks": mask_method},
+                    {"matches": config.matches.model_dump(mode="json"), "masks": mask_method,
+                     "checks": CHECKS},
                     focals)
     stored = folder.read_match_cache()
     pairs = None if stored is None else from_arrays(stored, key)
