@@ -143,6 +143,7 @@ async def submit(request: Request, settings: Settings, store: JobStore, producer
         job_id = str(uuid.uuid4())
         os.rename(staging, store.job_dir(job_id))
         await run_in_threadpool(store.storage.push, job_id, store.job_dir(job_id))
+        store.storage.release(store.job_dir(job_id))  # object storage: the store has it now
     except OSError as exc:
         shutil.rmtree(staging, ignore_errors=True)
         if job_id:
@@ -155,7 +156,6 @@ async def submit(request: Request, settings: Settings, store: JobStore, producer
                        owner=owner, created_at=time.time(), webhook_url=spec.webhook_url,
                        work=stage_work(spec.config))
     await run_in_threadpool(_store_and_enqueue, store, producer, record)
-    store.storage.release(store.job_dir(job_id))  # with object storage: the store has it
     return record
 
 

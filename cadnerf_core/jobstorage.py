@@ -36,6 +36,8 @@ SCHEME = "s3"
 SYNCED = ".synced.json"
 """In a scratch folder: each file's size and mtime when it last matched the store (what a
 push may skip)."""
+SCRATCH = ".scratch"
+"""Under a data root with object storage: the workers' copies of the jobs they run."""
 RESULTS_FETCHED = ".results-fetched"
 """In a scratch folder: the finished job's results are all there (``fetch_results``)."""
 SINGLE_PUT_BYTES = 64 * 1024 * 1024  # larger files go up in parts (boto's managed upload)
@@ -103,6 +105,10 @@ class LocalStorage:
         """Nothing to copy: the folder is the job's data."""
         return NOTHING
 
+    def work_folder(self, job_id: str) -> Path:
+        """Where a worker runs the job: its folder itself."""
+        return self.data_root / job_id
+
     def release(self, folder: Path) -> None:
         """Keep the folder: it is the job's data, not a copy."""
 
@@ -151,12 +157,14 @@ class S3Storage:
 
     Args:
         url: ``s3://BUCKET`` or ``s3://BUCKET/PREFIX``.
+        data_root: this machine's folder of scratch copies.
         client: a boto3 S3 client (default: one from boto3's standard configuration).
     """
 
     remote = True
 
-    def __init__(self, url: str, client: Any = None) -> None:
+    def __init__(self, url: str, data_root: Path | None = None, client: Any = None) -> None:
+        self.data_root = Path(data_root) if data_root is not None else Path("data/jobs")
         parsed = urlparse(url)
         if parsed.scheme != SCHEME or not parsed.netloc:
             raise StorageError(f"the storage URL {url!r} is not s3://BUCKET[/PREFIX]; set "
@@ -277,6 +285,11 @@ class S3Storage:
                 future.result()
 
     # --- the job as a whole ---------------------------------------------------------------
+    def work_folder(self, job_id: str) -> Path:
+        """Where a worker runs the job: ``<data root>/.scratch/<job id>``, apart from the
+        folder an API on the same data root keeps of a finished job's results."""
+        return self.data_root / SCRATCH / job_id
+
     def release(self, folder: Path) -> None:
         """Drop a scratch copy (the store keeps the job)."""
         shutil.rmtree(folder, ignore_errors=True)
@@ -337,7 +350,7 @@ def open_storage(url: str | None, data_root: Path) -> JobStorage:
     """
     if not url:
         return LocalStorage(data_root)
-    return S3Storage(url)
+    return S3Storage(url, data_root)
 
 
 def _default_client() -> Any:

@@ -173,7 +173,7 @@ def _execute_claimed(job_id: str, settings: Settings, store: JobStore,
         state, error, detail = outcome
         return _finish(store, settings, record, state, error, detail=detail)
     finally:
-        store.storage.release(store.job_dir(job_id))
+        store.storage.release(store.storage.work_folder(job_id))
 
 
 def _hand_back(store: JobStore, job_id: str, worker: str) -> dict[str, Any]:
@@ -189,7 +189,7 @@ def _run(record: JobRecord, settings: Settings, store: JobStore, started: float,
          celery_update: Callable[[dict[str, Any]], None] | None) -> Outcome | None:
     """Fetch the job's files, run it, write everything back; the outcome, or None when the
     worker is stopping (the job was interrupted, its files written back)."""
-    folder = store.job_dir(record.id)
+    folder = store.storage.work_folder(record.id)
     scratch = Scratch(store.storage, record.id, folder, lambda: _gone(store, record.id))
     try:
         scratch.fetch()
@@ -392,7 +392,7 @@ def _finish(store: JobStore, settings: Settings, record: JobRecord, state: JobSt
     """Write the final state (``app.state.finish_job``), then call the job's webhook."""
     final, in_redis = finish_job(store, record, state, error, detail, redis_wait_s)
     log.info("job %s %s%s", record.id, state.value, f": {error}" if error else "")
-    if record.webhook_url and (in_redis or store.job_dir(record.id).is_dir()):
+    if record.webhook_url and (in_redis or store.storage.work_folder(record.id).is_dir()):
         payload = {"id": record.id, "state": state.value, "error": error,
                    "error_detail": (None if detail is None
                                     else detail.model_dump(mode="json", exclude_none=True)),

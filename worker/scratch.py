@@ -1,7 +1,7 @@
 """A worker's scratch copy of one job: fetched before it runs, written back as it goes.
 
 With object storage (``cadnerf_core.jobfolder`` storage) a worker shares no disk with the API:
-the job's files are fetched into ``<data root>/<job id>``, each stage's files (checkpoints
+the job's files are fetched into a scratch folder (``work_folder``), each stage's files (checkpoints
 included) go back to the store when the stage ends, so another worker can resume the job if
 this one dies, and everything goes back before the job is marked done. With the data root as
 storage every step here moves nothing.
@@ -25,7 +25,7 @@ class Scratch:
     Args:
         storage: where the job's data lives.
         job_id: the job.
-        folder: its local folder (``JobStore.job_dir``).
+        folder: its local folder (the storage's ``work_folder``).
         gone: True once the job was deleted or cancelled (nothing is written back then: a
             deleted job must not come back to the store).
     """

@@ -155,7 +155,8 @@ def test_a_job_runs_on_a_worker_that_shares_no_disk_with_the_api(
     final, _ = jobs.wait_state(cluster.url, job["id"], 600)
     assert final["state"] == "succeeded", f"{final}\n{cluster.logs()}"
     assert "checkpoints/phase3.pt" in _stored(cluster, job["id"])
-    assert not (cluster.data_root("worker_a") / job["id"]).exists(), "scratch copy left behind"
+    left = list(cluster.data_root("worker_a").rglob(f"*{job['id']}*"))
+    assert not left, f"scratch copy left behind: {left}"
     _assert_downloads_match_the_store(cluster, job["id"])
     usage = httpx.get(f"{cluster.url}/v1/usage", timeout=10).json()
     assert usage["bytes_stored"] == sum(_stored(cluster, job["id"]).values())
