@@ -420,10 +420,10 @@ def test_the_best_walk_wins_though_no_photo_voted_for_its_model() -> None:
     assert dict((m, v) for m, v, _ in ranking)[n_models - 1] == 0  # no vote for the walker
     az_index = np.arange(n_az)
     every = RetrievalConfig(walk_models=0)
-    m, walk = choose_walk(iou, voted, ranking, az_index, n_az, every, 0.0, None)
+    m, walk = choose_walk(iou, voted, ranking, az_index, n_az, every, 0.0)
     assert m == n_models - 1 and list(walk.views) == [p * 2 for p in range(n_photos)]
     five = RetrievalConfig(walk_models=5)
-    m5, _ = choose_walk(iou, voted, ranking, az_index, n_az, five, 0.0, None)
+    m5, _ = choose_walk(iou, voted, ranking, az_index, n_az, five, 0.0)
     assert m5 != n_models - 1 and m5 in [e[0] for e in ranking[:5]]
 
 
@@ -442,14 +442,14 @@ def test_pruning_by_the_walk_bound_changes_no_choice(monkeypatch: pytest.MonkeyP
                 found = module.solve_poses(iou[:, entry[0]], az_index, 16,
                                            config.model_copy(update={"walk": walk}))
                 assert found.score <= module.walk_bound(entry, n_photos, config)
-        pruned = module.choose_walk(iou, voted, ranking, az_index, 16, config, 0.0, None)
+        pruned = module.choose_walk(iou, voted, ranking, az_index, 16, config, 0.0)
         chosen = (pruned[0], pruned[1].direction)
-        alternatives = module.alternatives(iou, ranking, az_index, 16, config, 0.0, None,
+        alternatives = module.alternatives(iou, ranking, az_index, 16, config, 0.0,
                                             chosen)
         with monkeypatch.context() as patched:
             patched.setattr(module, "walk_bound", lambda *_: float("inf"))
-            full = module.choose_walk(iou, voted, ranking, az_index, 16, config, 0.0, None)
-            every = module.alternatives(iou, ranking, az_index, 16, config, 0.0, None,
+            full = module.choose_walk(iou, voted, ranking, az_index, 16, config, 0.0)
+            every = module.alternatives(iou, ranking, az_index, 16, config, 0.0,
                                          chosen)
         assert pruned[0] == full[0] and pruned[1].score == full[1].score
         assert [(m, w.direction, w.score) for m, w in alternatives] == \
