@@ -301,7 +301,7 @@ PRESETS: dict[str, PipelineConfig] = {
         phase2={"steps": 500, "rays": 8192},
         phase3={"steps": 1000, "rays": 8192, "scene_steps": 250},
         export={"orbit_size": 512, "mesh_resolution": 128}),
-    # A useful result in minutes on a few CPU cores. No G: D is fitted to the silhouettes in
+    # A useful result in minutes on a CPU. No G: D is fitted to the silhouettes in
     # its place, as good within a seed's spread and faster at this scale.
     "preview": _preset(
         "preview", image_size=128, use_deformation=False,

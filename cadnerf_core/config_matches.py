@@ -37,7 +37,7 @@ class MatchesConfig(Frozen):
     them was slightly worse (``docs/presets.md``); keep 0 for a turntable, where the
     background does not turn with the object."""
     fuse: bool = True
-    """Fuse the retrieved cameras with the rotations the matched pairs measured before
+    """Fuse the retrieved cameras with the rotations of the matched pairs before
     training (rotation averaging anchored to the CAD model's frame; ``retrieval.fusion``)."""
     mapper: bool = True
     """Where COLMAP's incremental mapper registers every photo from the matches, with a small

@@ -218,3 +218,19 @@ def test_one_retrieval_config_for_jobs_and_retrieve() -> None:
             RetrievalConfig(**bad)  # type: ignore[arg-type]
         with pytest.raises(ValidationError):
             internal_config("preview", {"retrieval": bad})
+
+
+def test_config_modules_carry_no_measurements_or_machines() -> None:
+    """Docstrings and comments of the config say what and why; figures live in docs/presets.md."""
+    import re
+    from pathlib import Path
+
+    import cadnerf_core
+
+    figure = re.compile(r"\d\s?(dB|%|GiB)\b|\d+(\.\d+)? s\b|\b(H100|H200|RTX|A100)\b|"
+                        r"\bbench_[a-z_]+|CPU cores|\d+(\.\d+)?[- ]degrees? (off|better|median)")
+    for name in ("config", "config_retrieval", "config_matches", "config_bounds",
+                 "config_client"):
+        text = (Path(cadnerf_core.__file__).parent / f"{name}.py").read_text()
+        found = [m.group(0) for m in figure.finditer(text)]
+        assert not found, (name, found)
