@@ -23,6 +23,7 @@ CLIENT_SETTINGS: dict[str, str] = {
     "phase1.steps": "Training steps fitting the density to the retrieved CAD model.",
     "phase2.steps": "Training steps fitting shape and camera poses to the masks.",
     "phase3.steps": "Training steps fitting colour (and poses) to the photos.",
+    "phase3.scene_steps": "With scene_mode: training steps of object and background together.",
     "masks.method": "Background removal for photos without a mask: \"auto\" (the learned "
                     "remover where installed, else GrabCut), \"learned\" or \"grabcut\".",
     "retrieval.order": "\"walk\": the photos are in walking order; \"any\": find the order; "
