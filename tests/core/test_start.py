@@ -101,7 +101,7 @@ def test_a_switch_leaves_a_guessed_direction_a_guess(
         ambiguous: bool, monkeypatch: pytest.MonkeyPatch) -> None:
     """Retrieval guessed the direction; a fit that prefers the mirrored walk does not make it
     known: the result still says it is a guess, and its hint names the way it was taken."""
-    from app.results import _warnings
+    from cadnerf_core.job_warnings import job_warnings
 
     retrieved = dataclasses.replace(_walk(1, 0.0), direction_ambiguous=ambiguous)
     mirrored = _walk(-1, 0.0)
@@ -113,10 +113,11 @@ def test_a_switch_leaves_a_guessed_direction_a_guess(
                                 torch.device("cpu"), False, Progress())
     assert result.direction == -1
     assert result.direction_ambiguous is ambiguous
-    warnings = _warnings(result.to_json(), [], [])
+    names = [m.name for m in result.matches]
+    warnings = job_warnings(result.to_json(), names)
     if ambiguous:
         assert len(warnings) == 1 and "taken clockwise" in warnings[0]
-        assert '"walk": "ccw"' in warnings[0]
+        assert 'retrieval.walk to "ccw"' in warnings[0]
     else:
         assert warnings == []
 
