@@ -16,8 +16,8 @@ from fastapi.security import HTTPAuthorizationCredentials, HTTPBearer
 from starlette.concurrency import run_in_threadpool
 
 from app.errors import ApiError, not_found, store_unavailable
-from app.state import ANON_OWNER, AsyncJobReader, JobRecord, JobStore, Settings, is_job_id
-from app.state.settings import hash_key
+from app.settings import Settings, hash_key
+from app.state import ANON_OWNER, AsyncJobReader, JobRecord, JobStore, is_job_id
 
 log = logging.getLogger(__name__)
 

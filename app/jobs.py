@@ -17,11 +17,13 @@ from celery import Celery
 from starlette.concurrency import run_in_threadpool
 from starlette.requests import Request
 
+from app.core import StorageError
 from app.errors import ApiError, store_unavailable
 from app.multipart import Limits as UploadLimits
 from app.multipart import receive_form
 from app.queue import enqueue
 from app.schemas import DeleteResult, JobLinks, JobStatus
+from app.settings import Settings
 from app.state import (
     AsyncJobReader,
     JobRecord,
@@ -30,13 +32,11 @@ from app.state import (
     Limits,
     QueueEstimate,
     Refusal,
-    Settings,
     default_preset,
     serving_device,
     stage_work,
 )
 from app.uploads import lay_out
-from cadnerf_core.jobfolder import StorageError
 
 log = logging.getLogger(__name__)
 

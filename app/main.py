@@ -19,15 +19,8 @@ from app.queue import enqueue, make_producer
 from app.routes import health, library, pages, usage
 from app.routes import jobs as job_routes
 from app.routes.pages import STATIC_DIR
-from app.state import (
-    AsyncJobReader,
-    JobStore,
-    OrphanWatch,
-    Settings,
-    SettingsError,
-    load_settings,
-    open_checked_storage,
-)
+from app.settings import Settings, SettingsError, load_settings
+from app.state import AsyncJobReader, JobStore, OrphanWatch, open_checked_storage
 
 log = logging.getLogger(__name__)
 API_VERSION = "1"

@@ -24,7 +24,7 @@ from python_multipart.multipart import MultipartParser, parse_options_header
 from starlette.requests import ClientDisconnect, Request
 
 from app.errors import ApiError
-from app.state import Settings
+from app.settings import Settings
 
 FILE_FIELDS = ("images", "masks")
 TEXT_FIELDS = ("config", "webhook_url")

@@ -5,7 +5,8 @@ from __future__ import annotations
 
 from celery import Celery
 
-from app.state import QUEUE, SEND_RETRY_POLICY, TASK_NAME, Settings, celery_config
+from app.settings import Settings
+from app.state import QUEUE, SEND_RETRY_POLICY, TASK_NAME, celery_config
 
 
 def make_producer(settings: Settings) -> Celery:

@@ -12,11 +12,10 @@ from pathlib import Path
 from typing import Any
 from urllib.parse import quote
 
+from app.core import JobFolder, MaskRecord, StorageError, job_warnings, media_type, walk_order
 from app.errors import ApiError
 from app.schemas import JobResult, ModelRef, PhotoResult
 from app.state import JobRecord, JobState, JobStore
-from cadnerf_core.job_warnings import job_warnings, walk_order
-from cadnerf_core.jobfolder import JobFolder, MaskRecord, StorageError, media_type
 
 log = logging.getLogger(__name__)
 

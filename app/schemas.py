@@ -11,8 +11,8 @@ from typing import Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field
 
+from app.core import ClientSettings, inline_refs
 from app.state import ErrorDetail, JobState
-from cadnerf_core.config_client import ClientSettings, inline_refs
 
 
 class JobCreate(BaseModel):

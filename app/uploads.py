@@ -20,14 +20,21 @@ import pillow_heif
 from PIL import Image, features
 from pydantic import AnyHttpUrl, TypeAdapter, ValidationError
 
+from app.core import (
+    COVER_SIDE,
+    JobFolder,
+    PipelineConfig,
+    cover_problem,
+    field_bounds,
+    mask_cover,
+    refused_names,
+    resolve_config,
+    shape_problem,
+)
 from app.errors import ApiError
 from app.multipart import ReceivedForm, StoredPart
 from app.schemas import JobCreate
-from app.state import Settings, non_public_reason
-from cadnerf_core.config import PipelineConfig, field_bounds, resolve_config
-from cadnerf_core.config_client import refused_names
-from cadnerf_core.intake.limits import COVER_SIDE, cover_problem, mask_cover, shape_problem
-from cadnerf_core.jobfolder import JobFolder
+from app.settings import Settings, non_public_reason
 
 _EXIF_ORIENTATION = 0x0112
 _PIL_FORMATS = {"jpg": "JPEG", "png": "PNG", "webp": "WEBP", "heic": "HEIF", "heif": "HEIF",

@@ -136,7 +136,7 @@ def redis_restart_recovery(folder: Path) -> dict[str, Any]:
     from fastapi.testclient import TestClient
 
     from app.main import create_app
-    from app.state import load_settings
+    from app.settings import load_settings
 
     port = free_port()
     procs = [start_redis(folder / "own-redis", port)]

@@ -19,14 +19,14 @@ import typer
 
 if TYPE_CHECKING:
     from app.embedded import EmbeddedRedis, Supervisor
-    from app.state import Settings
+    from app.settings import Settings
 
 log = logging.getLogger(__name__)
 _STOP_SIGNALS = (signal.SIGTERM, signal.SIGINT)
 
 
 def _settings_or_exit() -> Settings:
-    from app.state import SettingsError, load_settings
+    from app.settings import SettingsError, load_settings
 
     try:
         return load_settings()
@@ -146,7 +146,7 @@ def _start_backends(settings: Settings,
         record_process,
         stop_leftovers,
     )
-    from app.state import load_settings
+    from app.settings import load_settings
 
     folder = _run_folder(settings)
     folder.mkdir(parents=True, exist_ok=True)

@@ -43,6 +43,20 @@ def test_the_service_never_imports_torch(code: str) -> None:
     assert not {m for m in modules if m.startswith("cadnerf_core.")} - light
 
 
+def test_the_app_reaches_the_core_only_through_app_core() -> None:
+    reaching = {}
+    for path in (ROOT / "app").rglob("*.py"):
+        tree = ast.parse(path.read_text(), str(path))
+        found = [n.module for n in ast.walk(tree) if isinstance(n, ast.ImportFrom)
+                 and (n.module or "").split(".")[0] == "cadnerf_core"]
+        found += [a.name for n in ast.walk(tree) if isinstance(n, ast.Import)
+                  for a in n.names if a.name.split(".")[0] == "cadnerf_core"]
+        if found:
+            reaching[str(path.relative_to(ROOT))] = found
+    assert "app/core.py" in reaching  # the check sees imports at all
+    assert set(reaching) == {"app/core.py"}, reaching
+
+
 def test_the_core_never_imports_the_service_stack() -> None:
     modules = _top(_modules_after("import cadnerf_core"))
     assert not modules & {"fastapi", "starlette", "celery", "kombu", "redis", "app", "worker"}
@@ -67,10 +81,11 @@ def _app_imports(path: Path) -> list[str]:
     return found
 
 
-def test_the_worker_imports_from_app_only_the_state_package() -> None:
+def test_the_worker_imports_from_app_only_the_state_package_and_the_settings() -> None:
     imports = {str(p.relative_to(ROOT)): _app_imports(p) for p in (ROOT / "worker").glob("*.py")}
     assert any(imports.values())  # the check sees the worker's imports at all
-    outside = {f: [m for m in mods if m != "app.state"] for f, mods in imports.items()}
+    outside = {f: [m for m in mods if m not in ("app.state", "app.settings")]
+               for f, mods in imports.items()}
     assert not {f: mods for f, mods in outside.items() if mods}
 
 
@@ -79,11 +94,12 @@ def test_the_worker_loads_no_other_part_of_app() -> None:
                              "worker.liveness, worker.progress, worker.webhook")
     apps = {m for m in modules if m.split(".")[0] == "app"}
     assert "app.state" in apps
-    assert not {m for m in apps if m != "app" and not m.startswith("app.state")}
+    assert not {m for m in apps if m not in ("app", "app.settings", "app.core")
+                and not m.startswith("app.state")}
 
 
 def test_the_state_package_loads_no_web_queue_or_torch() -> None:
-    modules = _top(_modules_after("import app.state\napp.state.load_settings()"))
+    modules = _top(_modules_after("import app.state, app.settings\napp.settings.load_settings()"))
     assert not modules & {"fastapi", "starlette", "celery", "kombu", "torch", "worker"}
 
 

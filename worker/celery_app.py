@@ -9,14 +9,8 @@ from typing import Any
 from celery import Celery
 from celery.signals import worker_ready, worker_shutdown, worker_shutting_down
 
-from app.state import (
-    QUEUE,
-    SEND_RETRY_POLICY,
-    TASK_NAME,
-    Settings,
-    celery_config,
-    open_checked_storage,
-)
+from app.settings import Settings
+from app.state import QUEUE, SEND_RETRY_POLICY, TASK_NAME, celery_config, open_checked_storage
 from worker.liveness import Liveness, worker_name
 from worker.shutdown import end_process, reclaim_stop_signals, request_stop
 

@@ -17,7 +17,8 @@ from typing import Any
 
 import redis
 
-from app.state import HEARTBEAT_EVERY_S, ORPHAN_GRACE_S, JobStore, OrphanWatch, Settings
+from app.settings import Settings
+from app.state import HEARTBEAT_EVERY_S, ORPHAN_GRACE_S, JobStore, OrphanWatch
 from cadnerf_core.jobfolder import JobStorage
 from worker.runner import device_kind
 

@@ -15,6 +15,7 @@ from typing import TYPE_CHECKING, Any, Protocol
 
 import redis
 
+from app.settings import Settings
 from app.state import (
     FINISH_RETRY_S,
     HEARTBEAT_TTL_S,
@@ -23,7 +24,6 @@ from app.state import (
     JobRecord,
     JobState,
     JobStore,
-    Settings,
     finish_job,
     stage_work,
     unscaled,

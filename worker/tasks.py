@@ -6,7 +6,8 @@ from typing import Any
 
 from celery import Task, shared_task
 
-from app.state import JobStore, Settings
+from app.settings import Settings
+from app.state import JobStore
 from worker import runner
 
 PROGRESS_STATE = "PROGRESS"

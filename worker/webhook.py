@@ -26,7 +26,7 @@ from typing import Any
 
 import httpx
 
-from app.state import non_public_reason
+from app.settings import non_public_reason
 
 log = logging.getLogger(__name__)
 

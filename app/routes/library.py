@@ -16,7 +16,8 @@ from app.deps import OwnerDep, SettingsDep, StoreDep
 from app.errors import ApiError
 from app.routes.usage import limits_public
 from app.schemas import ErrorBody, LibraryModel, LibraryPublic, PresetTimePublic, ServiceInfo
-from app.state import Settings, default_preset, preset_times, serving_device
+from app.settings import Settings
+from app.state import default_preset, preset_times, serving_device
 
 router = APIRouter(prefix="/v1", tags=["library"])
 
@@ -61,7 +62,7 @@ def get_library(settings: SettingsDep, owner: OwnerDep) -> LibraryPublic:
 def get_info(settings: SettingsDep, store: StoreDep, owner: OwnerDep) -> ServiceInfo:
     """What the web page (or any client) needs to build a valid upload and pick a preset."""
     del owner
-    from cadnerf_core.config import PRESETS  # torch-free by contract
+    from app.core import PRESETS
 
     device = serving_device(store.workers, settings.device)
     times = {name: PresetTimePublic(seconds=t.seconds, measured=t.measured)
@@ -82,10 +83,9 @@ def _silhouette_png(model_dir: Path, view: int, perspective: str, version: int) 
     import numpy as np
     from PIL import Image
 
-    from cadnerf_core.library.format import NEAR_SUFFIX, SILHOUETTES_FILE, load_npz
+    from app.core import library_silhouettes
 
-    arrays = load_npz(model_dir / SILHOUETTES_FILE)
-    bits = arrays.get("bits" + (NEAR_SUFFIX if perspective == "near" else ""))
+    bits = library_silhouettes(model_dir, perspective == "near")
     if bits is None or bits.ndim != 3 or view >= bits.shape[0]:
         return None
     crop = np.unpackbits(bits[view], axis=-1, count=bits.shape[1]).astype(np.uint8) * 255
@@ -103,7 +103,7 @@ def get_silhouette(settings: SettingsDep, owner: OwnerDep, model_id: str,
                    perspective: Literal["far", "near"] = "far") -> Response:
     """The canonical silhouette a photo was matched to (a job result links each photo's)."""
     del owner
-    from cadnerf_core.errors import LibraryError
+    from app.core import LibraryError
 
     ids = {e.get("id") for e in _manifest(settings).get("models", []) if isinstance(e, dict)}
     if model_id not in ids:  # only manifest ids ever become a path

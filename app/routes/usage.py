@@ -6,7 +6,8 @@ from fastapi import APIRouter
 
 from app.deps import OwnerDep, SettingsDep, StoreDep
 from app.schemas import ErrorBody, LimitsPublic, UsagePublic
-from app.state import Limits, Settings
+from app.settings import Settings
+from app.state import Limits
 
 router = APIRouter(prefix="/v1", tags=["usage"])
 

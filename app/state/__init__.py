@@ -19,7 +19,6 @@ from app.state.messaging import QUEUE, SEND_RETRY_POLICY, TASK_NAME, celery_conf
 from app.state.records import ANON_OWNER, ErrorDetail, JobRecord, JobState, is_job_id
 from app.state.recovery import MAX_ATTEMPTS, ORPHAN_GRACE_S, OrphanWatch, find_orphans, requeue
 from app.state.serving import PresetTime, default_preset, preset_times, serving_device
-from app.state.settings import Settings, SettingsError, load_settings, non_public_reason
 from app.state.statefile import open_checked_storage
 from app.state.store import JobStore, connect
 from app.state.usage import Limits, Refusal, Usage, UsageMeter
@@ -29,10 +28,8 @@ __all__ = [
     "ANON_OWNER", "DEFAULT_STAGE_SECONDS", "FINISH_RETRY_S", "HEARTBEAT_EVERY_S",
     "HEARTBEAT_TTL_S", "MAX_ATTEMPTS", "ORPHAN_GRACE_S", "QUEUE", "SEND_RETRY_POLICY", "STAGES",
     "TASK_NAME", "AsyncJobReader", "Claims", "ErrorDetail", "EtaModel", "JobRecord", "JobState",
-    "JobStore", "Limits", "OrphanWatch", "PresetTime", "QueueEstimate", "Refusal", "Settings",
-    "SettingsError", "StageHistory", "Usage", "UsageMeter", "Workers", "celery_config", "connect",
-    "default_preset", "default_stage_seconds", "find_orphans", "finish_job", "is_job_id",
-    "load_settings", "non_public_reason", "open_checked_storage", "preset_times", "requeue",
-    "scaled", "serving_device",
-    "stage_work", "unscaled",
+    "JobStore", "Limits", "OrphanWatch", "PresetTime", "QueueEstimate", "Refusal", "StageHistory",
+    "Usage", "UsageMeter", "Workers", "celery_config", "connect", "default_preset",
+    "default_stage_seconds", "find_orphans", "finish_job", "is_job_id", "open_checked_storage",
+    "preset_times", "requeue", "scaled", "serving_device", "stage_work", "unscaled",
 ]

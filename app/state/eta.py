@@ -13,9 +13,9 @@ from dataclasses import dataclass, field
 
 import redis
 
+from app.core import STAGES
 from app.state import keys
 from app.state.work import scaled
-from cadnerf_core.progress import STAGES
 
 log = logging.getLogger(__name__)
 

@@ -7,7 +7,7 @@ from __future__ import annotations
 
 from typing import Any
 
-from app.state.settings import Settings
+from app.settings import Settings
 
 TASK_NAME = "cadnerf.run_job"
 QUEUE = "cadnerf"

@@ -15,9 +15,9 @@ from dataclasses import dataclass
 
 import redis
 
+from app.settings import AUTO_PRESET, Settings
 from app.state.claims import Workers
 from app.state.eta import DEFAULT_STAGE_SECONDS, StageHistory, expected_job_seconds, preset_history
-from app.state.settings import AUTO_PRESET, Settings
 
 log = logging.getLogger(__name__)
 

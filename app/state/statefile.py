@@ -12,10 +12,10 @@ import logging
 import redis
 from pydantic import ValidationError
 
+from app.core import JobStorage, open_storage
+from app.settings import Settings
 from app.state import keys
 from app.state.records import JobRecord, is_job_id
-from app.state.settings import Settings
-from cadnerf_core.jobfolder import JobStorage, open_storage
 
 log = logging.getLogger(__name__)
 

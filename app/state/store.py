@@ -18,6 +18,7 @@ from typing import Any
 
 import redis
 
+from app.core import JobStorage, LocalStorage
 from app.state import keys, scripts
 from app.state.claims import Claims, Workers
 from app.state.estimate import QueueEstimate, read_estimates
@@ -25,7 +26,6 @@ from app.state.eta import StageHistory, history_devices
 from app.state.records import JobRecord, JobState, encode, is_job_id
 from app.state.statefile import STATE_FILE, StateFiles
 from app.state.usage import UsageMeter
-from cadnerf_core.jobfolder import JobStorage, LocalStorage
 
 log = logging.getLogger(__name__)
 

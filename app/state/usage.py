@@ -15,10 +15,10 @@ from dataclasses import dataclass
 
 import redis
 
+from app.core import JobStorage
+from app.settings import MB, Settings
 from app.state import keys, scripts
 from app.state.records import JobState
-from app.state.settings import MB, Settings
-from cadnerf_core.jobfolder import JobStorage
 
 UPLOAD_WINDOW_S = 60.0
 QUEUED_RETRY_S = 30  # a queued job of the key starts at the earliest after its turn: ask again

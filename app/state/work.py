@@ -11,7 +11,7 @@ from __future__ import annotations
 
 from collections.abc import Mapping
 
-from cadnerf_core.config import DEFAULT_PRESET, PRESETS, PipelineConfig
+from app.core import DEFAULT_PRESET, PRESETS, PipelineConfig
 
 MIN_SCALE, MAX_SCALE = 1e-3, 1e6  # a stage of 0 steps still reports; nothing is unbounded
 _VIEWS = 6  # photos a job renders views of (only the ratio matters; novel views are added)

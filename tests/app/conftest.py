@@ -16,7 +16,7 @@ if str(ROOT) not in sys.path:
 
 
 from app.main import create_app  # noqa: E402
-from app.state.settings import Settings, load_settings  # noqa: E402
+from app.settings import Settings, load_settings  # noqa: E402
 from tests.app.images import image_bytes  # noqa: E402
 from tests.configs import TINY_PRESET  # noqa: E402
 

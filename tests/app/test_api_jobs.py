@@ -17,8 +17,8 @@ from fastapi.testclient import TestClient
 from PIL import Image
 
 from app import jobs
+from app.settings import Settings
 from app.state import JobState, JobStore, connect, keys
-from app.state.settings import Settings
 from cadnerf_core.jobfolder import JobFolder, MaskSource
 from tests.configs import TINY_PRESET, tiny_config, tiny_request_json
 

@@ -12,7 +12,7 @@ import pytest
 from fastapi.testclient import TestClient
 
 from app.main import create_app
-from app.state.settings import Settings
+from app.settings import Settings
 from cadnerf_core.config import resolve_config
 from cadnerf_core.jobfolder import JobFolder
 from tests.app.images import image_bytes, mask_bytes

@@ -14,8 +14,8 @@ from fastapi.testclient import TestClient
 
 from app.main import create_app
 from app.routes.jobs import ARTIFACT_CACHE_CONTROL
+from app.settings import Settings
 from app.state import JobRecord, JobState, JobStore, connect
-from app.state.settings import Settings
 from tests.configs import TINY_PRESET
 
 VIDEO = bytes(range(256)) * 8  # 2048 bytes

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 from fastapi.testclient import TestClient
 
-from app.state.settings import Settings
+from app.settings import Settings
 from cadnerf_core.export.bundle import write_bundle, write_images
 from cadnerf_core.jobfolder import COLMAP_CAMERAS, MESH_MTL, MESH_OBJ, MESH_USDZ, JobFolder
 from tests.app.test_api_jobs import _submit, _succeed

@@ -7,7 +7,7 @@ from pathlib import Path
 
 import yaml
 
-from app.state.settings import ENV_PREFIX, Settings, load_settings
+from app.settings import ENV_PREFIX, Settings, load_settings
 
 ROOT = Path(__file__).resolve().parents[2]
 

@@ -10,7 +10,8 @@ from pathlib import Path
 from fastapi.testclient import TestClient
 
 from app.main import create_app
-from app.state import ANON_OWNER, JobStore, Settings, keys
+from app.settings import Settings
+from app.state import ANON_OWNER, JobStore, keys
 from worker import runner
 
 ONE = {"Authorization": "Bearer key-one"}

@@ -11,7 +11,7 @@ from fastapi.testclient import TestClient
 from PIL import Image, features
 
 from app.main import create_app
-from app.state.settings import Settings
+from app.settings import Settings
 from app.uploads import PHOTO_TYPES, sniff_type
 from cadnerf_core.intake.photos import load_photo
 from cadnerf_core.jobfolder import JobFolder

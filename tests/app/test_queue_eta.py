@@ -17,13 +17,13 @@ import redis
 from fastapi.testclient import TestClient
 
 from app import jobs
+from app.settings import Settings
 from app.state import (
     STAGES,
     AsyncJobReader,
     JobRecord,
     JobState,
     JobStore,
-    Settings,
     StageHistory,
     Workers,
     connect,

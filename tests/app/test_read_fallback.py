@@ -12,8 +12,8 @@ from fastapi.testclient import TestClient
 from app.deps import STATE_SOURCE_HEADER
 from app.embedded import free_port
 from app.main import create_app
+from app.settings import Settings, hash_key
 from app.state import ANON_OWNER, JobRecord, JobState, JobStore, connect
-from app.state.settings import Settings, hash_key
 from app.state.store import STATE_FILE
 from tests.configs import TINY_PRESET
 

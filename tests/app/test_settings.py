@@ -7,7 +7,7 @@ from pathlib import Path
 import pytest
 
 from app.main import create_app
-from app.state.settings import SettingsError, hash_key, load_settings
+from app.settings import SettingsError, hash_key, load_settings
 
 
 def test_defaults_and_environment(monkeypatch: pytest.MonkeyPatch) -> None:

@@ -19,8 +19,8 @@ from fastapi.testclient import TestClient
 
 from app import jobs
 from app.main import create_app
-from app.state import JobState, SettingsError, load_settings
-from app.state.settings import Settings
+from app.settings import Settings, SettingsError, load_settings
+from app.state import JobState
 from cadnerf_core.jobfolder import StorageError
 from tests.s3_fixture import bucket_objects
 

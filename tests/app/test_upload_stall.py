@@ -26,7 +26,7 @@ import pytest
 from app.embedded import free_port
 from app.jobs import TMP_PREFIX
 from app.main import create_app
-from app.state.settings import Settings, SettingsError, load_settings
+from app.settings import Settings, SettingsError, load_settings
 from tests.app.conftest import MakeSettings
 from tests.configs import tiny_request_json
 

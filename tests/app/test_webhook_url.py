@@ -7,7 +7,7 @@ from fastapi.testclient import TestClient
 
 from app.errors import ApiError
 from app.main import create_app
-from app.state.settings import Settings, load_settings, non_public_reason
+from app.settings import Settings, load_settings, non_public_reason
 from app.uploads import parse_webhook
 
 INTERNAL = [

@@ -21,7 +21,7 @@ if str(ROOT) not in sys.path:
 
 
 from app.embedded import free_port  # noqa: E402
-from app.state import Settings, load_settings  # noqa: E402
+from app.settings import Settings, load_settings  # noqa: E402
 
 
 @dataclass

@@ -17,7 +17,7 @@ if str(ROOT) not in sys.path:
     sys.path.insert(0, str(ROOT))
 
 from app.main import create_app  # noqa: E402
-from app.state.settings import Settings, load_settings  # noqa: E402
+from app.settings import Settings, load_settings  # noqa: E402
 from tests.configs import TINY_PRESET  # noqa: E402
 from tests.redis_fixture import (  # noqa: E402,F401  (helpers and the session hook)
     _answers,

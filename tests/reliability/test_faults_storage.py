@@ -18,7 +18,7 @@ import redis
 from fastapi.testclient import TestClient
 
 from app.main import create_app
-from app.state.settings import Settings, load_settings
+from app.settings import Settings, load_settings
 from tests.configs import TINY_PRESET, tiny_request
 from tests.reliability import jobs
 from tests.reliability.support import (

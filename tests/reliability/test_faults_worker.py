@@ -88,7 +88,7 @@ def test_killed_worker_job_resumes_from_its_checkpoint(service: Live,
 
 def _send_again(service: Live, job_id: str) -> None:
     from app.queue import enqueue, make_producer
-    from app.state import load_settings
+    from app.settings import load_settings
 
     settings = load_settings(redis_url=service.env["CADNERF_REDIS_URL"],
                              data_root=service.data_root)

@@ -12,7 +12,8 @@ from pathlib import Path
 import pytest
 
 from app import jobs
-from app.state import ErrorDetail, JobRecord, JobState, JobStore, keys, load_settings
+from app.settings import load_settings
+from app.state import ErrorDetail, JobRecord, JobState, JobStore, keys
 from tests.configs import TINY_PRESET
 from worker import runner
 

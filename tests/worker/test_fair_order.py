@@ -6,7 +6,8 @@ import time
 import uuid
 from pathlib import Path
 
-from app.state import JobRecord, JobState, JobStore, load_settings
+from app.settings import load_settings
+from app.state import JobRecord, JobState, JobStore
 from tests.configs import TINY_PRESET
 from worker import runner
 

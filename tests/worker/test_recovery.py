@@ -39,7 +39,7 @@ def test_a_claim_is_exclusive_until_released(store: JobStore, new_job) -> None:
 
 def test_a_duplicate_delivery_of_a_claimed_job_is_dropped(store: JobStore, new_job,
                                                           redis_url) -> None:
-    from app.state import load_settings
+    from app.settings import load_settings
 
     settings = load_settings(redis_url=redis_url, data_root=store.data_root)
     job = new_job()
@@ -138,7 +138,7 @@ def test_a_deleted_job_is_never_brought_back(store: JobStore, new_job) -> None:
 
 def test_the_heartbeat_announces_the_device_the_api_offers_presets_for(store: JobStore,
                                                                      redis_url: str) -> None:
-    from app.state import load_settings
+    from app.settings import load_settings
     from worker.liveness import Liveness
 
     settings = load_settings(redis_url=redis_url, data_root=store.data_root, device="cpu")

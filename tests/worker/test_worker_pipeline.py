@@ -7,7 +7,8 @@ from pathlib import Path
 
 import pytest
 
-from app.state import STAGES, JobState, JobStore, keys, load_settings
+from app.settings import load_settings
+from app.state import STAGES, JobState, JobStore, keys
 from cadnerf_core.jobfolder import JobFolder
 from tests.configs import TINY_PRESET, tiny_config
 from worker import runner

@@ -8,7 +8,8 @@ import uuid
 from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
 from pathlib import Path
 
-from app.state import JobState, JobStore, keys, load_settings
+from app.settings import load_settings
+from app.state import JobState, JobStore, keys
 from worker import runner
 
 

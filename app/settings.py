@@ -126,7 +126,7 @@ class Settings(BaseSettings):
     @field_validator("default_preset")
     @classmethod
     def _known_preset(cls, value: str) -> str:
-        from cadnerf_core.config import PRESETS  # torch-free by contract
+        from app.core import PRESETS
 
         if value != AUTO_PRESET and value not in PRESETS:
             raise ValueError(f"must be one of {', '.join([AUTO_PRESET, *sorted(PRESETS)])}")

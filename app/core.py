@@ -1,0 +1,49 @@
+"""The one door from the service to the core: every name the API and the job state use from
+``cadnerf_core``, all of it torch-free (``tests/test_imports.py`` holds both rules).
+
+The contracts behind it: the job folder and where its bytes live (``jobfolder``), the
+configuration and what a client may set (``config``, ``config_client``), the limits a photo
+must meet (``intake.limits``), the job's stages and warnings, and the library's files.
+"""
+
+from pathlib import Path
+from typing import Any
+
+from cadnerf_core.config import (
+    DEFAULT_PRESET,
+    PRESETS,
+    PipelineConfig,
+    field_bounds,
+    resolve_config,
+)
+from cadnerf_core.config_client import ClientSettings, inline_refs, refused_names
+from cadnerf_core.errors import LibraryError
+from cadnerf_core.intake.limits import COVER_SIDE, cover_problem, mask_cover, shape_problem
+from cadnerf_core.job_warnings import job_warnings, walk_order
+from cadnerf_core.jobfolder import (
+    JobFolder,
+    JobStorage,
+    LocalStorage,
+    MaskRecord,
+    StorageError,
+    media_type,
+    open_storage,
+)
+from cadnerf_core.progress import STAGES
+
+__all__ = [
+    "COVER_SIDE", "DEFAULT_PRESET", "PRESETS", "STAGES",
+    "ClientSettings", "JobFolder", "JobStorage", "LibraryError", "LocalStorage", "MaskRecord",
+    "PipelineConfig", "StorageError", "cover_problem", "field_bounds", "inline_refs",
+    "job_warnings", "library_silhouettes", "mask_cover", "media_type", "open_storage",
+    "refused_names", "resolve_config", "shape_problem", "walk_order",
+]
+
+
+def library_silhouettes(model_dir: Path, near: bool) -> Any:
+    """A library model's packed silhouette bits [V, H, W / 8] (``near``: those seen from as near
+    as a wide lens stands), None where the model has none. The library's reader loads trimesh,
+    so it is imported only when a silhouette is asked for."""
+    from cadnerf_core.library.format import NEAR_SUFFIX, SILHOUETTES_FILE, load_npz
+
+    return load_npz(model_dir / SILHOUETTES_FILE).get("bits" + (NEAR_SUFFIX if near else ""))
