@@ -15,7 +15,7 @@ import math
 
 import numpy as np
 
-MAX_GAP_DEG = 3.0
+MAX_GAP_DEG = 6.0
 """Largest angle, seen from the first camera, by which the two centre rays may miss each
 other."""
 MAX_AXIS_TILT_DEG = 20.0

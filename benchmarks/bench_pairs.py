@@ -1,0 +1,128 @@
+"""The real captures' neighbouring pairs: how many relative rotations the matches get right.
+
+Each capture of ``bench_captures`` (real photos round an object, reference cameras) is matched
+as a job matches it (XFeat features inside the masks, LighterGlue between neighbours and
+next-but-one neighbours, an essential matrix by USAC MAGSAC) at the reference focal length (the
+espresso photos: their EXIF), so the figure is the matcher's alone. Each of those close pairs
+that gets a rotation is right when it is within ``RIGHT_DEG`` of the reference cameras'
+relative rotation, else wrong; the rest get none. Counted twice: with the orbit check
+(``retrieval.orbit``: both photos must look at one object) and without it, to show what the
+check removes. Masks: the capture's own, else made as a job makes them.
+
+QUICK: not run (matching-only, about 2 minutes on 2 cores).
+
+Usage: ``python -m benchmarks.bench_pairs [--captures NAME ...]``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from typing import Any
+
+import numpy as np
+
+from benchmarks.bench_captures import Capture, capture_names, load_capture
+from benchmarks.harness import ABSENT, section_head
+
+RIGHT_DEG = 10.0
+"""Largest error of a pair's rotation counted right."""
+
+
+def _angle(R: np.ndarray) -> float:
+    return float(np.degrees(np.arccos(np.clip((np.trace(R) - 1.0) / 2.0, -1.0, 1.0))))
+
+
+def _photos(capture: Capture) -> tuple[list[np.ndarray], list[np.ndarray], list[np.ndarray]]:
+    """The capture's photos as a job reads them, their masks and intrinsics."""
+    from cadnerf_core.intake.masks import photo_masks
+    from cadnerf_core.intake.photos import load_photo
+
+    masks_in = capture.masks or [None] * len(capture.photos)
+    photos = [load_photo(p, i, m) for i, (p, m) in enumerate(zip(capture.photos, masks_in,
+                                                                   strict=True))]
+    masks = [found.mask for found in photo_masks(photos)]
+    intrinsics = []
+    for i, photo in enumerate(photos):
+        height, width = photo.rgb.shape[:2]
+        focal = capture.focal[i] if capture.focal is not None else photo.focal_pixels
+        focal = focal or 1.2 * max(width, height)
+        intrinsics.append(np.array([[focal, 0.0, width / 2.0], [0.0, focal, height / 2.0],
+                                    [0.0, 0.0, 1.0]]))
+    return [p.rgb for p in photos], masks, intrinsics
+
+
+def count_pairs(capture: Capture) -> dict[str, Any]:
+    """The capture's close pairs, right / wrong / none, without and with the orbit check."""
+    from cadnerf_core.config import MatchesConfig
+    from cadnerf_core.retrieval import learned
+    from cadnerf_core.retrieval.matches import verify_matches
+    from cadnerf_core.retrieval.orbit import object_centre
+
+    images, masks, intrinsics = _photos(capture)
+    config = MatchesConfig()
+    features = [learned.detect(image, mask, config.size) for image, mask in zip(images, masks,
+                                                                                strict=True)]
+    close = learned.close_pairs(len(images))
+    indices = learned.match_indices(features, close)
+    centres = [object_centre(mask) for mask in masks]
+    w2c = np.linalg.inv(capture.c2w)
+    row: dict[str, Any] = {"capture": capture.name, "pairs": len(close)}
+    for label, checked in (("plain", False), ("orbit", True)):
+        right = wrong = 0
+        for i, j in sorted(close):
+            pair = verify_matches(i, j, features[i], features[j], indices[(i, j)],
+                                  intrinsics[i], intrinsics[j], config,
+                                  (centres[i], centres[j]) if checked else None)
+            if pair.rotation is None:
+                continue
+            truth = w2c[j][:3, :3] @ capture.c2w[i][:3, :3]
+            if _angle(pair.rotation @ truth.T) <= RIGHT_DEG:
+                right += 1
+            else:
+                wrong += 1
+        row[f"{label}_right"], row[f"{label}_wrong"] = right, wrong
+    return row
+
+
+def table(rows: list[dict[str, Any]]) -> list[str]:
+    """The section's table: one row a capture, then the totals."""
+    lines = ["| capture | close pairs | right / wrong, essential matrix alone | right / wrong, "
+             "with the orbit check |", "| --- | ---: | ---: | ---: |"]
+    total = {key: sum(r[key] for r in rows) for key in ("pairs", "plain_right", "plain_wrong",
+                                                         "orbit_right", "orbit_wrong")}
+    for r in [*rows, {"capture": "**all**", **total}]:
+        lines.append(f"| {r['capture']} | {r['pairs']} | {r['plain_right']} / "
+                     f"{r['plain_wrong']} | {r['orbit_right']} / {r['orbit_wrong']} |")
+    return lines
+
+
+def run(quick: bool, names: list[str] | None = None) -> str:
+    """The section's markdown (QUICK: not run)."""
+    return "\n".join(_lines(quick, names)) + "\n"
+
+
+def _lines(quick: bool, names: list[str] | None) -> list[str]:
+    head = section_head("Matches on real captures: relative rotations right and wrong",
+                        "bench_pairs", quick,
+                        ": close pairs (neighbours and next-but-one) of each capture; a "
+                        f"rotation within {RIGHT_DEG:.0f} degrees of the reference cameras' "
+                        "is right.")
+    if quick:
+        return [*head, "Not run under QUICK (matching-only, about 2 minutes)."]
+    names = names or capture_names()
+    if not names:
+        return [*head, ABSENT]
+    return [*head, *table([count_pairs(load_capture(name)) for name in names])]
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--captures", nargs="*", default=None)
+    args = parser.parse_args(argv)
+    print(run(False, args.captures), end="")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
