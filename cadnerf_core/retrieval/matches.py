@@ -369,10 +369,14 @@ def reindexed(pairs: Sequence[PairMatch], position: Sequence[int]) -> list[PairM
 
 
 def inlier_table(pairs: Sequence[PairMatch], n_photos: int) -> np.ndarray:
-    """Inliers of every pair as a symmetric [n_photos, n_photos] table (0 on the diagonal)."""
+    """Inliers of every pair as a symmetric [n_photos, n_photos] table (0 on the diagonal).
+    A pair whose geometry was not trusted (too few inliers, or no pose looking at one object:
+    no ``rotation``) counts none: a few chance matches between the mirrored sides of a plain
+    object would pull the order search to a wrong walk."""
     table = np.zeros((n_photos, n_photos))
     for p in pairs:
-        table[p.i, p.j] = table[p.j, p.i] = p.inliers
+        shared = p.inliers if p.rotation is not None else 0
+        table[p.i, p.j] = table[p.j, p.i] = shared
     return table
 
 
