@@ -66,3 +66,7 @@ def tiny_cli_options(**overrides: Any) -> list[str]:
     request = tiny_request(**overrides)
     return ["--preset", request["preset"], *(f"--set={key}={json.dumps(value)}"
                                              for key, value in request["overrides"].items())]
+
+SIGTERM_LIMIT_S = 10.0
+"""What `docker stop` and Kubernetes give a process between SIGTERM and SIGKILL: the one
+time limit the stop tests hold."""

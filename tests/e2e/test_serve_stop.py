@@ -10,14 +10,13 @@ from pathlib import Path
 
 import pytest
 
-from tests.configs import tiny_request
+from tests.configs import SIGTERM_LIMIT_S, tiny_request
 from tests.e2e.test_serve import _alive, _ready_workers, _start_serve
 from tests.reliability import jobs
 from tests.reliability.support import render_photo_set
 
 pytestmark = pytest.mark.slow
 
-SIGTERM_LIMIT_S = 10.0  # what `docker stop` and Kubernetes give a process before SIGKILL
 LONG_PHASE2 = tiny_request(phase2={"steps": 800})  # long enough to be caught mid-phase
 
 

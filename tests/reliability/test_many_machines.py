@@ -21,7 +21,7 @@ import pytest
 import redis
 
 from app.state import JobStore, connect
-from tests.configs import tiny_request
+from tests.configs import SIGTERM_LIMIT_S, tiny_request
 from tests.redis_fixture import _with_db
 from tests.reliability import jobs
 from tests.reliability.support import (
@@ -41,7 +41,6 @@ pytestmark = [pytest.mark.slow, pytest.mark.skipif(not pipeline_ready(), reason=
 
 PREFIX = "jobs"
 LONG_PHASE2 = tiny_request(phase2={"steps": 800})  # long enough to be caught mid-phase
-SIGTERM_LIMIT_S = 10.0  # what `docker stop` and Kubernetes give a process before SIGKILL
 
 
 @dataclass
