@@ -88,9 +88,39 @@ def load_capture(name: str) -> Capture:
     frames = json.loads((folder / "cameras.json").read_text())["frames"]
     photos = [folder / f["image"] for f in frames]
     masks = [folder / "masks" / f"{Path(f['image']).stem}.png" for f in frames]
-    return Capture(name, photos, masks if all(m.is_file() for m in masks) else None,
-                   np.array([f["c2w"] for f in frames], dtype=np.float64),
+    c2w = np.array([f["c2w"] for f in frames], dtype=np.float64)
+    flipped = [k for k, f in enumerate(frames) if f.get("upside_down_by_design")]
+    has_masks = all(m.is_file() for m in masks)
+    if flipped:
+        photos, masks, c2w = upright(name, photos, masks if has_masks else None, c2w, flipped)
+    return Capture(name, photos, masks if has_masks else None, c2w,
                    np.array([f["K"][0][0] for f in frames], dtype=np.float64))
+
+
+def upright(name: str, photos: list[Path], masks: list[Path] | None, c2w: np.ndarray,
+            flipped: list[int]) -> tuple[list[Path], list[Path], np.ndarray]:
+    """The capture as a phone saves it: frames a camera rig took upside down (a gantry's
+    ``upside_down_by_design``) turned upright, as a phone's orientation tag turns its photos
+    (``intake.photos`` applies it), their reference cameras rolled half a turn about the
+    optical axis to match. The turned copies go to a temporary folder."""
+    import cv2
+
+    work = Path(tempfile.gettempdir()) / "cadnerf_bench_upright" / name
+    work.mkdir(parents=True, exist_ok=True)
+    photos, masks = list(photos), list(masks or [])
+    c2w = c2w.copy()
+    roll = np.diag([-1.0, -1.0, 1.0, 1.0])  # half a turn about the camera's z axis
+    for k in flipped:
+        for files, suffix in ((photos, "photo"), (masks, "mask")):
+            if not files:
+                continue
+            image = cv2.imread(str(files[k]), cv2.IMREAD_UNCHANGED)
+            assert image is not None, f"cannot read {files[k]}"
+            turned = work / f"{k:03d}_{suffix}{files[k].suffix}"
+            cv2.imwrite(str(turned), cv2.rotate(image, cv2.ROTATE_180))
+            files[k] = turned
+        c2w[k] = c2w[k] @ roll
+    return photos, masks, c2w
 
 
 def textured_capture(name: str, work: Path) -> Capture:

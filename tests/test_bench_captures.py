@@ -38,6 +38,31 @@ def test_a_capture_reads_its_cameras_and_its_masks_when_it_ships_them(
     assert load_capture("thing").masks == [folder / "masks" / f"{k:03d}.png" for k in range(3)]
 
 
+def test_a_frame_a_rig_took_upside_down_is_given_upright_with_its_camera_rolled(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    folder = tmp_path / "rig"
+    (folder / "images").mkdir(parents=True)
+    pixels = np.arange(6 * 8 * 3, dtype=np.uint8).reshape(6, 8, 3)
+    frames = []
+    for k in range(2):
+        Image.fromarray(pixels).save(folder / "images" / f"{k:03d}.png")
+        frames.append({"image": f"images/{k:03d}.png", "c2w": orbit_pose(40.0 * k, 20, 4).tolist(),
+                       "K": [[7.0, 0, 4], [0, 7.0, 3], [0, 0, 1]],
+                       "upside_down_by_design": k == 1})
+    (folder / "cameras.json").write_text(json.dumps({"frames": frames}))
+    monkeypatch.setattr(bench_captures, "CAPTURES", tmp_path)
+    capture = load_capture("rig")
+    assert capture.photos[0] == folder / "images" / "000.png"
+    turned = np.asarray(Image.open(capture.photos[1]))
+    assert np.array_equal(turned, pixels[::-1, ::-1])
+    assert np.allclose(capture.c2w[0], orbit_pose(0.0, 20, 4))
+    rolled = capture.c2w[1]
+    original = orbit_pose(40.0, 20, 4)
+    assert np.allclose(rolled[:3, 3], original[:3, 3])  # the camera stays where it was
+    assert np.allclose(rolled[:3, 2], original[:3, 2])  # looking the same way
+    assert np.allclose(rolled[:3, :2], -original[:3, :2])  # half a turn about its axis
+
+
 def test_a_walk_the_other_way_round_is_mirrored_whatever_its_frame() -> None:
     walk = np.stack([orbit_pose(45.0 * k, 20.0, 4.0) for k in range(8)])
     other_way = np.stack([orbit_pose(-45.0 * k, 20.0, 4.0) for k in range(8)])

@@ -37,6 +37,21 @@ MAX_UNREGISTERED = 1
 out of training too, and says so)."""
 FOCAL_RANGE = (0.3, 5.0)
 """Plausible focal lengths per pixel of the photo's long side (about 11 to 118 degrees across)."""
+MIN_POINTS_PER_PHOTO = 30
+"""Fewest triangulated points per registered photo of an accepted reconstruction: a model
+held together by a handful of points per photo can fold a symmetric object's sides onto each
+other with a small reprojection error."""
+MIN_INLIER_SHARE = 0.2
+"""Smallest share of a pair's matches its geometry explains for the pair to be given to the
+mapper: matches between the mirrored sides of a symmetric object, or on repeated detail, leave
+RANSAC a few chance inliers among many matches (a tenth or so), a pair that truly overlaps a
+third and more; one such pair can fold the whole reconstruction."""
+INIT_MIN_INLIERS = 50
+"""Fewest inliers of the pair the mapper starts from (COLMAP's default is 100, made for
+videos and dense photo collections): photos 30 to 50 degrees apart share fewer."""
+REGISTER_MIN_INLIERS = 15
+"""Fewest points seen before that a photo needs to be registered (COLMAP's default 30): a
+few photos far apart see each point in only two or three of them."""
 
 
 @dataclass(frozen=True)
@@ -72,6 +87,13 @@ def _keypoints(pairs: Sequence[PairMatch], n_photos: int
     return points, matches
 
 
+def mapper_pairs(pairs: Sequence[PairMatch], min_inliers: int) -> list[PairMatch]:
+    """The verified pairs given to the mapper: a rotation, at least ``min_inliers`` inliers,
+    and at least ``MIN_INLIER_SHARE`` of the pair's matches."""
+    return [p for p in pairs if p.rotation is not None and p.inliers >= min_inliers
+            and p.inliers >= MIN_INLIER_SHARE * p.matched]
+
+
 def map_photos(pairs: Sequence[PairMatch], sizes: Sequence[tuple[int, int]],
                focal: float, focal_known: bool, min_inliers: int) -> Mapped | None:
     """Run the incremental mapper on the verified pairs.
@@ -92,7 +114,7 @@ def map_photos(pairs: Sequence[PairMatch], sizes: Sequence[tuple[int, int]],
     n = len(sizes)
     if n < 3 or any(tuple(s) != tuple(sizes[0]) for s in sizes):
         return None
-    usable = [p for p in pairs if p.inliers >= min_inliers and p.rotation is not None]
+    usable = mapper_pairs(pairs, min_inliers)
     if not usable:
         return None
     keypoints, matches = _keypoints(usable, n)
@@ -128,7 +150,10 @@ def map_photos(pairs: Sequence[PairMatch], sizes: Sequence[tuple[int, int]],
         db.close()
         options = pycolmap.IncrementalPipelineOptions()
         options.ba_refine_focal_length = not focal_known
-        options.num_threads = 2
+        options.mapper.init_min_num_inliers = INIT_MIN_INLIERS
+        options.mapper.abs_pose_min_num_inliers = REGISTER_MIN_INLIERS
+        options.num_threads = 1  # with a fixed seed, the same photos give the same cameras
+        options.random_seed = 0
         models = pycolmap.incremental_mapping(str(database), work, str(Path(work) / "sparse"),
                                               options)
     if not models:
@@ -154,9 +179,10 @@ def map_photos(pairs: Sequence[PairMatch], sizes: Sequence[tuple[int, int]],
 def accept(mapped: Mapped | None, long_side: int) -> bool:
     """Whether the mapper's cameras are trusted: every photo registered (``map_photos``), a
     reprojection error under ``MAX_REPROJECTION_PX``, little radial distortion, a plausible
-    focal length."""
+    focal length, ``MIN_POINTS_PER_PHOTO`` points."""
     if mapped is None:
         return False
     low, high = FOCAL_RANGE
     return (mapped.reprojection_px <= MAX_REPROJECTION_PX and abs(mapped.radial) <= MAX_RADIAL
-            and low * long_side <= mapped.focal <= high * long_side)
+            and low * long_side <= mapped.focal <= high * long_side
+            and mapped.points >= MIN_POINTS_PER_PHOTO * len(mapped.photos))

@@ -13,7 +13,15 @@ import pytest
 from cadnerf_core.cameras import orbit_pose, pose_errors, project, rotation_angle_deg
 from cadnerf_core.intake.crop import CropBox
 from cadnerf_core.retrieval.fusion import place
-from cadnerf_core.retrieval.mapper import Mapped, _keypoints, accept, map_photos
+from cadnerf_core.retrieval.mapper import (
+    MIN_INLIER_SHARE,
+    MIN_POINTS_PER_PHOTO,
+    Mapped,
+    _keypoints,
+    accept,
+    map_photos,
+    mapper_pairs,
+)
 from cadnerf_core.retrieval.matches import PairMatch
 from cadnerf_core.retrieval.result import PhotoMatch, RetrievalResult
 
@@ -64,7 +72,26 @@ def test_the_mapper_finds_the_cameras_and_an_unknown_focal_length() -> None:
     assert accept(mapped, max(SIZE))
     assert not accept(dataclasses.replace(mapped, radial=0.9), max(SIZE))
     assert not accept(dataclasses.replace(mapped, reprojection_px=3.0), max(SIZE))
+    assert not accept(dataclasses.replace(mapped, points=MIN_POINTS_PER_PHOTO * N - 1),
+                      max(SIZE))
     assert not accept(None, max(SIZE))
+
+
+def test_the_same_matches_give_the_same_cameras() -> None:
+    truth = _truth()
+    runs = [map_photos(_pairs(truth), [SIZE] * N, 0.7 * K_TRUE[0, 0], False, 20)
+            for _ in range(2)]
+    assert runs[0] is not None and runs[1] is not None
+    assert np.array_equal(runs[0].c2w, runs[1].c2w) and runs[0].focal == runs[1].focal
+
+
+def test_a_pair_whose_geometry_explains_few_of_its_matches_is_not_mapped() -> None:
+    pairs = _pairs(_truth())
+    good = pairs[0]
+    chance = dataclasses.replace(good, i=0, j=5, matched=int(good.inliers / MIN_INLIER_SHARE) + 1)
+    few = dataclasses.replace(good, i=0, j=6, inliers=19, matched=19)
+    unverified = dataclasses.replace(good, i=0, j=7, rotation=None)
+    assert mapper_pairs([good, chance, few, unverified], 20) == [good]
 
 
 def test_too_few_shared_points_register_no_walk() -> None:
@@ -103,8 +130,7 @@ def test_the_start_takes_the_mapped_cameras_into_the_cad_frame() -> None:
     assert rotation_angle_deg(np.swapaxes(poses[:, :3, :3], 1, 2) @ truth[:, :3, :3]).max() < 6.0
     for i in range(N - 1):  # the mapper's relative rotations, exactly
         rel = poses[i + 1, :3, :3].T @ poses[i, :3, :3]
-        assert rotation_angle_deg((rel.T @ truth[i + 1, :3, :3].T @ truth[i, :3, :3])[None])[
-            0] < 1e-6
+        assert np.allclose(rel, truth[i + 1, :3, :3].T @ truth[i, :3, :3], atol=1e-9)
     assert np.allclose(np.linalg.norm(poses[:, :3, 3], axis=1), 4.0, atol=0.1)
     assert placed.matches[0].K_photo[0, 0] == pytest.approx(560.0)
     assert placed.matches[0].K_photo[0, 2] == 320.0
