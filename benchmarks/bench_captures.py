@@ -281,12 +281,15 @@ def run(quick: bool, library_dir: Path = LIBRARY_DIR, names: list[str] | None = 
         out += [f"### Real captures\n\nPreset `{PRESET}` on a CPU, every capture's look-alikes "
                 "left out (none in the library). Rotation errors: median over the kept photos "
                 "after similarity alignment of the camera centres; retrieved: the library "
-                "views; started: the cameras training starts from (the chosen hypothesis, fused "
-                "with the matches' rotations); refined: after training. Focal error: the job's "
-                "focal length against the reference (no photo carries EXIF). The espresso "
-                "reference is the set's coarse metadata (azimuth, elevation); its photos carry "
-                "EXIF.", "", *table(_rows(captures, library, variants, "real", rows_file,
-                                                     names is None)), ""]
+                "views; started: the cameras training starts from (the mapper's where it "
+                "registered the photos, else the chosen hypothesis fused with the pairs' "
+                "rotations); refined: after training. Focal error: the job's focal length "
+                "against the reference (no photo carries EXIF). The espresso reference is the "
+                "set's coarse metadata (azimuth, elevation); its photos carry EXIF. The temple "
+                "frames its gantry took upside down are given upright, as a phone's "
+                "orientation tag gives its photos.", "",
+                *table(_rows(captures, library, variants, "real", rows_file, names is None)),
+                ""]
     if "textured" in sets:
         with tempfile.TemporaryDirectory(prefix="bench_textured_") as work:
             captures = [textured_capture(n, Path(work)) for n in names or TEXTURED
