@@ -228,7 +228,31 @@ def table(rows: list[dict[str, Any]]) -> list[str]:
             lines.append(f"- {variant}: median refined rotation error over the {len(textured)} "
                          f"textured captures **{np.median(textured):.1f} deg**; mirrored "
                          f"walks: {flipped}.")
+    worse = worse_than_silhouettes(rows)
+    if worse is not None:
+        lines.append("- matches worse than silhouettes alone by more than "
+                     f"{WORSE_MARGIN_DEG:.0f} degrees: "
+                     + (", ".join(f"{name} ({gap:+.1f})" for name, gap in worse) or "none")
+                     + ".")
     return lines
+
+
+WORSE_MARGIN_DEG = 2.0
+"""How much worse than silhouettes alone the matches may leave a capture's refined cameras."""
+
+
+def worse_than_silhouettes(rows: list[dict[str, Any]]) -> list[tuple[str, float]] | None:
+    """The textured captures whose refined error with the matches exceeds the one on
+    silhouettes alone by more than ``WORSE_MARGIN_DEG`` (name, difference); None when no
+    capture ran both ways."""
+    refined = {(r["capture"], r["variant"]): r["refined"] for r in rows}
+    both = [name for name, variant in refined if variant == "matches"
+            and (name, "silhouettes") in refined and name not in UNTEXTURED]
+    if not both:
+        return None
+    gaps = [(name, refined[(name, "matches")] - refined[(name, "silhouettes")])
+            for name in both]
+    return [(name, gap) for name, gap in gaps if gap > WORSE_MARGIN_DEG]
 
 
 SETS = ("real", "textured")

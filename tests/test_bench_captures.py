@@ -101,3 +101,18 @@ def test_the_table_states_each_variant_s_median_over_textured_captures() -> None
                " mirrored walks: 1." in line for line in lines)
     assert any("silhouettes: median refined rotation error over the 1 textured captures "
                "**30.0 deg**" in line for line in lines)
+
+
+def test_the_table_names_the_captures_the_matches_left_worse_than_silhouettes() -> None:
+    def row(name: str, variant: str, refined: float) -> dict[str, object]:
+        return {"capture": name, "variant": variant, "model": "m", "kept": 8, "photos": 8,
+                "retrieved": 30.0, "started": 20.0, "refined": refined, "focal": None,
+                "psnr": 20.0, "seconds": 100.0, "pairs": 3, "fused": 2}
+
+    rows = [row("a", "matches", 3.0), row("a", "silhouettes", 30.0),
+            row("b", "matches", 12.5), row("b", "silhouettes", 10.0),
+            row("dino_ring", "matches", 90.0), row("dino_ring", "silhouettes", 10.0)]
+    assert bench_captures.worse_than_silhouettes(rows) == [("b", 2.5)]
+    assert table(rows)[-1] == ("- matches worse than silhouettes alone by more than 2 degrees: "
+                               "b (+2.5).")
+    assert bench_captures.worse_than_silhouettes(rows[:1]) is None
