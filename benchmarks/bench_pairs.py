@@ -7,7 +7,10 @@ espresso photos: their EXIF), so the figure is the matcher's alone. Each of thos
 that gets a rotation is right when it is within ``RIGHT_DEG`` of the reference cameras'
 relative rotation, else wrong; the rest get none. Counted twice: with the orbit check
 (``retrieval.orbit``: both photos must look at one object) and without it, to show what the
-check removes. Masks: the capture's own, else made as a job makes them.
+check removes. Then every pair a job matches (mutual nearest descriptors between the photos
+farther apart), with the check: right / wrong among them, and among those the mapper is given
+(``mapper.mapper_pairs``: the geometry explains ``MIN_INLIER_SHARE`` of the matches or more).
+Masks: the capture's own, else made as a job makes them.
 
 QUICK: not run (matching-only, about 2 minutes on 2 cores).
 
@@ -56,6 +59,7 @@ def count_pairs(capture: Capture) -> dict[str, Any]:
     """The capture's close pairs, right / wrong / none, without and with the orbit check."""
     from cadnerf_core.config import MatchesConfig
     from cadnerf_core.retrieval import learned
+    from cadnerf_core.retrieval.mapper import mapper_pairs
     from cadnerf_core.retrieval.matches import verify_matches
     from cadnerf_core.retrieval.orbit import object_centre
 
@@ -67,33 +71,44 @@ def count_pairs(capture: Capture) -> dict[str, Any]:
     indices = learned.match_indices(features, close)
     centres = [object_centre(mask) for mask in masks]
     w2c = np.linalg.inv(capture.c2w)
+
+    def right(pair: Any) -> bool:
+        truth = w2c[pair.j][:3, :3] @ capture.c2w[pair.i][:3, :3]
+        return _angle(pair.rotation @ truth.T) <= RIGHT_DEG
+
     row: dict[str, Any] = {"capture": capture.name, "pairs": len(close)}
     for label, checked in (("plain", False), ("orbit", True)):
-        right = wrong = 0
-        for i, j in sorted(close):
-            pair = verify_matches(i, j, features[i], features[j], indices[(i, j)],
-                                  intrinsics[i], intrinsics[j], config,
-                                  (centres[i], centres[j]) if checked else None)
-            if pair.rotation is None:
-                continue
-            truth = w2c[j][:3, :3] @ capture.c2w[i][:3, :3]
-            if _angle(pair.rotation @ truth.T) <= RIGHT_DEG:
-                right += 1
-            else:
-                wrong += 1
-        row[f"{label}_right"], row[f"{label}_wrong"] = right, wrong
+        found = [verify_matches(i, j, features[i], features[j], indices[(i, j)],
+                                intrinsics[i], intrinsics[j], config,
+                                (centres[i], centres[j]) if checked else None)
+                 for i, j in sorted(close)]
+        _count(row, label, [p for p in found if p.rotation is not None], right)
+    every = [verify_matches(i, j, features[i], features[j], found, intrinsics[i],
+                            intrinsics[j], config, (centres[i], centres[j]))
+             for (i, j), found in sorted(indices.items())]
+    _count(row, "all", [p for p in every if p.rotation is not None], right)
+    _count(row, "mapper", mapper_pairs(every, config.min_inliers), right)
     return row
+
+
+def _count(row: dict[str, Any], label: str, pairs: list[Any], right: Any) -> None:
+    """Count the right and wrong pairs into ``row`` under ``label``."""
+    good = sum(bool(right(p)) for p in pairs)
+    row[f"{label}_right"], row[f"{label}_wrong"] = good, len(pairs) - good
 
 
 def table(rows: list[dict[str, Any]]) -> list[str]:
     """The section's table: one row a capture, then the totals."""
     lines = ["| capture | close pairs | right / wrong, essential matrix alone | right / wrong, "
-             "with the orbit check |", "| --- | ---: | ---: | ---: |"]
-    total = {key: sum(r[key] for r in rows) for key in ("pairs", "plain_right", "plain_wrong",
-                                                         "orbit_right", "orbit_wrong")}
+             "with the orbit check | every pair, right / wrong | given to the mapper, right / "
+             "wrong |", "| --- | ---: | ---: | ---: | ---: | ---: |"]
+    keys = [f"{label}_{kind}" for label in ("plain", "orbit", "all", "mapper")
+            for kind in ("right", "wrong")]
+    total = {key: sum(r.get(key, 0) for r in rows) for key in ("pairs", *keys)}
     for r in [*rows, {"capture": "**all**", **total}]:
-        lines.append(f"| {r['capture']} | {r['pairs']} | {r['plain_right']} / "
-                     f"{r['plain_wrong']} | {r['orbit_right']} / {r['orbit_wrong']} |")
+        cells = [f"{r.get(f'{label}_right', '')} / {r.get(f'{label}_wrong', '')}"
+                 for label in ("plain", "orbit", "all", "mapper")]
+        lines.append(f"| {r['capture']} | {r['pairs']} | " + " | ".join(cells) + " |")
     return lines
 
 
