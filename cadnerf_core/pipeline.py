@@ -124,8 +124,11 @@ def with_matches(retrieval: RetrievalResult, pairs: list[Any], photos: list[Any]
         clock = time.perf_counter()
         mapped = map_photos(pairs, sizes, focal, focal_known, matches.min_inliers)
         trusted = accept(mapped, max(sizes[0]))
-        log.info("mapper: %s in %.1f s", "accepted" if trusted else "not used",
-                 time.perf_counter() - clock)
+        log.info("mapper: %s in %.1f s%s", "accepted" if trusted else "not used",
+                 time.perf_counter() - clock, "" if mapped is None else
+                 f" ({len(mapped.photos)} photos, {mapped.points} points, "
+                 f"{mapped.reprojection_px:.2f} px, focal {mapped.focal:.0f} px, "
+                 f"radial {mapped.radial:+.2f})")
         if trusted and mapped is not None:
             placed = place_hypotheses(retrieval, mapped, focal_known)
             return placed if focal_known else pairs_at_focal(placed)
