@@ -16,6 +16,13 @@ MATCHES_FEW_WARNING = (
     "object with some print, grain or texture.")
 """The photos' matches placed no camera (``fusion`` with no photos)."""
 
+MATCHES_SET_ASIDE_WARNING = (
+    "The points the photos share disagreed with their outlines, so the cameras come from the "
+    "outlines alone; photos taken closer together (about 30 degrees apart) let the shared "
+    "points decide.")
+"""The start chose the retrieval left unfused (``fusion`` set aside): the pairs' rotations
+pulled every hypothesis away from the silhouettes."""
+
 FOCAL_UNKNOWN_WARNING = (
     "No photo carried its focal length (EXIF) and the photos' matches could not measure it, "
     "so the field of view was estimated from silhouettes; upload the files your phone wrote, "
@@ -86,6 +93,8 @@ def job_warnings(retrieval: dict[str, Any], names: Sequence[str],
     if focal_guessed(retrieval):
         warnings.append(FOCAL_UNKNOWN_WARNING)
     fusion = retrieval.get("fusion")
-    if isinstance(fusion, dict) and not fusion.get("photos"):
+    if isinstance(fusion, dict) and fusion.get("set_aside"):
+        warnings.append(MATCHES_SET_ASIDE_WARNING)
+    elif isinstance(fusion, dict) and not fusion.get("photos"):
         warnings.append(MATCHES_FEW_WARNING)
     return warnings

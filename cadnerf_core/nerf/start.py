@@ -30,6 +30,11 @@ if TYPE_CHECKING:
 log = logging.getLogger(__name__)
 
 SEED_STEP = 101  # between the seeds of a hypothesis's fits (each phase adds 1 to 3 to its own)
+UNFUSED_MARGIN = 0.1
+"""By how much the retrieval kept unfused must out-fit every fused hypothesis to be the start.
+Fusing turns the cameras away from where a look-alike model's silhouettes put them, so even
+right pairs cost the fused cameras a little fit; pairs matched wrongly (that still agree with
+each other) cost them much more (``docs/presets.md``)."""
 
 
 def coarse_config(config: PipelineConfig) -> PipelineConfig:
@@ -172,9 +177,13 @@ def choose_start(retrieval: RetrievalResult, photos: Sequence[Any], masks: Seque
     eligible = [i for i, h in enumerate(candidates)
                 if not (_mirrors(h, retrieval)
                         and scores[i] - scores[0] < config.retrieval.mirror_margin)]
+    fused = [scores[i] for i, h in enumerate(candidates) if not _set_aside(h)]
+    eligible = [i for i in eligible if not _set_aside(candidates[i])
+                or scores[i] >= max(fused) + UNFUSED_MARGIN]
     best = max(eligible, key=lambda i: scores[i])
     record = [{"model_id": h.model_id, "direction": h.direction,
-               "perspective": h.perspective, "score": h.score,
+               "perspective": h.perspective, "fused": bool((h.fusion or {}).get("photos")),
+               "score": h.score,
                "fit": s, "seconds": t, "chosen": i == best}
               for i, (h, s, t) in enumerate(zip(candidates, scores, seconds, strict=True))]
     chosen = candidates[best]
@@ -187,6 +196,11 @@ def choose_start(retrieval: RetrievalResult, photos: Sequence[Any], masks: Seque
     return dataclasses.replace(chosen, alternatives=[], hypotheses=record,
                                direction_ambiguous=retrieval.direction_ambiguous,
                                focal_known=retrieval.focal_known)
+
+
+def _set_aside(hypothesis: RetrievalResult) -> bool:
+    """Whether ``hypothesis`` is the retrieval kept unfused (``fusion.fuse_hypotheses``)."""
+    return bool((hypothesis.fusion or {}).get("set_aside"))
 
 
 def _mirrors(hypothesis: RetrievalResult, retrieved: RetrievalResult) -> bool:

@@ -354,10 +354,18 @@ def fuse(retrieval: RetrievalResult, pairs: Sequence[PairMatch],
     return dataclasses.replace(retrieval, matches=matches, fusion=summary.to_json()), summary
 
 
+SET_ASIDE = {"photos": [], "set_aside": True}
+"""The ``fusion`` record of the retrieval kept unfused among the hypotheses: chosen, its cameras
+come from silhouettes alone though the photos share points (``job_warnings``)."""
+
+
 def fuse_hypotheses(retrieval: RetrievalResult, min_inliers: int,
                     search_focal: bool = False) -> RetrievalResult:
     """``fuse`` applied to the retrieval and to each of its alternatives, with its own pairs
-    (``search_focal``: the focal length found on the retrieval serves them all)."""
+    (``search_focal``: the focal length found on the retrieval serves them all). Where the
+    pairs moved the retrieved cameras, the retrieval as it was stays among the alternatives:
+    pairs matched wrongly that still agree with each other pull every fused hypothesis off,
+    and the start's silhouette fit (``nerf.start``) then tells."""
     fused, summary = fuse(retrieval, retrieval.pairs, min_inliers, search_focal)
     factor = 1.0 if summary is None else summary.focal_factor
     others = []
@@ -365,6 +373,8 @@ def fuse_hypotheses(retrieval: RetrievalResult, min_inliers: int,
         other = dataclasses.replace(other, matches=_scaled(other.matches, factor))
         others.append(_fuse_at(other, retrieval.pairs, min_inliers) if search_focal
                       else fuse(other, retrieval.pairs, min_inliers)[0])
+    if summary is not None:
+        others.append(dataclasses.replace(retrieval, alternatives=[], fusion=dict(SET_ASIDE)))
     return dataclasses.replace(fused, alternatives=others)
 
 

@@ -8,6 +8,7 @@ import re
 from cadnerf_core.job_warnings import (
     FOCAL_UNKNOWN_WARNING,
     MATCHES_FEW_WARNING,
+    MATCHES_SET_ASIDE_WARNING,
     direction_guess_hint,
     job_warnings,
     order_guess_warning,
@@ -50,8 +51,16 @@ def test_matching_off_is_not_warned_as_photos_sharing_too_little() -> None:
     assert MATCHES_FEW_WARNING not in job_warnings({"focal_known": True}, NAMES)
 
 
+def test_matches_the_start_set_aside_are_warned_as_such_not_as_too_few() -> None:
+    from cadnerf_core.retrieval.fusion import SET_ASIDE
+
+    assert job_warnings({"focal_known": True, "fusion": dict(SET_ASIDE)}, NAMES) == [
+        MATCHES_SET_ASIDE_WARNING]
+
+
 def test_each_warning_is_one_sentence_with_an_action_and_no_figures() -> None:
-    texts = [FOCAL_UNKNOWN_WARNING, MATCHES_FEW_WARNING, direction_guess_hint(1),
+    texts = [FOCAL_UNKNOWN_WARNING, MATCHES_FEW_WARNING, MATCHES_SET_ASIDE_WARNING,
+             direction_guess_hint(1),
              reorder_warning(NAMES), order_guess_warning(NAMES)]
     for text in texts:
         assert text[0].isupper() and text.endswith(".") and text.count(". ") == 0, text

@@ -96,6 +96,28 @@ def test_the_mirrored_walk_needs_a_lead_beyond_the_margin(
                                                    candidates[chosen].direction)
 
 
+@pytest.mark.parametrize(("unfused_fit", "chosen"), [
+    (0.87, 2),  # the pairs pulled every fused hypothesis off the silhouettes: set aside
+    (0.84, 0),  # fusing cost a little fit, as right pairs do: kept
+])
+def test_the_retrieval_left_unfused_needs_a_clear_lead_over_every_fused_hypothesis(
+        unfused_fit: float, chosen: int, monkeypatch: pytest.MonkeyPatch) -> None:
+    from cadnerf_core.retrieval.fusion import SET_ASIDE
+
+    retrieved = dataclasses.replace(_walk(1, 0.0), fusion={"photos": [0, 1, 2]})
+    other = dataclasses.replace(_walk(1, 0.0, "vase"), fusion={"photos": [0, 1]})
+    unfused = dataclasses.replace(_walk(1, 0.0), fusion=dict(SET_ASIDE))
+    retrieval = dataclasses.replace(retrieved, alternatives=[other, unfused])
+    fits = {("bottle", False): 0.76, ("vase", False): 0.70, ("bottle", True): unfused_fit}
+    monkeypatch.setattr(start, "fit_hypothesis",
+                        lambda h, *args: fits[(h.model_id, start._set_aside(h))])
+    result = start.choose_start(retrieval, [], [], None, PipelineConfig(),  # type: ignore[arg-type]
+                                torch.device("cpu"), False, Progress())
+    assert [h["chosen"] for h in result.hypotheses] == [i == chosen for i in range(3)]
+    assert [h["fused"] for h in result.hypotheses] == [True, True, False]
+    assert 0.76 + start.UNFUSED_MARGIN > 0.84  # the second case lies inside the margin
+
+
 @pytest.mark.parametrize("ambiguous", [True, False])
 def test_a_switch_leaves_a_guessed_direction_a_guess(
         ambiguous: bool, monkeypatch: pytest.MonkeyPatch) -> None:
