@@ -275,8 +275,10 @@ def _rows(captures: list[Capture], library: Any, variants: list[str], tag: str,
             if rows_file is not None:
                 rows_file.write_text(json.dumps(rows, indent=1))
     names = {c.name for c in captures}
-    mine = [r for r in rows if r["capture"] in names and r.get("set", "real") == tag
-            and r["variant"] in variants]
+    order = [c.name for c in captures]
+    mine = sorted((r for r in rows if r["capture"] in names and r.get("set", "real") == tag
+                   and r["variant"] in variants),
+                  key=lambda r: (list(VARIANTS).index(r["variant"]), order.index(r["capture"])))
     if whole:
         record_median(mine, tag)
     return mine
