@@ -113,8 +113,9 @@ def with_matches(retrieval: RetrievalResult, pairs: list[Any], photos: list[Any]
     tell: the mapper's cameras where it registers every photo (``retrieval.mapper``), else the
     retrieved cameras fused with the pairs' rotations (``retrieval.fusion``); unchanged when
     neither is asked for."""
-    from cadnerf_core.retrieval.fusion import fuse_hypotheses, pairs_at_focal, place_hypotheses
+    from cadnerf_core.retrieval.fusion import fuse_hypotheses, pairs_at_focal
     from cadnerf_core.retrieval.mapper import accept, map_photos
+    from cadnerf_core.retrieval.placement import place_hypotheses
 
     matches = config.retrieval.matches
     if matches.mapper:

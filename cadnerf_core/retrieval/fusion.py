@@ -28,7 +28,6 @@ import cv2
 import numpy as np
 
 from cadnerf_core.cameras import rotation_angle_deg, scale_focal
-from cadnerf_core.retrieval.mapper import Mapped
 from cadnerf_core.retrieval.matches import PairMatch
 from cadnerf_core.retrieval.result import PhotoMatch, RetrievalResult
 
@@ -184,7 +183,7 @@ def anchor(relative: np.ndarray, retrieved: np.ndarray) -> np.ndarray:
     return G
 
 
-def _scaled(matches: Sequence[PhotoMatch], factor: float) -> list[PhotoMatch]:
+def scaled_focal(matches: Sequence[PhotoMatch], factor: float) -> list[PhotoMatch]:
     """The matches with their focal lengths times ``factor``."""
     if factor == 1.0:
         return list(matches)
@@ -192,7 +191,7 @@ def _scaled(matches: Sequence[PhotoMatch], factor: float) -> list[PhotoMatch]:
                                 K_canon=scale_focal(m.K_canon, factor)) for m in matches]
 
 
-def _moved(matches: Sequence[PhotoMatch], cameras: dict[int, np.ndarray]) -> list[PhotoMatch]:
+def moved_to(matches: Sequence[PhotoMatch], cameras: dict[int, np.ndarray]) -> list[PhotoMatch]:
     """The matches with the given photos' cameras (c2w by photo index), their retrieved ones
     kept in ``c2w_retrieved``."""
     return [m if m.index not in cameras
@@ -344,7 +343,7 @@ def fuse(retrieval: RetrievalResult, pairs: Sequence[PairMatch],
         # At its retrieved distance, looking at the centre.
         c2w[:3, 3] = -np.linalg.norm(kept[photo].c2w[:3, 3]) * c2w[:3, 2]
         cameras[photo] = c2w
-    matches = _moved(_scaled(retrieval.matches, factor), cameras)
+    matches = moved_to(scaled_focal(retrieval.matches, factor), cameras)
     summary = Fusion(solved.photos, len(solved.used), solved.dropped,
                      float(np.median(solved.moved)),
                      float(np.median(residual)) if residual else 0.0, factor)
@@ -370,7 +369,7 @@ def fuse_hypotheses(retrieval: RetrievalResult, min_inliers: int,
     factor = 1.0 if summary is None else summary.focal_factor
     others = []
     for other in retrieval.alternatives:
-        other = dataclasses.replace(other, matches=_scaled(other.matches, factor))
+        other = dataclasses.replace(other, matches=scaled_focal(other.matches, factor))
         others.append(_fuse_at(other, retrieval.pairs, min_inliers) if search_focal
                       else fuse(other, retrieval.pairs, min_inliers)[0])
     if summary is not None:
@@ -389,57 +388,6 @@ def _fuse_at(retrieval: RetrievalResult, pairs: Sequence[PairMatch],
     at_focal = [dataclasses.replace(p, rotation=rotations[(p.i, p.j)]) for p in usable
                 if (p.i, p.j) in rotations]
     return fuse(retrieval, at_focal, min_inliers)[0]
-
-
-def place(retrieval: RetrievalResult, mapped: Mapped,
-          focal_known: bool) -> RetrievalResult:
-    """The retrieval with its kept photos' cameras the mapper's, carried into the CAD model's
-    frame: turned by the rotation that best carries them onto the retrieved cameras
-    (``anchor``), then scaled and moved so that their centres sit nearest the retrieved
-    cameras' positions (each at its retrieved distance from the centre, looking along its
-    mapped axis); unless ``focal_known``, every camera takes the mapper's focal length. A kept
-    photo the mapper did not register is discarded (training leaves it out)."""
-    kept = [m for m in retrieval.kept if m.index in mapped.photos]
-    if len(kept) < MIN_PHOTOS:
-        return retrieval
-    unplaced = {m.index for m in retrieval.kept} - set(mapped.photos)
-    row = {photo: k for k, photo in enumerate(mapped.photos)}
-    mapped_w = np.stack([mapped.c2w[row[m.index], :3, :3].T for m in kept])
-    retrieved_w = np.stack([m.c2w[:3, :3].T for m in kept])
-    G = anchor(mapped_w, retrieved_w)
-    rotations = mapped_w @ G  # world-to-camera in the CAD frame
-    centres = np.stack([G.T @ mapped.c2w[row[m.index], :3, 3] for m in kept])
-    targets = np.stack([-np.linalg.norm(m.c2w[:3, 3]) * R[2] for m, R in zip(kept, rotations,
-                                                                             strict=True)])
-    spread = centres - centres.mean(axis=0)
-    scale = float(np.sum(spread * (targets - targets.mean(axis=0))) / np.sum(spread * spread))
-    shift = targets.mean(axis=0) - scale * centres.mean(axis=0)
-    factor = 1.0 if focal_known else mapped.focal / float(retrieval.matches[0].K_photo[0, 0])
-    cameras = {}
-    for m, rotation, centre in zip(kept, rotations, centres, strict=True):
-        c2w = np.eye(4)
-        c2w[:3, :3] = rotation.T
-        c2w[:3, 3] = scale * centre + shift
-        cameras[m.index] = c2w
-    matches = [dataclasses.replace(m, discarded=True) if m.index in unplaced else m
-               for m in _moved(_scaled(retrieval.matches, factor), cameras)]
-    moved = rotation_angle_deg(np.swapaxes(rotations, 1, 2) @ retrieved_w)
-    summary = {"photos": sorted(cameras), "start": "mapper", "points": mapped.points,
-               "reprojection_px": round(mapped.reprojection_px, 3),
-               "moved_deg": round(float(np.median(moved)), 2),
-               "focal_factor": round(factor, 4), "unplaced": sorted(unplaced)}
-    return dataclasses.replace(retrieval, matches=matches, fusion=summary)
-
-
-def place_hypotheses(retrieval: RetrievalResult, mapped: Mapped,
-                     focal_known: bool) -> RetrievalResult:
-    """``place`` applied to the retrieval and to each of its alternatives."""
-    placed = place(retrieval, mapped, focal_known)
-    others = [place(a, mapped, focal_known) for a in retrieval.alternatives]
-    log.info("started from the mapper's cameras (%d points, %.2f px; moved %.1f deg from the "
-             "retrieved ones)", mapped.points, mapped.reprojection_px,
-             float((placed.fusion or {}).get("moved_deg", 0.0)))
-    return dataclasses.replace(placed, alternatives=others)
 
 
 def pairs_at_focal(retrieval: RetrievalResult) -> RetrievalResult:

@@ -8,7 +8,7 @@ photos, triangulates the points the matches share over three and more photos, an
 adjusts. Its cameras are accepted only when the mapper registers every photo given in one
 model (but ``MAX_UNREGISTERED``, which the job then leaves out) with a small reprojection
 error and a plausible lens (``accept``); the job then starts
-from them, carried into the CAD model's frame by ``fusion.place`` (the rotation that fits
+from them, carried into the CAD model's frame by ``placement.place`` (the rotation that fits
 the retrieved cameras best, the centres moved onto the retrieved cameras' look-at positions).
 Elsewhere (photos 45 degrees and more apart, little texture) the fused retrieved cameras stay.
 """

@@ -1,4 +1,4 @@
-"""Geometry first (``retrieval.mapper``, ``fusion.place``): COLMAP's mapper on verified matches
+"""Geometry first (``retrieval.mapper``, ``placement.place``): COLMAP's mapper on verified matches
 of points a walk round a ball sees recovers the cameras and an unknown focal length, and the
 job's start takes them into the CAD frame."""
 
@@ -12,7 +12,6 @@ import pytest
 
 from cadnerf_core.cameras import orbit_pose, pose_errors, project, rotation_angle_deg
 from cadnerf_core.intake.crop import CropBox
-from cadnerf_core.retrieval.fusion import place
 from cadnerf_core.retrieval.mapper import (
     MIN_INLIER_SHARE,
     MIN_POINTS_PER_PHOTO,
@@ -23,6 +22,7 @@ from cadnerf_core.retrieval.mapper import (
     mapper_pairs,
 )
 from cadnerf_core.retrieval.matches import PairMatch
+from cadnerf_core.retrieval.placement import place
 from cadnerf_core.retrieval.result import PhotoMatch, RetrievalResult
 
 N = 8
