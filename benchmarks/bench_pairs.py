@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import argparse
 import sys
+from collections.abc import Callable
 from typing import Any
 
 import numpy as np
@@ -77,21 +78,20 @@ def count_pairs(capture: Capture) -> dict[str, Any]:
         return _angle(pair.rotation @ truth.T) <= RIGHT_DEG
 
     row: dict[str, Any] = {"capture": capture.name, "pairs": len(close)}
-    for label, checked in (("plain", False), ("orbit", True)):
-        found = [verify_matches(i, j, features[i], features[j], indices[(i, j)],
-                                intrinsics[i], intrinsics[j], config,
-                                (centres[i], centres[j]) if checked else None)
-                 for i, j in sorted(close)]
-        _count(row, label, [p for p in found if p.rotation is not None], right)
+    plain = [verify_matches(i, j, features[i], features[j], indices[(i, j)], intrinsics[i],
+                            intrinsics[j], config) for i, j in sorted(close)]
     every = [verify_matches(i, j, features[i], features[j], found, intrinsics[i],
                             intrinsics[j], config, (centres[i], centres[j]))
              for (i, j), found in sorted(indices.items())]
-    _count(row, "all", [p for p in every if p.rotation is not None], right)
+    checked = [p for p in every if (p.i, p.j) in close]
+    for label, pairs in (("plain", plain), ("orbit", checked), ("all", every)):
+        _count(row, label, [p for p in pairs if p.rotation is not None], right)
     _count(row, "mapper", mapper_pairs(every, config.min_inliers), right)
     return row
 
 
-def _count(row: dict[str, Any], label: str, pairs: list[Any], right: Any) -> None:
+def _count(row: dict[str, Any], label: str, pairs: list[Any],
+           right: Callable[[Any], bool]) -> None:
     """Count the right and wrong pairs into ``row`` under ``label``."""
     good = sum(bool(right(p)) for p in pairs)
     row[f"{label}_right"], row[f"{label}_wrong"] = good, len(pairs) - good

@@ -372,7 +372,7 @@ def fuse_hypotheses(retrieval: RetrievalResult, min_inliers: int,
         other = dataclasses.replace(other, matches=scaled_focal(other.matches, factor))
         others.append(_fuse_at(other, retrieval.pairs, min_inliers) if search_focal
                       else fuse(other, retrieval.pairs, min_inliers)[0])
-    if summary is not None:
+    if summary is not None and others:  # where the job weighs hypotheses at all
         others.append(dataclasses.replace(retrieval, alternatives=[], fusion=dict(SET_ASIDE)))
     return dataclasses.replace(fused, alternatives=others)
 

@@ -13,6 +13,7 @@ import pytest
 from cadnerf_core.cameras import orbit_pose, project, rotation_angle_deg, scale_focal
 from cadnerf_core.intake.crop import CropBox
 from cadnerf_core.retrieval.fusion import (
+    SET_ASIDE,
     anchor,
     average_rotations,
     consistent_edges,
@@ -158,6 +159,12 @@ def test_discarded_photos_keep_their_cameras_and_alternatives_are_fused() -> Non
     assert fused.matches[5].c2w_retrieved is None
     assert fused.fusion is not None and 5 not in fused.fusion["photos"]
     assert fused.alternatives[0].fusion is not None
+    # The retrieval as it was stays a hypothesis, for the start's fit to weigh ...
+    assert len(fused.alternatives) == 2 and fused.alternatives[1].fusion == SET_ASIDE
+    assert np.array_equal(fused.alternatives[1].matches[0].c2w, retrieved[0])
+    # ... where the job weighs hypotheses at all.
+    alone = fuse_hypotheses(dataclasses.replace(retrieval, alternatives=[]), 20)
+    assert alone.fusion is not None and alone.fusion["photos"] and alone.alternatives == []
 
 
 def _projected_pairs(truth: np.ndarray, K: np.ndarray) -> list[PairMatch]:
