@@ -46,6 +46,13 @@ AGREEMENT = 0.75
 mismatched pair in four or five is common; a split vote is none)."""
 MASK_DILATION = 0.02
 """Share of the crop's long side by which a mask is grown before features are looked for."""
+MIN_SEARCH_SIDE = 128
+"""Fewest pixels the region searched for features must span in a photo (the object's bounding
+box, grown by ``MatchesConfig.context``; long side) for the photo to be matched. A smaller
+region carries too little detail: its crop, enlarged toward ``MatchesConfig.size``, gives
+features of the enlargement's smooth shading, and on a plain object those match between its
+mirrored sides well enough to pass verification and sway the walking order and direction
+(``docs/presets.md``)."""
 
 
 @dataclass(frozen=True)
@@ -315,6 +322,20 @@ def verify_matches(i: int, j: int, a: Features, b: Features, pairs: np.ndarray,
     return PairMatch(i, j, len(pairs), inliers, sampson, vertical_turn_deg(R), R, points)
 
 
+def large_enough(mask: np.ndarray, context: float = 0.0) -> bool:
+    """Whether the region of a photo searched for features (its object's bounding box grown by
+    ``context`` of its size on each side, within the photo) spans at least ``MIN_SEARCH_SIDE``
+    pixels: enough detail to be matched."""
+    if not mask.any():
+        return False
+    x0, y0, x1, y1 = mask_bbox(mask)
+    height, width = mask.shape[:2]
+    grow_x, grow_y = context * (x1 - x0), context * (y1 - y0)
+    side_x = min(width, x1 + grow_x) - max(0, x0 - grow_x)
+    side_y = min(height, y1 + grow_y) - max(0, y0 - grow_y)
+    return max(side_x, side_y) >= MIN_SEARCH_SIDE
+
+
 def match_photos(images: Sequence[np.ndarray], masks: Sequence[np.ndarray],
                  intrinsics: Sequence[np.ndarray], config: MatchesConfig,
                  check: Callable[[], None] | None = None) -> list[PairMatch]:
@@ -328,22 +349,24 @@ def match_photos(images: Sequence[np.ndarray], masks: Sequence[np.ndarray],
         config: the matching settings.
         check: called between photos and between pairs (raises to cancel the job).
     Returns:
-        P * (P - 1) / 2 pairs, (0, 1), (0, 2), ... (an empty mask gives a photo no features).
+        P * (P - 1) / 2 pairs, (0, 1), (0, 2), ... (a photo with no object, or whose searched
+        region spans fewer than ``MIN_SEARCH_SIDE`` pixels, gets no features).
     """
     check = check or (lambda: None)
     centres = [object_centre(mask) if mask.any() else np.zeros(2) for mask in masks]
+    usable = [large_enough(mask, config.context) for mask in masks]
     if config.method == "sift":
-        found = [detect(image, mask, config.size, config.context) if mask.any()
-                 else NO_FEATURES for image, mask in zip(images, masks, strict=True)]
+        found = [detect(image, mask, config.size, config.context) if use else NO_FEATURES
+                 for image, mask, use in zip(images, masks, usable, strict=True)]
         return [verify_pair(i, j, found[i], found[j], intrinsics[i], intrinsics[j], config,
                             (centres[i], centres[j]))
                 for i in range(len(found)) for j in range(i + 1, len(found))]
     from cadnerf_core.retrieval import learned
 
     features = []
-    for image, mask in zip(images, masks, strict=True):
+    for image, mask, use in zip(images, masks, usable, strict=True):
         check()
-        features.append(learned.detect(image, mask, config.size, config.context) if mask.any()
+        features.append(learned.detect(image, mask, config.size, config.context) if use
                         else learned.CropFeatures(NO_FEATURES.points,
                                                   np.zeros((0, 64), np.float32)))
     indices = learned.match_indices(features, learned.close_pairs(len(features)), check)

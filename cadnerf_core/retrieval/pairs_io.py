@@ -25,7 +25,7 @@ PICTURE_HEIGHT = 480
 """Height in pixels of each photo in a pair's picture."""
 PICTURE_LINES = 150
 """Most matches drawn in a pair's picture (evenly chosen)."""
-CHECKS = "essential matrix, orbit"
+CHECKS = "object size, essential matrix, orbit"
 """The checks a stored pair passed (``matches.verify_matches``): part of the cache's key, so a
 job rerun after they change matches again."""
 

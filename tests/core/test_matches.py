@@ -18,6 +18,7 @@ from cadnerf_core.retrieval.matches import (
     Features,
     PairMatch,
     detect,
+    large_enough,
     match_photos,
     mutual_matches,
     sampson_errors,
@@ -80,6 +81,28 @@ def test_a_plain_object_gives_no_turn_and_no_evidence() -> None:
     pairs = match_photos(images, masks, _intrinsics(3), MatchesConfig())
     assert all(p.turn_deg is None and p.rotation is None for p in pairs)
     assert walk_evidence(pairs, 12, MatchesConfig()) == 0.0
+
+
+@pytest.mark.parametrize("method", ["xfeat", "sift"])
+def test_an_object_too_small_in_its_photos_is_not_matched(method: str) -> None:
+    """The textured ball whose turn is found at 256 px spans under ``MIN_SEARCH_SIDE`` pixels
+    when the photos are shrunk to 128 px: no features, so no pair, turn or evidence."""
+    images, masks = _photos(_ball(True), [40.0, 65.0, 90.0])
+    small = [cv2.resize(image, (SIZE // 2, SIZE // 2), interpolation=cv2.INTER_AREA)
+             for image in images]
+    small_masks = [cv2.resize(mask.astype(np.uint8), (SIZE // 2, SIZE // 2),
+                              interpolation=cv2.INTER_NEAREST) > 0 for mask in masks]
+    assert all(large_enough(mask) for mask in masks)
+    assert not any(large_enough(mask) for mask in small_masks)
+    K = intrinsics_from_fov(FOV, SIZE // 2)
+    config = MatchesConfig(method=method)
+    pairs = match_photos(small, small_masks, [K] * 3, config)
+    assert len(pairs) == 3
+    assert all(p.inliers == 0 and p.rotation is None for p in pairs)
+    assert walk_evidence(pairs, 12, config) == 0.0
+    # The same photos at 256 px are matched: the size, not the texture, made the difference.
+    assert any(p.rotation is not None for p in match_photos(images, masks, _intrinsics(3),
+                                                               config))
 
 
 def _blob(centre: tuple[float, float, float], radius: float, seed: int) -> trimesh.Trimesh:
