@@ -13,6 +13,14 @@ from pydantic import Field, model_validator
 
 from cadnerf_core.config_bounds import MAX_MATCH_SIZE, Frozen
 
+MIN_SEARCH_SIDE = 128
+"""Fewest pixels the region of a photo searched for features must span (the object's bounding
+box, grown by ``MatchesConfig.context``; long side) for the photo to be matched. A smaller
+region carries too little detail: its crop, enlarged toward ``MatchesConfig.size``, gives
+features of the enlargement's smooth shading, and on a plain object those match between its
+mirrored sides well enough to pass verification and sway the walking order and direction
+(``docs/presets.md``). A photo under it is named in the job's warnings."""
+
 
 class MatchesConfig(Frozen):
     """Matches between the photos, and what retrieval and training take from them."""

@@ -10,6 +10,8 @@ from __future__ import annotations
 from collections.abc import Sequence
 from typing import Any
 
+from cadnerf_core.config_matches import MIN_SEARCH_SIDE
+
 MATCHES_FEW_WARNING = (
     "The photos share too few points to place the cameras, so they come from silhouettes "
     "alone; take the photos closer together (about 30 degrees apart), in sharp light, of an "
@@ -55,6 +57,14 @@ def order_guess_warning(names: Sequence[str]) -> str:
             "took them and set retrieval.order to \"walk\" (CLI --order walk).")
 
 
+def too_small_warning(names: Sequence[str]) -> str:
+    """Matching skipped these photos (``retrieval.json``'s ``too_small``): their object spans
+    fewer than ``MIN_SEARCH_SIDE`` pixels."""
+    return (f"The object spans fewer than {MIN_SEARCH_SIDE} pixels in {', '.join(names)}, "
+            "too few for points shared with the other photos, so their cameras come from "
+            "silhouettes alone; upload the photos at the size your camera took them.")
+
+
 def focal_guessed(retrieval: dict[str, Any]) -> bool:
     """Whether a job's ``retrieval.json`` says its focal length is a guess: no photo carried
     it and the cameras did not start from the mapper, which measures it."""
@@ -92,9 +102,12 @@ def job_warnings(retrieval: dict[str, Any], names: Sequence[str],
         warnings.append(direction_guess_hint(int(retrieval.get("direction", 1))))
     if focal_guessed(retrieval):
         warnings.append(FOCAL_UNKNOWN_WARNING)
+    small = [names[i] for i in retrieval.get("too_small", []) if 0 <= i < len(names)]
+    if small:
+        warnings.append(too_small_warning(small))
     fusion = retrieval.get("fusion")
     if isinstance(fusion, dict) and fusion.get("set_aside"):
         warnings.append(MATCHES_SET_ASIDE_WARNING)
-    elif isinstance(fusion, dict) and not fusion.get("photos"):
-        warnings.append(MATCHES_FEW_WARNING)
+    elif isinstance(fusion, dict) and not fusion.get("photos") and len(small) < len(names):
+        warnings.append(MATCHES_FEW_WARNING)  # not where every photo was too small to match
     return warnings

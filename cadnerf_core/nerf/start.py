@@ -160,7 +160,8 @@ def choose_start(retrieval: RetrievalResult, photos: Sequence[Any], masks: Seque
         best = next((i for i, r in enumerate(recorded) if r.get("chosen")), 0)
         return dataclasses.replace(candidates[best], alternatives=[], hypotheses=list(recorded),
                                    direction_ambiguous=retrieval.direction_ambiguous,
-                                   focal_known=retrieval.focal_known)
+                                   focal_known=retrieval.focal_known,
+                                   too_small=retrieval.too_small)
     scores, seconds = [], []
     # The fits' own steps only check for cancelling (and so let the bar move between the
     # stage's reports); their phases' counts are not the stage's.
@@ -195,7 +196,8 @@ def choose_start(retrieval: RetrievalResult, photos: Sequence[Any], masks: Seque
     # (``benchmarks.bench_starts``), so the result still says the direction is a guess.
     return dataclasses.replace(chosen, alternatives=[], hypotheses=record,
                                direction_ambiguous=retrieval.direction_ambiguous,
-                               focal_known=retrieval.focal_known)
+                               focal_known=retrieval.focal_known,
+                               too_small=retrieval.too_small)
 
 
 def _set_aside(hypothesis: RetrievalResult) -> bool:

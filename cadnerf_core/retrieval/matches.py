@@ -29,6 +29,7 @@ import cv2
 import numpy as np
 
 from cadnerf_core.config import MatchesConfig
+from cadnerf_core.config_matches import MIN_SEARCH_SIDE
 from cadnerf_core.intake.crop import mask_bbox
 from cadnerf_core.retrieval.orbit import object_centre, orbit_consistent
 
@@ -46,13 +47,6 @@ AGREEMENT = 0.75
 mismatched pair in four or five is common; a split vote is none)."""
 MASK_DILATION = 0.02
 """Share of the crop's long side by which a mask is grown before features are looked for."""
-MIN_SEARCH_SIDE = 128
-"""Fewest pixels the region searched for features must span in a photo (the object's bounding
-box, grown by ``MatchesConfig.context``; long side) for the photo to be matched. A smaller
-region carries too little detail: its crop, enlarged toward ``MatchesConfig.size``, gives
-features of the enlargement's smooth shading, and on a plain object those match between its
-mirrored sides well enough to pass verification and sway the walking order and direction
-(``docs/presets.md``)."""
 
 
 @dataclass(frozen=True)
@@ -320,6 +314,12 @@ def verify_matches(i: int, j: int, a: Features, b: Features, pairs: np.ndarray,
             centres is not None and not orbit_consistent(R, t, *centres, K_a, K_b)):
         return PairMatch(i, j, len(pairs), inliers, sampson, None, None, points)
     return PairMatch(i, j, len(pairs), inliers, sampson, vertical_turn_deg(R), R, points)
+
+
+def too_small(masks: Sequence[np.ndarray], context: float = 0.0) -> list[int]:
+    """Indices of the photos ``match_photos`` gives no features for lack of size or object
+    (``large_enough``)."""
+    return [i for i, mask in enumerate(masks) if not large_enough(mask, context)]
 
 
 def large_enough(mask: np.ndarray, context: float = 0.0) -> bool:

@@ -105,6 +105,9 @@ class RetrievalResult:
     fusion: dict[str, Any] | None = None
     """What fusing the cameras with the pairs' rotations did (``fusion.Fusion.to_json``), None
     when they were not fused."""
+    too_small: list[int] = field(default_factory=list)
+    """The photos matching skipped: their object spans fewer than
+    ``config_matches.MIN_SEARCH_SIDE`` pixels (``matches.too_small``)."""
 
     def in_given_order(self, order: Sequence[int], mode: str, reordered: bool,
                        pairs: list[PairMatch], lead: float | None = None,
@@ -148,4 +151,5 @@ class RetrievalResult:
                 "matches": [m.to_json() for m in self.matches],
                 **({"hypotheses": self.hypotheses} if self.hypotheses else {}),
                 **({"photo_pairs": self.photo_pairs} if self.photo_pairs else {}),
-                **({"fusion": self.fusion} if self.fusion else {})}
+                **({"fusion": self.fusion} if self.fusion else {}),
+                **({"too_small": self.too_small} if self.too_small else {})}

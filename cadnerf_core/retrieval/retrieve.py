@@ -28,6 +28,7 @@ from cadnerf_core.retrieval.matches import (
     inlier_table,
     match_photos,
     reindexed,
+    too_small,
     walk_evidence,
 )
 from cadnerf_core.retrieval.posesearch import PoseSearchResult
@@ -125,6 +126,19 @@ def retrieve(masks: Sequence[np.ndarray], names: Sequence[str], library: Library
     config = config or RetrievalConfig()
     allowed = allowed_models(library, config.exclude_models)
     seen = _look(masks, images, focals, library, config, pairs)
+    found = _retrieve_seen(seen, masks, names, library, allowed, config, progress, focals,
+                           crop_size)
+    matched = images is not None and config.solver == "dp" and config.matches.enabled
+    return dataclasses.replace(found, too_small=too_small(masks, config.matches.context)) \
+        if matched else found
+
+
+def _retrieve_seen(seen: _Seen, masks: Sequence[np.ndarray], names: Sequence[str],
+                   library: Library, allowed: np.ndarray, config: RetrievalConfig,
+                   progress: Progress | None, focals: Sequence[float | None] | None,
+                   crop_size: int | None) -> RetrievalResult:
+    """``retrieve`` from what was ``seen`` of the photos: their walking order searched where
+    ``config.order`` asks for it."""
     if config.order != "walk" and len(masks) > 3:  # three photos make one cycle either way
         choice = _order(seen, library, allowed, config, progress)
         walk = config.model_copy(update={"order": "walk"})

@@ -13,7 +13,7 @@ import pytest
 from PIL import Image
 
 from cadnerf_core.cameras import intrinsics_from_fov, orbit_pose
-from cadnerf_core.job_warnings import MATCHES_FEW_WARNING
+from cadnerf_core.job_warnings import MATCHES_FEW_WARNING, too_small_warning
 from cadnerf_core.jobfolder import JobFolder
 from cadnerf_core.progress import Progress
 from tests.configs import tiny_config
@@ -24,14 +24,14 @@ pytestmark = pytest.mark.usefixtures("one_torch_thread")
 SIZE = 192
 
 
-def _job(job_dir: Path, textured: bool, **overrides: Any) -> JobFolder:
+def _job(job_dir: Path, textured: bool, size: int = SIZE, **overrides: Any) -> JobFolder:
     from cadnerf_core.mesh.renderer import MeshRenderer
 
     renderer = MeshRenderer(_ball(textured))
-    K = intrinsics_from_fov(40.0, SIZE)
+    K = intrinsics_from_fov(40.0, size)
     folder = JobFolder(job_dir)
     for i in range(5):
-        shot = renderer.render(K, orbit_pose(30.0 * i, 20.0, 3.0), SIZE, SIZE)
+        shot = renderer.render(K, orbit_pose(30.0 * i, 20.0, 3.0), size, size)
         rgba = np.dstack([(shot.rgb * 255).astype(np.uint8), shot.mask.astype(np.uint8) * 255])
         Image.fromarray(rgba, "RGBA").save(folder.new_photo_path(i, "p", "png"))
     folder.write_config(tiny_config(**overrides))
@@ -87,6 +87,20 @@ def test_photos_sharing_nothing_train_on_silhouettes_and_say_so(tmp_path: Path,
     assert all(np.array_equal(m.c2w, np.array(d["c2w"]))
                for m, d in zip(intake.retrieval.matches, data["matches"], strict=True))
     assert MATCHES_FEW_WARNING in (folder.read_warnings() or [])
+
+
+def test_photos_too_small_to_match_are_named_in_the_warnings(tmp_path: Path,
+                                                             tiny_library: Any) -> None:
+    # The textured ball whose pairs are fused at 192 px spans about 75 px at 96 px.
+    folder = _job(tmp_path, textured=True, size=SIZE // 2)
+    intake = _intake(tmp_path, tiny_library)
+    data = folder.read_retrieval()
+    assert data is not None and data["too_small"] == [0, 1, 2, 3, 4]
+    assert intake.retrieval.too_small == [0, 1, 2, 3, 4]
+    assert all(p["inliers"] == 0 for p in data["photo_pairs"])
+    names = [m["name"] for m in sorted(data["matches"], key=lambda m: m["index"])]
+    warnings = folder.read_warnings() or []
+    assert warnings[-1] == too_small_warning(names) and MATCHES_FEW_WARNING not in warnings
 
 
 def test_matching_off_neither_fuses_nor_warns(tmp_path: Path, tiny_library: Any) -> None:

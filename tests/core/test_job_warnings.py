@@ -13,6 +13,7 @@ from cadnerf_core.job_warnings import (
     job_warnings,
     order_guess_warning,
     reorder_warning,
+    too_small_warning,
 )
 
 NAMES = ["a.jpg", "b.jpg", "c.jpg"]
@@ -58,10 +59,19 @@ def test_matches_the_start_set_aside_are_warned_as_such_not_as_too_few() -> None
         MATCHES_SET_ASIDE_WARNING]
 
 
+def test_photos_too_small_to_match_are_named_and_replace_the_few_matches_warning() -> None:
+    few = {"focal_known": True, "fusion": {"photos": []}}
+    assert job_warnings({**few, "too_small": [0, 2]}, NAMES) == [
+        too_small_warning(["a.jpg", "c.jpg"]), MATCHES_FEW_WARNING]
+    # Every photo too small: the cause is known, so only it is warned.
+    assert job_warnings({**few, "too_small": [0, 1, 2]}, NAMES) == [too_small_warning(NAMES)]
+    assert "a.jpg, b.jpg, c.jpg" in too_small_warning(NAMES)
+
+
 def test_each_warning_is_one_sentence_with_an_action_and_no_figures() -> None:
     texts = [FOCAL_UNKNOWN_WARNING, MATCHES_FEW_WARNING, MATCHES_SET_ASIDE_WARNING,
              direction_guess_hint(1),
-             reorder_warning(NAMES), order_guess_warning(NAMES)]
+             reorder_warning(NAMES), order_guess_warning(NAMES), too_small_warning(NAMES)]
     for text in texts:
         assert text[0].isupper() and text.endswith(".") and text.count(". ") == 0, text
         assert ";" in text or ": " in text  # what happened; what to do

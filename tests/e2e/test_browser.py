@@ -8,7 +8,7 @@ from pathlib import Path
 
 import pytest
 
-from cadnerf_core.job_warnings import MATCHES_FEW_WARNING
+from cadnerf_core.job_warnings import too_small_warning
 from tests.configs import TINY_PRESET
 from tests.e2e.pages import CHROMIUM, LAUNCH_ARGS, TINY_CONFIG_SCRIPT, progress_samples
 
@@ -68,10 +68,11 @@ def test_upload_progress_video_and_screenshot(live_service, photo_set: list[Path
             numbers = walked.split(":")[1].replace("\u2192", " ").split()
             assert len(numbers) >= 2 and len(set(numbers)) == len(numbers)
             assert set(numbers) <= {str(i + 1) for i in range(len(photo_set))}
-            # Four grey renders share no texture: the one warning says the cameras come from
-            # silhouettes alone (direction and field of view were told, so neither is warned).
+            # Four 64 px renders are too small to match: the one warning names them and says
+            # the cameras come from silhouettes alone (direction and field of view were told,
+            # so neither is warned).
             warned = page.locator("#warnings li").all_inner_texts()
-            assert warned == [MATCHES_FEW_WARNING]
+            assert warned == [too_small_warning([p.name for p in photo_set])]
             _check_masks(page, len(photo_set))
             page.wait_for_timeout(500)
             # A test writes no tracked file: the screenshot goes to a temporary folder.
