@@ -9,6 +9,7 @@ from pathlib import Path
 import pytest
 
 from cadnerf_core.job_warnings import too_small_warning
+from cadnerf_core.jobnames import photo_file_name
 from tests.configs import TINY_PRESET
 from tests.e2e.pages import CHROMIUM, LAUNCH_ARGS, TINY_CONFIG_SCRIPT, progress_samples
 
@@ -72,7 +73,8 @@ def test_upload_progress_video_and_screenshot(live_service, photo_set: list[Path
             # the cameras come from silhouettes alone (direction and field of view were told,
             # so neither is warned).
             warned = page.locator("#warnings li").all_inner_texts()
-            assert warned == [too_small_warning([p.name for p in photo_set])]
+            stored = [photo_file_name(i, p.name, "png") for i, p in enumerate(photo_set)]
+            assert warned == [too_small_warning(stored)]
             _check_masks(page, len(photo_set))
             page.wait_for_timeout(500)
             # A test writes no tracked file: the screenshot goes to a temporary folder.
