@@ -115,7 +115,7 @@ def test_without_uploaded_masks_a_photo_uses_its_alpha_else_background_removal(
     assert [w for p in photos for w in p["mask_warnings"]] == [
         w for w in result["warnings"]
         if "walking direction" not in w and "focal length" not in w
-        and "share too few points" not in w and "pixels in" not in w]
+        and "share too few points" not in w and "The object spans fewer than" not in w]
     # No photo carried EXIF: the result says what to send.
     assert any("focal length (EXIF)" in w for w in result["warnings"])
     with Image.open(sources[0]) as image:
