@@ -3,13 +3,23 @@
 One thread refreshes the worker's heartbeat (readiness) and, while a job runs, its claim (so no
 other worker runs it at the same time). For the first seconds after start-up it also re-queues
 jobs left ``running`` by a worker that died (``app.state.OrphanWatch``).
+
+The heartbeat needs the interpreter: a native call that holds it (the GIL) past the claim's
+lifetime lets the service take the running job for orphaned. The thread says so in the log when
+a beat comes that late, and each beat re-arms ``faulthandler``'s watchdog (a thread of its own
+that needs no interpreter): an interpreter held ``STALL_EXIT_S`` writes every thread's stack to
+the log and ends the process, as the hard time limit does, so the supervisor starts a fresh
+worker and recovery queues the job again, instead of a worker that beats no more and never
+returns.
 """
 
 from __future__ import annotations
 
+import faulthandler
 import logging
 import os
 import socket
+import sys
 import threading
 import time
 from collections.abc import Callable
@@ -18,16 +28,31 @@ from typing import Any
 import redis
 
 from app.settings import Settings
-from app.state import HEARTBEAT_EVERY_S, ORPHAN_GRACE_S, JobStore, OrphanWatch
+from app.state import HEARTBEAT_EVERY_S, HEARTBEAT_TTL_S, ORPHAN_GRACE_S, JobStore, OrphanWatch
 from cadnerf_core.jobfolder import JobStorage
 from worker.runner import device_kind
 
 log = logging.getLogger(__name__)
 
+STALL_EXIT_S = 300.0
+"""An interpreter held this long (no heartbeat could run) ends the worker process."""
+
 
 def worker_name() -> str:
     """This process's heartbeat name, ``<host>-<pid>``."""
     return f"{socket.gethostname()}-{os.getpid()}"
+
+
+def _stderr_with_fd() -> Any:
+    """The process's original stderr when it has a file descriptor (faulthandler writes to
+    it without the interpreter), else None (then there is no stall watchdog)."""
+    stream = sys.__stderr__
+    try:
+        stream.fileno()  # type: ignore[union-attr]
+    except (AttributeError, OSError, ValueError):
+        log.warning("no stall watchdog: the process has no stderr file to write stacks to")
+        return None
+    return stream
 
 
 class Liveness:
@@ -39,16 +64,21 @@ class Liveness:
         send: queues a job id again (an orphan of a dead worker, a job handed back).
         startup_watch_s: how long after start-up to look for orphaned jobs.
         storage: where the job data lives (state.json of the jobs it recovers).
+        stall_exit_s: how long the interpreter may be held before the process ends (None: never).
     """
 
     def __init__(self, settings: Settings, name: str, send: Callable[[str], Any],
                  startup_watch_s: float = 3 * ORPHAN_GRACE_S,
-                 storage: JobStorage | None = None) -> None:
+                 storage: JobStorage | None = None,
+                 stall_exit_s: float | None = STALL_EXIT_S) -> None:
         self.store = JobStore.open(settings.redis_url, settings.data_root, storage)
         self.device_setting = settings.device
         self.name = name
         self.send = send
         self.startup_watch_s = startup_watch_s
+        self.stall_exit_s = stall_exit_s
+        # The process's own stderr: Celery swaps sys.stderr for a logger without a file.
+        self._stall_file = _stderr_with_fd()
         self._job: str | None = None
         self._lock = threading.Lock()
         self._stop = threading.Event()
@@ -95,10 +125,11 @@ class Liveness:
         # resolving "auto" imports torch, so it happens here, after start-up, not at import.
         info = {"pid": os.getpid(), "host": socket.gethostname(),
                 "device": device_kind(self.device_setting)}
-        started = time.monotonic()
+        started = due = time.monotonic()
         watch = OrphanWatch(self.store, self.send)
         while not self._stop.is_set():
             try:
+                self._note_stall(time.monotonic() - due)
                 self._beat(info)
                 if time.monotonic() - started < self.startup_watch_s:
                     watch.check()
@@ -107,7 +138,18 @@ class Liveness:
                 if str(exc) != self._last_error:
                     log.warning("heartbeat failed: %s", exc)
                 self._last_error = str(exc)
+            due = time.monotonic() + HEARTBEAT_EVERY_S
             self._stop.wait(HEARTBEAT_EVERY_S)
+
+    def _note_stall(self, late_s: float) -> None:
+        """Re-arm the stall watchdog; log a beat late enough for the claim to lapse."""
+        if self.stall_exit_s is not None and self._stall_file is not None:
+            faulthandler.dump_traceback_later(self.stall_exit_s, exit=True, file=self._stall_file)
+        if late_s > HEARTBEAT_TTL_S - HEARTBEAT_EVERY_S:
+            with self._lock:
+                job = self._job
+            log.warning("the heartbeat came %.1f s late: a step held the interpreter%s", late_s,
+                        f" (job {job} may have been taken for orphaned)" if job else "")
 
     def _beat(self, info: dict[str, Any]) -> None:
         self.store.workers.beat(self.name, info=info)
@@ -122,6 +164,8 @@ class Liveness:
     def stop(self) -> None:
         """Stop beating and remove the key (readiness drops at once)."""
         self._stop.set()
+        if self.stall_exit_s is not None and self._stall_file is not None:
+            faulthandler.cancel_dump_traceback_later()
         try:
             self.store.workers.forget(self.name)
         except redis.RedisError as exc:

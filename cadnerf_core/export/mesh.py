@@ -126,7 +126,7 @@ def export_mesh(job_dir: Path, model: TrainedModel,
     def color(p: np.ndarray, d: np.ndarray) -> np.ndarray:
         return model.colors(p, d, check=check)
 
-    textured = bake_texture(mesh, color, ecfg.texture_size)
+    textured = bake_texture(mesh, color, ecfg.texture_size, check)
     report(3)  # then checks: before any output, a cancelled or deleted job writes nothing more
     folder = JobFolder(job_dir)
     write_glb(folder.file(MESH), textured)

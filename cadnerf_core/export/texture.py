@@ -1,4 +1,4 @@
-"""A textured mesh from the fields: decimate, UV-unwrap (xatlas), bake the colour into a texture.
+"""A textured mesh from the fields: decimate, UV-unwrap (``atlas``), bake the colour into a texture.
 
 Viewers and DCC tools read a PBR material with a ``baseColorTexture`` far better than vertex
 colours (glTF reads those as linear, and Blender ignores them without a material). The radiance
@@ -13,6 +13,8 @@ from dataclasses import dataclass
 
 import numpy as np
 import trimesh
+
+from cadnerf_core.export.atlas import unwrap
 
 ColorFn = Callable[[np.ndarray, np.ndarray], np.ndarray]
 """Colour of points [P, 3] seen along unit directions [P, 3] -> [P, 3] in [0, 1]."""
@@ -67,29 +69,6 @@ def decimate(mesh: trimesh.Trimesh, max_faces: int) -> trimesh.Trimesh:
     out.update_faces(areas > SLIVER * max(float(areas.mean()), 1e-30))
     out.remove_unreferenced_vertices()
     return out
-
-
-def unwrap(vertices: np.ndarray, faces: np.ndarray,
-           size: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """UV atlas (xatlas) for a ``size`` x ``size`` texture.
-
-    Args:
-        vertices: [V, 3]; faces: [F, 3].
-    Returns:
-        vmapping [V'] (the input vertex of each output vertex: seams split vertices),
-        faces [F, 3] into the output vertices, uv [V', 2] in [0, 1] with v up.
-    """
-    import xatlas
-
-    atlas = xatlas.Atlas()
-    atlas.add_mesh(np.asarray(vertices, np.float32), np.asarray(faces, np.uint32))
-    pack = xatlas.PackOptions()
-    pack.resolution = size
-    pack.padding = PADDING
-    pack.bilinear = True
-    atlas.generate(pack_options=pack)
-    vmapping, indices, uv = atlas[0]
-    return vmapping.astype(np.int64), indices.astype(np.int64), uv.astype(np.float64)
 
 
 def rasterize_uv(uv: np.ndarray, faces: np.ndarray, size: int,
@@ -155,17 +134,19 @@ def fill_empty(texture: np.ndarray, covered: np.ndarray) -> np.ndarray:
     return texture[rows, cols]
 
 
-def bake_texture(mesh: trimesh.Trimesh, color: ColorFn, size: int) -> TexturedMesh:
+def bake_texture(mesh: trimesh.Trimesh, color: ColorFn, size: int,
+                 check: Callable[[], None] | None = None) -> TexturedMesh:
     """UV-unwrap ``mesh`` and bake ``color`` (seen head-on, against each point's normal) into a
     ``size`` x ``size`` sRGB texture.
 
     Args:
         mesh: the (decimated) surface, outward normals.
         color: the radiance field's colour at points seen along directions.
+        check: called while the atlas is made (a cancel raises).
     """
     vertices = np.asarray(mesh.vertices, np.float64)
     normals = np.asarray(mesh.vertex_normals, np.float64)
-    vmapping, faces, uv = unwrap(vertices, np.asarray(mesh.faces), size)
+    vmapping, faces, uv = unwrap(vertices, np.asarray(mesh.faces), size, PADDING, check)
     vertices, normals = vertices[vmapping], normals[vmapping]
     texel, face, bary = rasterize_uv(uv, faces, size)
     points = np.einsum("tk,tkd->td", bary, vertices[faces[face]])

@@ -34,8 +34,11 @@ class LiveService:
     worker_log: Path
 
     def log_tail(self, chars: int = 4000) -> str:
-        """The end of the worker's log (for assertion messages)."""
-        return self.worker_log.read_text(errors="replace")[-chars:]
+        """The end of the worker's log, and its exit status once it has ended (for assertion
+        messages)."""
+        ended = self.worker.poll()
+        status = "" if ended is None else f"\n[the worker process ended with status {ended}]"
+        return self.worker_log.read_text(errors="replace")[-chars:] + status
 
 
 def _start_api(settings: Settings, port: int) -> tuple[object, threading.Thread]:

@@ -112,12 +112,13 @@ def test_a_job_deleted_while_rendering_stays_deleted(live_service,
     try:
         slow_views = tiny_request(image_size=128, export={"novel_views": 64})
         job_id = submit(url, photo_set, slow_views)["id"]
-        wait_state(url, job_id, 240, until=("running",), stage="render", every_s=0.05)
+        wait_state(url, job_id, 240, until=("running",), stage="render", every_s=0.05,
+                   context=live_service.log_tail)
         answer = httpx.delete(f"{url}/v1/jobs/{job_id}", timeout=60)
         assert answer.status_code == 200 and answer.json()["deleted"] is True
         assert not (root / job_id).exists()
         follow = submit(url, photo_set, tiny_request())["id"]
-        final, _ = wait_state(url, follow, 240)
+        final, _ = wait_state(url, follow, 240, context=live_service.log_tail)
         assert final["state"] == "succeeded", live_service.log_tail()
         time.sleep(8)  # heartbeats (every 1.5 s) and one orphan grace (5 s) later
         client = redis.Redis.from_url(settings.redis_url, decode_responses=True)
@@ -140,11 +141,12 @@ def test_a_queued_job_with_ten_times_the_steps_expects_that_much_longer(
     plain one's."""
     url = live_service.url
     done = submit(url, photo_set, tiny_request())["id"]
-    assert wait_state(url, done, 240)[0]["state"] == "succeeded", live_service.log_tail()
+    assert wait_state(url, done, 240, context=live_service.log_tail)[0]["state"] == "succeeded", \
+        live_service.log_tail()
     blocker = submit(url, photo_set, tiny_request(phase3={"steps": 20000}))["id"]
     queued: list[str] = []
     try:
-        wait_state(url, blocker, 240, until=("running",))
+        wait_state(url, blocker, 240, until=("running",), context=live_service.log_tail)
         steps = {phase: {"steps": 10 * TINY_OVERRIDES[phase]["steps"]}
                  for phase in ("phase1", "phase2", "phase3")}
         configs = [tiny_request(), tiny_request(**steps), tiny_request()]

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import time
+from collections.abc import Callable
 from contextlib import ExitStack
 from pathlib import Path
 from typing import Any
@@ -37,8 +38,11 @@ def status(url: str, job_id: str) -> dict[str, Any]:
 
 def wait_state(url: str, job_id: str, timeout_s: float,
                until: tuple[str, ...] = TERMINAL, stage: str | None = None,
-               every_s: float = 0.1) -> tuple[dict[str, Any], list[str]]:
+               every_s: float = 0.1, context: Callable[[], str] | None = None,
+               ) -> tuple[dict[str, Any], list[str]]:
     """Poll until the job's state is in ``until`` (and its stage is ``stage``, when given).
+
+    ``context`` adds to the timeout's message (a live worker's log tail).
 
     Returns:
         The last status and the stages seen on the way, in order without repeats.
@@ -62,7 +66,9 @@ def wait_state(url: str, job_id: str, timeout_s: float,
         if stage is not None and last["state"] in TERMINAL:
             break
         time.sleep(every_s)
-    raise AssertionError(f"job {job_id} did not reach {until}/{stage}: {last}; stages {stages}")
+    more = f"\n{context()}" if context is not None else ""
+    raise AssertionError(f"job {job_id} did not reach {until}/{stage}: {last}; stages {stages}"
+                         f"{more}")
 
 
 def artifact_names(url: str, job_id: str) -> set[str]:
