@@ -86,7 +86,10 @@ class Liveness:
         self._last_error = ""
 
     def start(self) -> None:
-        """Beat now and every ``HEARTBEAT_EVERY_S``."""
+        """Beat now and every ``HEARTBEAT_EVERY_S``; from now on a fatal signal (a native
+        crash) writes every thread's stack to stderr before the process ends."""
+        if self._stall_file is not None:
+            faulthandler.enable(file=self._stall_file)
         self._thread.start()
 
     def hold(self, job_id: str) -> bool:

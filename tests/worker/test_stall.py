@@ -40,6 +40,14 @@ def test_a_held_interpreter_ends_the_worker_with_its_stacks(tmp_path: Path, redi
     assert "Timeout" in done.stderr and "held_in_c" in done.stderr, done.stderr[-2000:]
 
 
+def test_a_native_crash_leaves_its_stack(tmp_path: Path, redis_url: str,
+                                         clean_redis: object) -> None:
+    crash = HOLDER.replace("\nheld_in_c()", "\nimport ctypes; ctypes.string_at(0)")
+    done = subprocess.run([sys.executable, "-c", crash, redis_url, str(tmp_path), "300", "1"],
+                          cwd=ROOT, capture_output=True, text=True, timeout=300)
+    assert done.returncode < 0 and "Segmentation fault" in done.stderr, done.stderr[-2000:]
+
+
 def test_a_beat_late_enough_for_the_claim_to_lapse_is_logged(
         tmp_path: Path, redis_url: str, clean_redis: object,
         caplog: pytest.LogCaptureFixture) -> None:
