@@ -131,6 +131,6 @@ def export_mesh(job_dir: Path, model: TrainedModel,
     folder = JobFolder(job_dir)
     write_glb(folder.file(MESH), textured)
     write_obj(folder, textured)
-    write_usdz(folder.file(MESH_USDZ), textured, folder.file(MESH_TEXTURE))
+    write_usdz(folder.file(MESH_USDZ), textured, folder.file(MESH_TEXTURE), check)
     report(4)
     return textured

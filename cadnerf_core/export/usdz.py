@@ -7,7 +7,7 @@ colour is a ``UsdUVTexture`` reading the baked PNG as sRGB. The stage is +Y up w
 ``metersPerUnit = 1``, the same scale a glTF viewer gives ``mesh.glb`` (glTF units are metres):
 one unit is the object's bounding-sphere radius, so AR Quick Look shows it about 2 m across,
 to be scaled by hand (the photos carry no scale). The package is made by
-``UsdUtils.CreateNewARKitUsdzPackage``, texture inside.
+``UsdUtils.CreateNewARKitUsdzPackage``, texture inside, in a child process (``child``).
 
 Without ``pxr`` importable the file is skipped with a logged reason; the rest of the export
 does not depend on it.
@@ -15,14 +15,17 @@ does not depend on it.
 
 from __future__ import annotations
 
+import importlib.util
 import logging
 import shutil
 import tempfile
+from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
 import trimesh
 
+from cadnerf_core.export.child import Arrays, run_child, serve
 from cadnerf_core.export.texture import ROUGHNESS, TexturedMesh
 from cadnerf_core.jobfolder import MESH_TEXTURE, atomic_path
 
@@ -32,15 +35,13 @@ ROOT = "/mesh"
 """The default prim (an Xform, kind component) holding the geometry and its material."""
 TEXTURE_NAME = MESH_TEXTURE
 """The texture's name inside the package, relative to its root layer: the job folder's."""
+USDZ_LIMIT_S = 60.0
+"""Longest wait for USD's package; past it the job goes on without ``mesh.usdz``."""
 
 
 def usd_available() -> bool:
-    """Whether ``pxr`` (``usd-core``) can be imported here."""
-    try:
-        import pxr.Usd  # noqa: F401
-    except ImportError:
-        return False
-    return True
+    """Whether ``pxr`` (``usd-core``) is installed (not imported: the child uses it)."""
+    return importlib.util.find_spec("pxr") is not None
 
 
 def write_usd_layer(layer_path: Path, mesh: TexturedMesh, texture_name: str) -> None:
@@ -103,16 +104,31 @@ def write_usd_layer(layer_path: Path, mesh: TexturedMesh, texture_name: str) -> 
     stage.GetRootLayer().Save()
 
 
-def write_usdz(path: Path, mesh: TexturedMesh, texture_png: Path) -> bool:
-    """Write ``mesh.usdz`` (atomically) holding the mesh and ``texture_png``.
+def write_usdz(path: Path, mesh: TexturedMesh, texture_png: Path,
+               check: Callable[[], None] | None = None) -> bool:
+    """Write ``mesh.usdz`` (atomically) holding the mesh and ``texture_png``, in a child
+    process (``child``: USD's thread pool can deadlock against the interpreter's lock).
 
+    Args:
+        check: called while the child works (a cancel raises, and ends the child).
     Returns:
-        False, with the reason logged, where ``pxr`` is not importable or USD fails to write
+        False, with the reason logged, where ``pxr`` is not installed or USD fails to write
         the package; True once written.
     """
     if not usd_available():
         log.warning("mesh.usdz skipped: Pixar's USD (pip package usd-core) is not installed")
         return False
+    given = {"vertices": mesh.vertices, "faces": mesh.faces, "uv": mesh.uv,
+             "texture_png": str(texture_png), "path": str(path)}
+    done = run_child(__name__, given, USDZ_LIMIT_S, "USD (mesh.usdz)", check)
+    if done is None or not bool(done["written"]):
+        log.warning("mesh.usdz skipped: USD could not write the package")
+        return False
+    return True
+
+
+def write_usdz_here(path: Path, mesh: TexturedMesh, texture_png: Path) -> bool:
+    """``write_usdz``'s work, in this process (the child's)."""
     from pxr import Sdf, UsdUtils
 
     with tempfile.TemporaryDirectory(prefix="cadnerf-usdz-") as work:
@@ -121,8 +137,18 @@ def write_usdz(path: Path, mesh: TexturedMesh, texture_png: Path) -> bool:
         write_usd_layer(layer, mesh, TEXTURE_NAME)
         if (not UsdUtils.CreateNewARKitUsdzPackage(Sdf.AssetPath(str(layer)), str(package))
                 or not package.is_file()):
-            log.warning("mesh.usdz skipped: USD could not write the package")
             return False
         with atomic_path(path) as tmp:
             shutil.copyfile(package, tmp)
     return True
+
+
+def _work(given: Arrays) -> dict[str, np.ndarray]:
+    mesh = TexturedMesh(vertices=given["vertices"], faces=given["faces"], uv=given["uv"],
+                        texture=np.zeros((1, 1, 3), np.uint8))  # the layer reads the PNG
+    written = write_usdz_here(Path(str(given["path"])), mesh, Path(str(given["texture_png"])))
+    return {"written": np.asarray(written)}
+
+
+if __name__ == "__main__":
+    serve(_work)
