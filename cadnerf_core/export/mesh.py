@@ -1,4 +1,5 @@
-"""The mesh: marching cubes on the learned density, decimated, textured from the colour field.
+"""The mesh: marching cubes on the learned density, its specks dropped, decimated, textured from
+the colour field.
 
 Written as ``mesh.glb`` (binary glTF 2.0: +Y up as glTF wants, which is our world's up; one
 unit = the radius of the object's bounding sphere, not metres, as ``poses.json`` says) and as
@@ -8,6 +9,7 @@ unit = the radius of the object's bounding sphere, not metres, as ``poses.json``
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -62,6 +64,47 @@ def extract_mesh(occupancy: np.ndarray, bound: float, level: float) -> trimesh.T
     return trimesh.Trimesh(vertices=verts, faces=faces[:, ::-1], process=False)
 
 
+MIN_PIECE_SHARE = 0.02
+"""Pieces of the surface with less area than this share of the largest piece's are dropped:
+the specks of density a few-view NeRF leaves in empty space (what they do to the mesh and to
+the UV unwrap: ``benchmarks.bench_mesh``)."""
+
+
+def drop_small_pieces(mesh: trimesh.Trimesh, min_share: float = MIN_PIECE_SHARE
+                      ) -> trimesh.Trimesh:
+    """The mesh without its connected pieces smaller in area than ``min_share`` of the largest
+    piece's (the largest is always kept). Pieces are triangles joined by shared vertices."""
+    if len(mesh.faces) == 0 or min_share <= 0.0:
+        return mesh
+    labels = trimesh.graph.connected_component_labels(mesh.face_adjacency, len(mesh.faces))
+    areas = np.bincount(labels, weights=mesh.area_faces)
+    keep = areas >= min_share * areas.max()
+    if keep.all():
+        return mesh
+    out = mesh.copy()
+    out.update_faces(keep[labels])
+    out.remove_unreferenced_vertices()
+    return out
+
+
+def surface(model: TrainedModel, check: Callable[[], None] | None = None,
+            min_share: float = MIN_PIECE_SHARE,
+            sampled: Callable[[], None] | None = None) -> trimesh.Trimesh:
+    """The untextured surface a job exports: marching cubes on the learned occupancy over an
+    ``export.mesh_resolution`` grid, pieces under ``min_share`` of the largest dropped,
+    decimated to ``export.mesh_faces`` triangles; in the job's world frame. ``sampled`` is
+    called once the occupancy grid is computed (the slow part)."""
+    ecfg = model.state.config.export
+    G, bound = ecfg.mesh_resolution, model.state.config.render.bound
+    axis = np.linspace(-bound, bound, G, dtype=np.float32)
+    points = np.stack(np.meshgrid(axis, axis, axis, indexing="ij"), -1).reshape(-1, 3)
+    values = model.occupancy(points, check=check).reshape(G, G, G)
+    if sampled is not None:
+        sampled()
+    whole = extract_mesh(values, bound, ecfg.mesh_level)
+    return decimate(drop_small_pieces(whole, min_share), ecfg.mesh_faces)
+
+
 def write_glb(path: Path, mesh: TexturedMesh) -> None:
     """Write the textured mesh as binary glTF (with vertex normals, so it shades smoothly),
     atomically."""
@@ -109,18 +152,13 @@ def export_mesh(job_dir: Path, model: TrainedModel,
     ``export.mesh_faces`` triangles, its colour baked into an ``export.texture_size`` texture.
     Returns the textured mesh."""
     ecfg = model.state.config.export
-    G, bound = ecfg.mesh_resolution, model.state.config.render.bound
-    axis = np.linspace(-bound, bound, G, dtype=np.float32)
-    points = np.stack(np.meshgrid(axis, axis, axis, indexing="ij"), -1).reshape(-1, 3)
     check = None if progress is None else progress.check
 
     def report(done: int) -> None:
         if progress is not None:
             progress.step("export", done, EXPORT_STEPS)
 
-    values = model.occupancy(points, check=check).reshape(G, G, G)
-    report(1)
-    mesh = decimate(extract_mesh(values, bound, ecfg.mesh_level), ecfg.mesh_faces)
+    mesh = surface(model, check, sampled=lambda: report(1))
     report(2)
 
     def color(p: np.ndarray, d: np.ndarray) -> np.ndarray:

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 import trimesh
 
-from cadnerf_core.export.mesh import extract_mesh, write_glb, write_obj
+from cadnerf_core.export.mesh import drop_small_pieces, extract_mesh, write_glb, write_obj
 from cadnerf_core.export.texture import TexturedMesh, bake_texture, decimate, rasterize_uv
 from cadnerf_core.jobfolder import MESH, MESH_OBJ, MESH_TEXTURE, JobFolder
 from tests.gltf_validator import assert_no_errors_or_warnings, needs_validator
@@ -36,6 +36,36 @@ def test_decimation_keeps_the_shape() -> None:
     assert np.linalg.norm(small.vertices, axis=1) == pytest.approx(0.6, abs=0.02)
     again = decimate(small, 10_000)
     assert len(again.faces) == len(small.faces) and (again.area_faces > 0).all()
+
+
+def _field_with_specks() -> trimesh.Trimesh:
+    """Marching cubes on a ball of radius 0.6 with two specks of density beside it: one of a
+    single voxel, one a cube of two voxels a side."""
+    G = 40
+    axis = np.linspace(-1.1, 1.1, G)
+    x, y, z = np.meshgrid(axis, axis, axis, indexing="ij")
+    field = (np.sqrt(x**2 + y**2 + z**2) < 0.6).astype(np.float32)
+    field[35, 35, 35] = 1.0
+    field[3:5, 3:5, 30:32] = 1.0
+    return extract_mesh(field, 1.1, 0.5)
+
+
+def test_specks_of_density_are_dropped_and_the_object_kept() -> None:
+    whole = _field_with_specks()
+    assert len(whole.split(only_watertight=False)) == 3
+    clean = drop_small_pieces(whole)
+    assert len(clean.split(only_watertight=False)) == 1
+    assert np.linalg.norm(clean.vertices, axis=1).max() < 0.7  # the ball's, nothing beside it
+    ball = max(whole.split(only_watertight=False), key=lambda piece: piece.area)
+    assert clean.area == pytest.approx(ball.area)
+    assert len(clean.vertices) == len(np.unique(clean.faces))  # no vertex left unused
+
+
+def test_pieces_of_like_size_are_all_kept() -> None:
+    twins = trimesh.util.concatenate([trimesh.creation.icosphere(radius=0.3).apply_translation(
+        [dx, 0.0, 0.0]) for dx in (-0.5, 0.5)])
+    assert len(drop_small_pieces(twins).faces) == len(twins.faces)
+    assert drop_small_pieces(twins, 0.0) is twins
 
 
 def test_rasterize_covers_a_triangle_once_with_barycentrics() -> None:
