@@ -83,20 +83,21 @@ def surface_scores(ours: Any, truth: Any, threshold: float = F_THRESHOLD,
 
 
 def pieces(mesh: Any) -> int:
-    """Connected pieces of a mesh (triangles joined by shared vertices)."""
-    import trimesh
+    """Connected pieces of a mesh (``export.mesh.piece_labels``)."""
+    from cadnerf_core.export.mesh import piece_labels
 
-    labels = trimesh.graph.connected_component_labels(mesh.face_adjacency, len(mesh.faces))
+    labels = piece_labels(mesh)
     return int(labels.max()) + 1 if len(labels) else 0
 
 
-def unwrap_seconds(mesh: Any) -> float:
-    """Seconds xatlas takes to chart the mesh as the export charts it (its child process)."""
+def unwrap_seconds(mesh: Any, size: int) -> float:
+    """Seconds xatlas takes to chart the mesh for a ``size`` texture as the export charts it
+    (its child process)."""
     from cadnerf_core.export.atlas import unwrap
     from cadnerf_core.export.texture import PADDING
 
     start = time.perf_counter()
-    unwrap(np.asarray(mesh.vertices), np.asarray(mesh.faces), 1024, PADDING)
+    unwrap(np.asarray(mesh.vertices), np.asarray(mesh.faces), size, PADDING)
     return time.perf_counter() - start
 
 
@@ -105,7 +106,7 @@ def score_job(name: str, job: Path, walk: Path) -> dict[str, Any]:
     from cadnerf_core.evaluation.dataset import load_dataset
     from cadnerf_core.evaluation.frame import frame_mapping
     from cadnerf_core.evaluation.jobio import first_views, read_job_cameras
-    from cadnerf_core.export.mesh import surface
+    from cadnerf_core.export.mesh import MIN_PIECE_SHARE, occupancy_grid, surface
     from cadnerf_core.mesh.meshio import load_mesh, normalise_mesh
     from cadnerf_core.nerf.model import TrainedModel
 
@@ -114,13 +115,15 @@ def score_job(name: str, job: Path, walk: Path) -> dict[str, Any]:
     cams = read_job_cameras(job, model)
     to_job = frame_mapping(model, data, cams, "photometric", "estimated")
     truth = normalise_mesh(load_mesh(mesh_file(MESHES / name)), up=mesh_up(name))
+    grid = occupancy_grid(model)
+    size = model.state.config.export.texture_size
     row: dict[str, Any] = {}
-    for label, share in (("exported", None), ("all", 0.0)):
-        ours = surface(model) if share is None else surface(model, min_share=share)
+    for label, share in (("exported", MIN_PIECE_SHARE), ("all", 0.0)):
+        ours = surface(model, grid, share)
         # Into the object's frame: x = R^T (y - t) / scale.
         ours.vertices = (np.asarray(ours.vertices) - to_job.t) @ to_job.R / to_job.scale
         row[label] = {**surface_scores(ours, truth), "pieces": pieces(ours),
-                      "faces": len(ours.faces), "unwrap_s": unwrap_seconds(ours)}
+                      "faces": len(ours.faces), "unwrap_s": unwrap_seconds(ours, size)}
     return row
 
 

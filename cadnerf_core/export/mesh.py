@@ -70,13 +70,18 @@ the specks of density a few-view NeRF leaves in empty space (what they do to the
 the UV unwrap: ``benchmarks.bench_mesh``)."""
 
 
+def piece_labels(mesh: trimesh.Trimesh) -> np.ndarray:
+    """Each triangle's connected piece (triangles joined by shared vertices). Returns [F]."""
+    return trimesh.graph.connected_component_labels(mesh.face_adjacency, len(mesh.faces))
+
+
 def drop_small_pieces(mesh: trimesh.Trimesh, min_share: float = MIN_PIECE_SHARE
                       ) -> trimesh.Trimesh:
     """The mesh without its connected pieces smaller in area than ``min_share`` of the largest
-    piece's (the largest is always kept). Pieces are triangles joined by shared vertices."""
+    piece's (the largest is always kept)."""
     if len(mesh.faces) == 0 or min_share <= 0.0:
         return mesh
-    labels = trimesh.graph.connected_component_labels(mesh.face_adjacency, len(mesh.faces))
+    labels = piece_labels(mesh)
     areas = np.bincount(labels, weights=mesh.area_faces)
     keep = areas >= min_share * areas.max()
     if keep.all():
@@ -87,21 +92,22 @@ def drop_small_pieces(mesh: trimesh.Trimesh, min_share: float = MIN_PIECE_SHARE
     return out
 
 
-def surface(model: TrainedModel, check: Callable[[], None] | None = None,
-            min_share: float = MIN_PIECE_SHARE,
-            sampled: Callable[[], None] | None = None) -> trimesh.Trimesh:
-    """The untextured surface a job exports: marching cubes on the learned occupancy over an
-    ``export.mesh_resolution`` grid, pieces under ``min_share`` of the largest dropped,
-    decimated to ``export.mesh_faces`` triangles; in the job's world frame. ``sampled`` is
-    called once the occupancy grid is computed (the slow part)."""
-    ecfg = model.state.config.export
-    G, bound = ecfg.mesh_resolution, model.state.config.render.bound
+def occupancy_grid(model: TrainedModel, check: Callable[[], None] | None = None) -> np.ndarray:
+    """The learned occupancy on the ``export.mesh_resolution`` grid over the render bound
+    (the slow part of the mesh). Returns [G, G, G], index order x, y, z."""
+    G, bound = model.state.config.export.mesh_resolution, model.state.config.render.bound
     axis = np.linspace(-bound, bound, G, dtype=np.float32)
     points = np.stack(np.meshgrid(axis, axis, axis, indexing="ij"), -1).reshape(-1, 3)
-    values = model.occupancy(points, check=check).reshape(G, G, G)
-    if sampled is not None:
-        sampled()
-    whole = extract_mesh(values, bound, ecfg.mesh_level)
+    return model.occupancy(points, check=check).reshape(G, G, G)
+
+
+def surface(model: TrainedModel, grid: np.ndarray,
+            min_share: float = MIN_PIECE_SHARE) -> trimesh.Trimesh:
+    """The untextured surface a job exports from its ``occupancy_grid``: marching cubes, pieces
+    under ``min_share`` of the largest dropped, decimated to ``export.mesh_faces`` triangles;
+    in the job's world frame."""
+    ecfg = model.state.config.export
+    whole = extract_mesh(grid, model.state.config.render.bound, ecfg.mesh_level)
     return decimate(drop_small_pieces(whole, min_share), ecfg.mesh_faces)
 
 
@@ -158,7 +164,9 @@ def export_mesh(job_dir: Path, model: TrainedModel,
         if progress is not None:
             progress.step("export", done, EXPORT_STEPS)
 
-    mesh = surface(model, check, sampled=lambda: report(1))
+    grid = occupancy_grid(model, check)
+    report(1)
+    mesh = surface(model, grid)
     report(2)
 
     def color(p: np.ndarray, d: np.ndarray) -> np.ndarray:
