@@ -145,7 +145,7 @@ def capture_names() -> list[str]:
 def run_capture(capture: Capture, library: Any, variant: str) -> dict[str, Any]:
     """One ``preview`` job on the capture. Returns its row: errors in degrees per stage, focal
     error (share), PSNR, seconds, pairs and fused photos."""
-    from cadnerf_core.cameras import pose_errors
+    from cadnerf_core.cameras.conventions import pose_errors
     from cadnerf_core.config import internal_config
     from cadnerf_core.evaluation.jobio import read_job_cameras
     from cadnerf_core.nerf.model import TrainedModel

@@ -104,7 +104,7 @@ def reference_gap(azimuths: list[float], metadata: list[float],
                   measured: list[float]) -> float:
     """Median rotation error (degrees, after similarity alignment) between cameras on a sphere
     at the metadata's angles and at the measured elevations, azimuths unchanged."""
-    from cadnerf_core.cameras import orbit_pose, pose_errors
+    from cadnerf_core.cameras.conventions import orbit_pose, pose_errors
 
     def cameras(elevations: list[float]) -> np.ndarray:
         return np.stack([orbit_pose(a, e, 4.0) for a, e in zip(azimuths, elevations,

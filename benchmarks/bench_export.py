@@ -41,7 +41,7 @@ def write_photos(job_dir: Path, library: Any, model_id: str) -> None:
     """``N_PHOTOS`` RGBA renders of a library model walking round it, and the preview config."""
     from PIL import Image
 
-    from cadnerf_core.cameras import intrinsics_from_fov, orbit_pose
+    from cadnerf_core.cameras.conventions import intrinsics_from_fov, orbit_pose
     from cadnerf_core.config import resolve_config
     from cadnerf_core.jobfolder import JobFolder
     from cadnerf_core.mesh.renderer import MeshRenderer

@@ -100,7 +100,7 @@ def measure(megapixels: float, n: int, quick: bool) -> dict[str, Any]:
 
 LARGEST_PASS = """
 import sys, numpy as np, torch
-from cadnerf_core.cameras import intrinsics_from_fov, orbit_pose
+from cadnerf_core.cameras.conventions import intrinsics_from_fov, orbit_pose
 from cadnerf_core.config import internal_config
 from cadnerf_core.config_bounds import MAX_POINT_WIDTH
 from cadnerf_core.nerf import phases

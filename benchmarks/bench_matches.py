@@ -181,7 +181,7 @@ def draw_pair(image_a: np.ndarray, image_b: np.ndarray, pair: Any, out: Path) ->
     """The pair's picture as a job stores it (``pairs_io.pair_picture``)."""
     from PIL import Image
 
-    from cadnerf_core.retrieval.pairs_io import pair_picture
+    from cadnerf_core.cameras.pairs_io import pair_picture
 
     out.parent.mkdir(parents=True, exist_ok=True)
     Image.fromarray(pair_picture(image_a, image_b, pair)).save(out)
@@ -212,9 +212,9 @@ def ten_photos() -> tuple[list[np.ndarray], list[np.ndarray]]:
 def speed_line(headline: bool = True) -> str:
     """Matching ten 12-megapixel photos (decoding excluded), and where the time goes
     (``headline``: recorded as the README's figure, ``benchmarks.results``)."""
+    from cadnerf_core.cameras import learned
+    from cadnerf_core.cameras.matches import verify_matches
     from cadnerf_core.config import MatchesConfig, RetrievalConfig
-    from cadnerf_core.retrieval import learned
-    from cadnerf_core.retrieval.matches import verify_matches
     from cadnerf_core.retrieval.retrieve import photo_pairs
 
     images, masks = ten_photos()

@@ -191,7 +191,7 @@ def solver_lines(library: Any) -> list[str]:
 def real_lines(library: Any, shuffles: int) -> list[str]:
     """The real photo sets in order and shuffled."""
     from benchmarks.retrieval_real import real_set_photos
-    from cadnerf_core.cameras import pose_errors
+    from cadnerf_core.cameras.conventions import pose_errors
     from cadnerf_core.config import RetrievalConfig
     from cadnerf_core.intake.photos import load_photos
     from cadnerf_core.retrieval.ordering import same_cycle

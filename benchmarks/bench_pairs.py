@@ -58,11 +58,11 @@ def _photos(capture: Capture) -> tuple[list[np.ndarray], list[np.ndarray], list[
 
 def count_pairs(capture: Capture) -> dict[str, Any]:
     """The capture's close pairs, right / wrong / none, without and with the orbit check."""
+    from cadnerf_core.cameras import learned
+    from cadnerf_core.cameras.mapper import mapper_pairs
+    from cadnerf_core.cameras.matches import verify_matches
+    from cadnerf_core.cameras.orbit import object_centre
     from cadnerf_core.config import MatchesConfig
-    from cadnerf_core.retrieval import learned
-    from cadnerf_core.retrieval.mapper import mapper_pairs
-    from cadnerf_core.retrieval.matches import verify_matches
-    from cadnerf_core.retrieval.orbit import object_centre
 
     images, masks, intrinsics = _photos(capture)
     config = MatchesConfig()

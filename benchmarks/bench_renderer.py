@@ -16,7 +16,7 @@ import numpy as np
 import trimesh
 
 from benchmarks.harness import MESHES, section_head
-from cadnerf_core.cameras import intrinsics_from_fov, library_poses
+from cadnerf_core.cameras.conventions import intrinsics_from_fov, library_poses
 from cadnerf_core.evaluation.dataset import render_dataset
 from cadnerf_core.mesh.meshio import load_mesh, normalise_mesh
 from cadnerf_core.mesh.renderer import MeshRenderer, render_silhouette_polygons

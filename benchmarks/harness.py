@@ -144,7 +144,7 @@ def rotation_error(result: Any, c2w_gt: np.ndarray, only: set[int] | None = None
         c2w_gt: [P, 4, 4] the photos' true cameras.
         only: photo indices to score (None: every kept photo).
     """
-    from cadnerf_core.cameras import pose_errors
+    from cadnerf_core.cameras.conventions import pose_errors
 
     kept = [m for m in result.matches if not m.discarded and (only is None or m.index in only)]
     pred = np.stack([m.c2w for m in kept])

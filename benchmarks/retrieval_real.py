@@ -16,7 +16,7 @@ from benchmarks.lookalikes import excluded
 
 def real_set_photos(name: str) -> tuple[list[Path], list[Path], np.ndarray | None]:
     """Photos in walking order, their shipped masks, and coarse ground truth c2w (or None)."""
-    from cadnerf_core.cameras import orbit_pose
+    from cadnerf_core.cameras.conventions import orbit_pose
 
     folder = PHOTOS / name
     photos = sorted((folder / "images").iterdir())

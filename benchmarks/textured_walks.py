@@ -55,7 +55,7 @@ def render_walk(name: str, out: Path, direction: int = 1) -> tuple[list[Path], l
                                                                     np.ndarray]:
     """Render the walk of mesh ``name`` into ``out`` (``images/``, ``masks/``, ``cameras.json``).
     Returns the photo paths, mask paths and the cameras [VIEWS, 4, 4] (OpenCV c2w)."""
-    from cadnerf_core.cameras import intrinsics_from_fov, orbit_pose
+    from cadnerf_core.cameras.conventions import intrinsics_from_fov, orbit_pose
     from cadnerf_core.evaluation.dataset import auto_distance, walking_angles
     from cadnerf_core.mesh.meshio import load_mesh, normalise_mesh
     from cadnerf_core.mesh.renderer import MeshRenderer

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import json
 from enum import StrEnum
 from pathlib import Path
@@ -9,7 +10,7 @@ from typing import TYPE_CHECKING, Any
 
 import typer
 
-from cadnerf_cli.eval_cmd import EXCLUDE_HELP, parse_model_ids
+from cadnerf_cli.eval_cmd import EXCLUDE_HELP, parse_model_ids, parse_overrides
 
 if TYPE_CHECKING:
     import numpy as np
@@ -191,29 +192,25 @@ def retrieve_command(
     focal_35mm: float | None = typer.Option(None, "--focal-35mm", min=8.0, max=1200.0,
                                             help=FOCAL_HELP),
     exclude_models: list[str] = typer.Option([], "--exclude-models", help=EXCLUDE_HELP),
+    preset: str = typer.Option("preview", "--preset", help="The preset a job would run "
+                               "(its start's short silhouette fits): preview, standard, paper."),
+    device: str = typer.Option("auto", "--device", help="auto, cpu, cuda, cuda:N."),
+    settings: list[str] = typer.Option([], "--set", help="A setting key=value, as "
+                                       "`cadnerf reconstruct --set` takes it; repeatable."),
     as_json: bool = typer.Option(False, "--json", help="Print the result as JSON."),
     out: Path | None = typer.Option(None, "--out", help="Folder for match pictures."),
 ) -> None:
-    """Find the CAD model and a library pose for every photo."""
-    from cadnerf_core.config import RetrievalConfig
+    """Find the CAD model and the camera every photo's training would start from."""
+    import tempfile
+
     from cadnerf_core.errors import CadNerfError
-    from cadnerf_core.intake.masks import photo_masks
-    from cadnerf_core.intake.photos import load_photos, with_focal
-    from cadnerf_core.library.format import load_library
-    from cadnerf_core.retrieval.retrieve import retrieve
 
     try:
-        loaded = with_focal(load_photos(photos, resolve_mask_paths(photos, masks)), focal_35mm)
-        found = [result.mask for result in photo_masks(loaded)]
-        lib = load_library(library)
-        config = RetrievalConfig(solver="paper" if solver == Solver.paper else "dp",
-                                 walk=walk.value, order=order.value,
-                                 shared_focal=not own_focal,
-                                 perspective=perspective.value,
-                                 exclude_models=parse_model_ids(exclude_models))
-        result = retrieve(found, [p.name for p in loaded], lib, config,
-                          images=[p.rgb for p in loaded],
-                          focals=[p.focal_pixels for p in loaded])
+        overrides = parse_overrides(settings) | option_overrides(
+            solver, walk, order, own_focal, perspective, focal_35mm, exclude_models)
+        with tempfile.TemporaryDirectory(prefix="cadnerf-retrieve-") as job:
+            loaded, found, lib, result = start_cameras(photos, masks, library, preset,
+                                                       overrides, device, Path(job))
     except (CadNerfError, FileNotFoundError, ValueError) as exc:
         typer.echo(f"error: {exc}", err=True)
         raise typer.Exit(code=2) from None
@@ -224,6 +221,49 @@ def retrieve_command(
             typer.echo(f"pictures: {sheet}")
     data: dict[str, Any] = result.to_json()
     typer.echo(json.dumps(data, indent=1) if as_json else "\n".join(summary_lines(result)))
+
+
+def option_overrides(solver: Solver, walk: Walk, order: Order, own_focal: bool,
+                     perspective: Perspective, focal_35mm: float | None,
+                     exclude_models: list[str]) -> dict[str, Any]:
+    """The retrieval settings the command's options name, as dotted config overrides."""
+    overrides: dict[str, Any] = {"retrieval.solver": "paper" if solver == Solver.paper else "dp"}
+    if walk != Walk.auto:
+        overrides["retrieval.walk"] = walk.value
+    if order != Order.auto:
+        overrides["retrieval.order"] = order.value
+    if own_focal:
+        overrides["retrieval.shared_focal"] = False
+    if perspective != Perspective.auto:
+        overrides["retrieval.perspective"] = perspective.value
+    if focal_35mm is not None:
+        overrides["retrieval.focal_35mm"] = focal_35mm
+    if exclude_models:
+        overrides["retrieval.exclude_models"] = list(parse_model_ids(exclude_models))
+    return overrides
+
+
+def start_cameras(photos: list[Path], masks: list[Path], library: Path, preset: str,
+                  overrides: dict[str, Any], device: str, job: Path,
+                  ) -> tuple[list[Photo], list[np.ndarray], Library, RetrievalResult]:
+    """The photos, their masks, the library and the cameras a job on ``photos`` starts from:
+    the same call as a job's (``pipeline.start_job``), in the scratch job folder ``job``."""
+    from cadnerf_cli.reconstruct_cmd import stage_inputs
+    from cadnerf_core.config import internal_config
+    from cadnerf_core.jobfolder import JobFolder
+    from cadnerf_core.library.format import load_library
+    from cadnerf_core.nerf.model import resolve_device
+    from cadnerf_core.pipeline import start_job
+    from cadnerf_core.progress import Progress
+
+    config = internal_config(preset, overrides)
+    lib = load_library(library)
+    stage_inputs(photos, resolve_mask_paths(photos, masks), job)
+    JobFolder(job).write_config(config)
+    intake, _ = start_job(job, lib, config, resolve_device(device), Progress())
+    # The job folder numbers its copies; the user knows the photos by their own names.
+    named = [dataclasses.replace(m, name=photos[m.index].name) for m in intake.retrieval.matches]
+    return intake.photos, intake.masks, lib, dataclasses.replace(intake.retrieval, matches=named)
 
 
 def register(app: typer.Typer) -> None:

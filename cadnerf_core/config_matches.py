@@ -1,5 +1,5 @@
 """The config section of the matches between photos (``retrieval.matches``,
-``cadnerf_core.retrieval.matches``).
+``cadnerf_core.cameras.matches``).
 
 Its own module so that ``config`` stays one screenful per section; ``config_retrieval`` nests it in
 ``RetrievalConfig`` and ``config`` re-exports it. Torch-free, like ``config``.

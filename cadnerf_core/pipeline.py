@@ -64,10 +64,11 @@ def run_intake(job_dir: Path, library: Library, config: PipelineConfig,
     """Read photos and masks, remove backgrounds where needed (``mask_model``: the ONNX model
     of the learned method, None for the built-in one), keep the masks with their overlays,
     sources and warnings, and retrieve model and poses."""
+    from cadnerf_core.cameras.pairs_io import job_pairs
+    from cadnerf_core.cameras.stage import place_cameras
     from cadnerf_core.intake.masks import mask_overlay, photo_masks
     from cadnerf_core.intake.photos import load_photo, with_focal
     from cadnerf_core.intake.resize import downscaled, shrunk_mask
-    from cadnerf_core.retrieval.pairs_io import job_pairs
     from cadnerf_core.retrieval.retrieve import retrieve
 
     folder = JobFolder(job_dir)
@@ -93,7 +94,7 @@ def run_intake(job_dir: Path, library: Library, config: PipelineConfig,
     progress.check()
     known = any(p.focal_pixels is not None for p in photos)
     if pairs is not None:
-        retrieval = with_matches(retrieval, pairs, photos, config, known)
+        retrieval = place_cameras(retrieval, pairs, photos, config, known)
     retrieval = dataclasses.replace(retrieval, focal_known=known)
     summary = retrieval.to_json()
     folder.write_retrieval(summary)
@@ -105,38 +106,6 @@ def run_intake(job_dir: Path, library: Library, config: PipelineConfig,
         raise InputError("fewer than two photos could be matched to the retrieved model",
                          item=INPUTS, hint="use 3 to 10 photos walking around the object")
     return Intake(names, photos, masks, retrieval, [result.doubt for result in found])
-
-
-def with_matches(retrieval: RetrievalResult, pairs: list[Any], photos: list[Any],
-                 config: PipelineConfig, focal_known: bool) -> RetrievalResult:
-    """The retrieved cameras (and their hypotheses) started from what the photos' matches
-    tell: the mapper's cameras where it registers every photo (``retrieval.mapper``), else the
-    retrieved cameras fused with the pairs' rotations (``retrieval.fusion``); unchanged when
-    neither is asked for."""
-    from cadnerf_core.retrieval.fusion import fuse_hypotheses, pairs_at_focal
-    from cadnerf_core.retrieval.mapper import accept, map_photos
-    from cadnerf_core.retrieval.placement import place_hypotheses
-
-    matches = config.retrieval.matches
-    if matches.mapper:
-        sizes = [(p.rgb.shape[1], p.rgb.shape[0]) for p in photos]
-        start = photos[0].focal_pixels if focal_known else None
-        focal = float(start or retrieval.matches[0].K_photo[0, 0])
-        clock = time.perf_counter()
-        mapped = map_photos(pairs, sizes, focal, focal_known, matches.min_inliers)
-        trusted = accept(mapped, max(sizes[0]))
-        log.info("mapper: %s in %.1f s%s", "accepted" if trusted else "not used",
-                 time.perf_counter() - clock, "" if mapped is None else
-                 f" ({len(mapped.photos)} photos, {mapped.points} points, "
-                 f"{mapped.reprojection_px:.2f} px, focal {mapped.focal:.0f} px, "
-                 f"radial {mapped.radial:+.2f})")
-        if trusted and mapped is not None:
-            placed = place_hypotheses(retrieval, mapped, focal_known)
-            return placed if focal_known else pairs_at_focal(placed)
-    if not matches.fuse:
-        return retrieval
-    retrieval = fuse_hypotheses(retrieval, matches.min_inliers, search_focal=not focal_known)
-    return retrieval if focal_known else pairs_at_focal(retrieval)
 
 
 def training_data(intake: Intake, config: PipelineConfig, margin: float,
@@ -292,13 +261,9 @@ def run_job(job_dir: Path, library: Library, progress: Progress | None = None,
             JobFolder(job_dir).write_config(config)
         dev = resolve_device(device)
         start = time.perf_counter()
-        recorded = (JobFolder(job_dir).read_retrieval() or {}).get("hypotheses", [])
-        intake = run_intake(job_dir, library, config, progress, mask_model)
-        intake_s = time.perf_counter() - start
-        learn_focal = all(p.focal_pixels is None for p in intake.photos)
-        intake = robust_start(job_dir, intake, library, config, dev, learn_focal, progress,
-                              recorded)
+        intake, intake_s = start_job(job_dir, library, config, dev, progress, mask_model)
         start_s = time.perf_counter() - start - intake_s
+        learn_focal = all(p.focal_pixels is None for p in intake.photos)
         if (intake.retrieval.fusion or {}).get("start") == "mapper":
             # The mapper's bundle adjustment fits every match; the silhouettes of a library
             # model that only resembles the object would pull its cameras off.
@@ -315,6 +280,31 @@ def run_job(job_dir: Path, library: Library, progress: Progress | None = None,
         _detach_log(handler)
 
 
+def start_job(job_dir: Path, library: Library, config: PipelineConfig, device: torch.device,
+              progress: Progress, mask_model: Path | None = None) -> tuple[Intake, float]:
+    """Intake, retrieval and the cameras stage of a job: the cameras training starts from.
+
+    ``cadnerf retrieve`` calls it too, so it prints the cameras a job would start from.
+
+    Args:
+        job_dir: the job folder, its photos, masks and config written (``JobFolder``).
+        library: the loaded CAD library.
+        config: the job's resolved configuration.
+        device: where the start's short silhouette fits run.
+        progress: progress reporter and cancel check.
+        mask_model: an ONNX background-removal model, None for the built-in one.
+    Returns:
+        The intake with its chosen start, and the seconds intake and retrieval took.
+    """
+    clock = time.perf_counter()
+    recorded = (JobFolder(job_dir).read_retrieval() or {}).get("hypotheses", [])
+    intake = run_intake(job_dir, library, config, progress, mask_model)
+    intake_s = time.perf_counter() - clock
+    learn_focal = all(p.focal_pixels is None for p in intake.photos)
+    return robust_start(job_dir, intake, library, config, device, learn_focal, progress,
+                        recorded), intake_s
+
+
 def robust_start(job_dir: Path, intake: Intake, library: Library, config: PipelineConfig,
                  device: torch.device, learn_focal: bool, progress: Progress,
                  recorded: list[dict[str, Any]]) -> Intake:
@@ -324,7 +314,7 @@ def robust_start(job_dir: Path, intake: Intake, library: Library, config: Pipeli
     an earlier run of this job wrote (kept when they cover the same hypotheses)."""
     if not intake.retrieval.alternatives:
         return intake
-    from cadnerf_core.nerf.start import choose_start
+    from cadnerf_core.cameras.start import choose_start
 
     chosen = choose_start(intake.retrieval, intake.photos, intake.masks, library, config,
                           device, learn_focal, progress, recorded)
@@ -337,7 +327,7 @@ def with_focal_scale(retrieval: RetrievalResult, data: TrainData,
     """The retrieval's cameras and the training crops' intrinsics with their focal lengths
     times the learned ``scale`` (``Phase2Config.focal_bound``), so every view, the orbit and
     ``poses.json`` / ``transforms.json`` use the refined focal length."""
-    from cadnerf_core.cameras import scale_focal
+    from cadnerf_core.cameras.conventions import scale_focal
 
     if scale == 1.0:
         return retrieval, data

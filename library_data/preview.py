@@ -8,7 +8,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from cadnerf_core.cameras import intrinsics_from_fov, orbit_pose
+from cadnerf_core.cameras.conventions import intrinsics_from_fov, orbit_pose
 from cadnerf_core.library.format import Library
 from cadnerf_core.mesh.renderer import MeshRenderer
 

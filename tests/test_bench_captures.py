@@ -13,7 +13,7 @@ from PIL import Image
 from benchmarks import bench_captures
 from benchmarks.bench_captures import load_capture, table
 from benchmarks.textured_walks import floor_mesh, mirrored, phone_focal_35mm
-from cadnerf_core.cameras import orbit_pose
+from cadnerf_core.cameras.conventions import orbit_pose
 
 
 def test_a_capture_reads_its_cameras_and_its_masks_when_it_ships_them(

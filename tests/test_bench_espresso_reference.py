@@ -14,7 +14,7 @@ from benchmarks.bench_espresso_reference import (
     measure,
     reference_gap,
 )
-from cadnerf_core.cameras import look_at
+from cadnerf_core.cameras.conventions import look_at
 
 K = np.array([[600.0, 0.0, 400.0], [0.0, 600.0, 300.0], [0.0, 0.0, 1.0]])
 

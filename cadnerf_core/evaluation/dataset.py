@@ -20,7 +20,7 @@ import numpy as np
 import trimesh
 from PIL import Image
 
-from cadnerf_core.cameras import (
+from cadnerf_core.cameras.conventions import (
     from_transforms_json,
     intrinsics_from_fov,
     orbit_pose,

@@ -28,7 +28,7 @@ from typing import TYPE_CHECKING, Any, Literal
 
 import numpy as np
 
-from cadnerf_core.cameras import align_poses
+from cadnerf_core.cameras.conventions import align_poses
 from cadnerf_core.evaluation.dataset import Dataset, load_dataset
 from cadnerf_core.evaluation.frame import frame_mapping
 from cadnerf_core.evaluation.jobio import (

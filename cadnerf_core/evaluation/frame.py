@@ -10,7 +10,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from cadnerf_core.cameras import umeyama
+from cadnerf_core.cameras.conventions import umeyama
 from cadnerf_core.evaluation.dataset import Dataset
 from cadnerf_core.evaluation.jobio import JobCameras, eval_intrinsics
 
@@ -106,7 +106,7 @@ def fit_frame(model: TrainedModel, start: Similarity, c2w_gt: np.ndarray, K: np.
     """
     import torch
 
-    from cadnerf_core.cameras import se3_exp
+    from cadnerf_core.cameras.conventions import se3_exp
     from cadnerf_core.nerf.rays import pixel_rays
     from cadnerf_core.nerf.volrend import render_rays
 

@@ -23,7 +23,7 @@ import torch
 from skimage.metrics import structural_similarity
 from torch import nn
 
-from cadnerf_core.cameras import pose_errors
+from cadnerf_core.cameras.conventions import pose_errors
 
 log = logging.getLogger(__name__)
 

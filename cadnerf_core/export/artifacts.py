@@ -14,7 +14,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from cadnerf_core.cameras import rotation_angle_deg
+from cadnerf_core.cameras.conventions import rotation_angle_deg
 from cadnerf_core.export.bundle import (
     CONVENTIONS,
     export_for_tools,

@@ -18,7 +18,7 @@ from typing import Any
 
 import numpy as np
 
-from cadnerf_core.cameras import CV_TO_GL, fov_from_intrinsics
+from cadnerf_core.cameras.conventions import CV_TO_GL, fov_from_intrinsics
 from cadnerf_core.export.colmap import ColmapCamera, colmap_text
 from cadnerf_core.export.texture import TexturedMesh
 from cadnerf_core.jobfolder import (

@@ -13,7 +13,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from cadnerf_core.cameras import look_at, spherical_position
+from cadnerf_core.cameras.conventions import look_at, spherical_position
 from cadnerf_core.export.media import to_uint8, write_gif, write_png, write_video
 from cadnerf_core.jobfolder import ORBIT_GIF, ORBIT_VIDEO, JobFolder
 from cadnerf_core.progress import Progress

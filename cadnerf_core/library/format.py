@@ -91,13 +91,13 @@ class LibrarySpec:
     def poses(self) -> tuple[np.ndarray, np.ndarray]:
         """The pose set. Returns c2w [V, 4, 4] and az_el [V, 2] in degrees."""
         # Imported here: cameras imports torch, which library building and listing never need.
-        from cadnerf_core.cameras import library_poses
+        from cadnerf_core.cameras.conventions import library_poses
 
         return library_poses(self.n_azimuths, self.elevations, self.distance)
 
     def K_render(self) -> np.ndarray:  # noqa: N802 (the camera matrix is K everywhere)
         """Intrinsics of the render camera. Returns [3, 3]."""
-        from cadnerf_core.cameras import intrinsics_from_fov
+        from cadnerf_core.cameras.conventions import intrinsics_from_fov
 
         return intrinsics_from_fov(self.fov_deg, self.render_size)
 

@@ -25,9 +25,9 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 
-from cadnerf_core.cameras import rotation_angle_deg, skew
+from cadnerf_core.cameras.conventions import rotation_angle_deg, skew
+from cadnerf_core.cameras.matches import PairMatch
 from cadnerf_core.intake.crop import CropBox
-from cadnerf_core.retrieval.matches import PairMatch
 
 log = logging.getLogger(__name__)
 

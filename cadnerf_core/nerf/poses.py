@@ -14,7 +14,7 @@ from typing import Any
 import torch
 from torch import nn
 
-from cadnerf_core.cameras import se3_exp
+from cadnerf_core.cameras.conventions import se3_exp
 
 
 class PoseCorrection(nn.Module):

@@ -12,7 +12,7 @@ import numpy as np
 from cadnerf_core.intake.crop import CropBox
 
 if TYPE_CHECKING:
-    from cadnerf_core.retrieval.matches import PairMatch
+    from cadnerf_core.cameras.matches import PairMatch
 
 
 @dataclass

@@ -16,14 +16,7 @@ from typing import TYPE_CHECKING, TypeVar
 
 import numpy as np
 
-from cadnerf_core.config import RetrievalConfig
-from cadnerf_core.errors import InputError
-from cadnerf_core.intake.crop import CropBox, apply_crop
-from cadnerf_core.intake.photos import canonical_masks
-from cadnerf_core.job_warnings import direction_guess_hint, order_guess_warning, reorder_warning
-from cadnerf_core.progress import Progress
-from cadnerf_core.retrieval.cameras import angle_mismatch, photo_match, share_focal
-from cadnerf_core.retrieval.matches import (
+from cadnerf_core.cameras.matches import (
     PairMatch,
     inlier_table,
     match_photos,
@@ -31,6 +24,13 @@ from cadnerf_core.retrieval.matches import (
     too_small,
     walk_evidence,
 )
+from cadnerf_core.config import RetrievalConfig
+from cadnerf_core.errors import InputError
+from cadnerf_core.intake.crop import CropBox, apply_crop
+from cadnerf_core.intake.photos import canonical_masks
+from cadnerf_core.job_warnings import direction_guess_hint, order_guess_warning, reorder_warning
+from cadnerf_core.progress import Progress
+from cadnerf_core.retrieval.cameras import angle_mismatch, photo_match, share_focal
 from cadnerf_core.retrieval.posesearch import PoseSearchResult
 from cadnerf_core.retrieval.result import PhotoMatch, RetrievalResult
 from cadnerf_core.retrieval.scoring import azimuth_bins, iou_table, vote_models
@@ -56,7 +56,7 @@ def direction_evidence(images: Sequence[np.ndarray], masks: Sequence[np.ndarray]
     """Texture evidence for the walking direction (``direction.walk_direction_evidence``) of
     photos [H_i, W_i, 3] float in [0, 1], composited on white inside their masks and cropped
     by their canonical boxes at ``APPEARANCE_SIZE``."""
-    from cadnerf_core.retrieval.direction import walk_direction_evidence
+    from cadnerf_core.cameras.direction import walk_direction_evidence
 
     rgbs, crops = _appearance_crops(images, masks, boxes)
     return walk_direction_evidence(rgbs, crops)
@@ -199,7 +199,7 @@ def _retrieve(seen: _Seen, names: Sequence[str], library: Library, allowed: np.n
               config: RetrievalConfig, progress: Progress | None,
               focals: Sequence[float | None] | None, crop_size: int | None) -> RetrievalResult:
     """``retrieve`` of photos in walking order, from what was ``seen`` of them."""
-    from cadnerf_core.retrieval.direction import walk_direction_evidence
+    from cadnerf_core.cameras.direction import walk_direction_evidence
 
     evidence = 0.0
     n_photos = len(seen.sizes)

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 import trimesh
 
-from cadnerf_core.cameras import intrinsics_from_fov, orbit_pose, project
+from cadnerf_core.cameras.conventions import intrinsics_from_fov, orbit_pose, project
 from cadnerf_core.intake.crop import (
     CropBox,
     apply_crop,

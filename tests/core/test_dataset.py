@@ -11,7 +11,7 @@ import trimesh
 from PIL import Image
 from typer.testing import CliRunner
 
-from cadnerf_core.cameras import intrinsics_from_fov, orbit_pose, to_transforms_json
+from cadnerf_core.cameras.conventions import intrinsics_from_fov, orbit_pose, to_transforms_json
 from cadnerf_core.evaluation.dataset import load_dataset, render_dataset, walking_angles
 
 EVAL = Path(__file__).resolve().parents[2] / ".." / "shared" / "eval"

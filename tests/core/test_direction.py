@@ -6,11 +6,11 @@ import numpy as np
 import pytest
 import trimesh
 
-from cadnerf_core.cameras import intrinsics_from_fov, orbit_pose
+from cadnerf_core.cameras.conventions import intrinsics_from_fov, orbit_pose
+from cadnerf_core.cameras.direction import walk_direction_evidence
 from cadnerf_core.config import RetrievalConfig
 from cadnerf_core.intake.photos import canonical_masks
 from cadnerf_core.mesh.renderer import MeshRenderer
-from cadnerf_core.retrieval.direction import walk_direction_evidence
 from cadnerf_core.retrieval.posesearch import cyclic_dp
 from cadnerf_core.retrieval.retrieve import direction_evidence
 from cadnerf_core.retrieval.walks import solve_poses

@@ -9,7 +9,8 @@ import numpy as np
 import pytest
 import torch
 
-from cadnerf_core.cameras import intrinsics_from_fov, orbit_pose, project, se3_exp
+from cadnerf_core.cameras.conventions import intrinsics_from_fov, orbit_pose, project, se3_exp
+from cadnerf_core.cameras.matches import PairMatch
 from cadnerf_core.intake.crop import CropBox
 from cadnerf_core.nerf.epipolar import (
     HUBER_PX,
@@ -20,7 +21,6 @@ from cadnerf_core.nerf.epipolar import (
     match_terms,
     sampson_px,
 )
-from cadnerf_core.retrieval.matches import PairMatch
 
 SIZE = 128
 K = intrinsics_from_fov(40.0, SIZE)

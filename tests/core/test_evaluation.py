@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from cadnerf_core.cameras import orbit_pose
+from cadnerf_core.cameras.conventions import orbit_pose
 from cadnerf_core.evaluation.frame import Similarity, centre_similarity
 from cadnerf_core.jobfolder import JobFolder
 from tests.configs import TINY_OVERRIDES, TINY_PRESET, tiny_request
@@ -117,7 +117,7 @@ class _Ball:
 
 
 def test_fit_frame_recovers_a_shared_offset() -> None:
-    from cadnerf_core.cameras import intrinsics_from_fov
+    from cadnerf_core.cameras.conventions import intrinsics_from_fov
     from cadnerf_core.evaluation.frame import fit_frame
 
     ball = _Ball()
@@ -256,7 +256,7 @@ def test_read_job_cameras_and_intrinsics(tmp_path: Path) -> None:
 
 
 def test_resize_view_scales_intrinsics() -> None:
-    from cadnerf_core.cameras import intrinsics_from_fov
+    from cadnerf_core.cameras.conventions import intrinsics_from_fov
     from cadnerf_core.evaluation.evaluate import resize_view
 
     image = np.zeros((8, 8, 3), np.float32)

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 from PIL import Image
 
-from cadnerf_core.cameras import from_transforms_json, intrinsics_from_fov, orbit_pose
+from cadnerf_core.cameras.conventions import from_transforms_json, intrinsics_from_fov, orbit_pose
 from cadnerf_core.export.bundle import nerfstudio_transforms
 from cadnerf_core.export.media import gif_durations, write_gif, write_video
 from cadnerf_core.export.mesh import extract_mesh

@@ -10,9 +10,8 @@ import cv2
 import numpy as np
 import pytest
 
-from cadnerf_core.cameras import orbit_pose, project, rotation_angle_deg, scale_focal
-from cadnerf_core.intake.crop import CropBox
-from cadnerf_core.retrieval.fusion import (
+from cadnerf_core.cameras.conventions import orbit_pose, project, rotation_angle_deg, scale_focal
+from cadnerf_core.cameras.fusion import (
     SET_ASIDE,
     anchor,
     average_rotations,
@@ -22,7 +21,8 @@ from cadnerf_core.retrieval.fusion import (
     fuse_hypotheses,
     pairs_at_focal,
 )
-from cadnerf_core.retrieval.matches import PairMatch
+from cadnerf_core.cameras.matches import PairMatch
+from cadnerf_core.intake.crop import CropBox
 from cadnerf_core.retrieval.result import PhotoMatch, RetrievalResult
 
 N = 8

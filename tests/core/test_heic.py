@@ -91,7 +91,7 @@ def _render_phone_job(src: Path, library: Any, n: int = 3) -> tuple[list[Path], 
                                                                    list[np.ndarray]]:
     """HEIC photos (orientation 6, 35 mm focal 37) of the library's mug walking round it, with
     PNG masks drawn on their stored (portrait) pixels; returns photos, masks, upright masks."""
-    from cadnerf_core.cameras import intrinsics_from_fov, orbit_pose
+    from cadnerf_core.cameras.conventions import intrinsics_from_fov, orbit_pose
     from cadnerf_core.mesh.renderer import MeshRenderer
 
     renderer = MeshRenderer(library.mesh("mug"))

@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 from PIL import Image
 
-from cadnerf_core.cameras import intrinsics_from_fov, orbit_pose
+from cadnerf_core.cameras.conventions import intrinsics_from_fov, orbit_pose
 from cadnerf_core.job_warnings import MATCHES_FEW_WARNING, too_small_warning
 from cadnerf_core.jobfolder import JobFolder
 from cadnerf_core.progress import Progress

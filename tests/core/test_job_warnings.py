@@ -53,7 +53,7 @@ def test_matching_off_is_not_warned_as_photos_sharing_too_little() -> None:
 
 
 def test_matches_the_start_set_aside_are_warned_as_such_not_as_too_few() -> None:
-    from cadnerf_core.retrieval.fusion import SET_ASIDE
+    from cadnerf_core.cameras.fusion import SET_ASIDE
 
     assert job_warnings({"focal_known": True, "fusion": dict(SET_ASIDE)}, NAMES) == [
         MATCHES_SET_ASIDE_WARNING]

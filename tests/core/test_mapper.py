@@ -10,9 +10,8 @@ import cv2
 import numpy as np
 import pytest
 
-from cadnerf_core.cameras import orbit_pose, pose_errors, project, rotation_angle_deg
-from cadnerf_core.intake.crop import CropBox
-from cadnerf_core.retrieval.mapper import (
+from cadnerf_core.cameras.conventions import orbit_pose, pose_errors, project, rotation_angle_deg
+from cadnerf_core.cameras.mapper import (
     MIN_INLIER_SHARE,
     MIN_POINTS_PER_PHOTO,
     Mapped,
@@ -21,8 +20,9 @@ from cadnerf_core.retrieval.mapper import (
     map_photos,
     mapper_pairs,
 )
-from cadnerf_core.retrieval.matches import PairMatch
-from cadnerf_core.retrieval.placement import place
+from cadnerf_core.cameras.matches import PairMatch
+from cadnerf_core.cameras.placement import place
+from cadnerf_core.intake.crop import CropBox
 from cadnerf_core.retrieval.result import PhotoMatch, RetrievalResult
 
 N = 8

@@ -11,10 +11,8 @@ import numpy as np
 import pytest
 import trimesh
 
-from cadnerf_core.cameras import intrinsics_from_fov, orbit_pose
-from cadnerf_core.config import MatchesConfig, RetrievalConfig
-from cadnerf_core.mesh.renderer import MeshRenderer
-from cadnerf_core.retrieval.matches import (
+from cadnerf_core.cameras.conventions import intrinsics_from_fov, orbit_pose
+from cadnerf_core.cameras.matches import (
     Features,
     PairMatch,
     detect,
@@ -25,6 +23,8 @@ from cadnerf_core.retrieval.matches import (
     vertical_turn_deg,
     walk_evidence,
 )
+from cadnerf_core.config import MatchesConfig, RetrievalConfig
+from cadnerf_core.mesh.renderer import MeshRenderer
 from cadnerf_core.retrieval.retrieve import retrieve
 
 SIZE = 256
@@ -220,7 +220,7 @@ def test_only_walking_sized_turns_that_mostly_agree_count() -> None:
 
 def test_lighterglue_matches_the_close_pairs_and_nearest_descriptors_the_rest(
         monkeypatch: pytest.MonkeyPatch) -> None:
-    from cadnerf_core.retrieval import learned
+    from cadnerf_core.cameras import learned
 
     # Five photos round a loop: every pair is within two steps.
     assert learned.close_pairs(5) == {(i, j) for i in range(5) for j in range(i + 1, 5)}
@@ -247,7 +247,7 @@ def test_lighterglue_matches_the_close_pairs_and_nearest_descriptors_the_rest(
 
 
 def test_mutual_nearest_descriptors_need_agreement_and_similarity() -> None:
-    from cadnerf_core.retrieval.learned import match_mutual
+    from cadnerf_core.cameras.learned import match_mutual
 
     a = np.eye(4, 8, dtype=np.float32)
     b = np.eye(4, 8, dtype=np.float32)[[2, 0, 3, 1]]

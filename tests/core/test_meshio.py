@@ -9,7 +9,7 @@ import pytest
 import trimesh
 from PIL import Image
 
-from cadnerf_core.cameras import intrinsics_from_fov, look_at
+from cadnerf_core.cameras.conventions import intrinsics_from_fov, look_at
 from cadnerf_core.errors import MeshError
 from cadnerf_core.mesh.meshio import load_mesh, merge_meshes, normalise_mesh, texture_image
 from cadnerf_core.mesh.renderer import MeshRenderer

@@ -10,7 +10,7 @@ import pytest
 import torch
 from skimage.metrics import structural_similarity
 
-from cadnerf_core.cameras import orbit_pose
+from cadnerf_core.cameras.conventions import orbit_pose
 from cadnerf_core.evaluation import metrics
 
 

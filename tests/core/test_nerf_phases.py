@@ -11,13 +11,14 @@ import pytest
 import torch
 import trimesh
 
-from cadnerf_core.cameras import (
+from cadnerf_core.cameras.conventions import (
     intrinsics_from_fov,
     orbit_pose,
     project,
     rotation_angle_deg,
     se3_exp,
 )
+from cadnerf_core.cameras.matches import PairMatch
 from cadnerf_core.config import PipelineConfig
 from cadnerf_core.errors import JobCancelled
 from cadnerf_core.intake.crop import CropBox
@@ -29,7 +30,6 @@ from cadnerf_core.nerf.model import TrainedModel
 from cadnerf_core.nerf.passes import ray_passes
 from cadnerf_core.nerf.state import TrainData, TrainState
 from cadnerf_core.progress import Progress
-from cadnerf_core.retrieval.matches import PairMatch
 from tests.configs import tiny_config
 
 SIZE = 32

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 import torch
 
-from cadnerf_core.cameras import orbit_pose
+from cadnerf_core.cameras.conventions import orbit_pose
 from cadnerf_core.nerf.encoding import PositionalEncoding, frequency_weights
 from cadnerf_core.nerf.fields import FieldOutputs
 from cadnerf_core.nerf.grid import SkipGrid, dilate, grid_from_occupancy

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from cadnerf_core.retrieval.orbit import object_centre, orbit_consistent
+from cadnerf_core.cameras.orbit import object_centre, orbit_consistent
 
 K = np.array([[800.0, 0.0, 320.0], [0.0, 800.0, 240.0], [0.0, 0.0, 1.0]])
 

@@ -159,7 +159,7 @@ def test_the_reorder_warning_names_the_order_and_the_way_back() -> None:
 
 
 def test_matched_pairs_follow_the_photos_into_the_walking_order() -> None:
-    from cadnerf_core.retrieval.matches import PairMatch, inlier_table, reindexed
+    from cadnerf_core.cameras.matches import PairMatch, inlier_table, reindexed
 
     rotation = np.array([[0.0, 0.0, 1.0], [0.0, 1.0, 0.0], [-1.0, 0.0, 0.0]])
     points = np.arange(8, dtype=float).reshape(2, 2, 2)

@@ -13,7 +13,7 @@ import pytest
 import trimesh
 from PIL import Image
 
-from cadnerf_core.cameras import intrinsics_from_fov, orbit_pose
+from cadnerf_core.cameras.conventions import intrinsics_from_fov, orbit_pose
 from cadnerf_core.errors import JobCancelled
 from cadnerf_core.jobfolder import JobFolder
 from cadnerf_core.progress import Progress
@@ -198,6 +198,18 @@ def test_cli_reconstructs_into_the_output_folder(tmp_path: Path, tiny_library: A
     assert (out / "mesh.glb").is_file() and (out / "orbit.mp4").is_file()
     used = JobFolder(out)
     assert [m.source for m in used.read_mask_sources()] == ["uploaded"] * 3
+    # `cadnerf retrieve` on the same photos and settings prints the cameras the job started from.
+    retrieved = CliRunner().invoke(app, ["retrieve", *photos, "--json", *tiny_cli_options(),
+                                         *[arg for m in masks for arg in ("--masks", str(m))],
+                                         "--device", "cpu", "--library", str(tiny_library_dir),
+                                         "--walk", "ccw", "--own-focal", "--perspective", "near",
+                                         "--focal-35mm", "30", "--exclude-models", "chair_wood"])
+    assert retrieved.exit_code == 0, retrieved.output
+    started = {m["index"]: m["c2w"] for m in json.loads(retrieved.stdout)["matches"]}
+    poses = json.loads((out / "poses.json").read_text())["photos"]
+    assert len(poses) == 3
+    for pose in poses:
+        assert np.allclose(started[pose["index"]], pose["c2w_initial"], atol=1e-6)
     for i, mask in enumerate(masks):
         with Image.open(mask) as image:
             assert np.array_equal(used.read_mask(i), np.asarray(image) > 127)

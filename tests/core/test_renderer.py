@@ -10,7 +10,7 @@ import pytest
 import trimesh
 from PIL import Image
 
-from cadnerf_core.cameras import intrinsics_from_fov, look_at, orbit_pose
+from cadnerf_core.cameras.conventions import intrinsics_from_fov, look_at, orbit_pose
 from cadnerf_core.mesh.meshio import load_mesh, normalise_mesh
 from cadnerf_core.mesh.renderer import MeshRenderer, render_silhouette_polygons, sample_texture
 

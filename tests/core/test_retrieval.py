@@ -182,7 +182,7 @@ def test_an_ambiguous_walk_is_taken_counter_clockwise_unless_asked_for_the_best(
 
 
 def _match(index: int, focal: float, discarded: bool = False) -> Any:
-    from cadnerf_core.cameras import orbit_pose
+    from cadnerf_core.cameras.conventions import orbit_pose
     from cadnerf_core.intake.crop import CropBox, crop_intrinsics
     from cadnerf_core.retrieval.result import PhotoMatch
 
@@ -194,7 +194,7 @@ def _match(index: int, focal: float, discarded: bool = False) -> Any:
 
 
 def test_shared_focal_keeps_every_object_its_size() -> None:
-    from cadnerf_core.cameras import project
+    from cadnerf_core.cameras.conventions import project
     from cadnerf_core.intake.crop import crop_intrinsics
     from cadnerf_core.retrieval.cameras import share_focal
 

@@ -9,9 +9,9 @@ import numpy as np
 import pytest
 import torch
 
+from cadnerf_core.cameras import start
 from cadnerf_core.config import PipelineConfig
 from cadnerf_core.intake.crop import CropBox
-from cadnerf_core.nerf import start
 from cadnerf_core.progress import Progress
 from cadnerf_core.retrieval.result import PhotoMatch, RetrievalResult
 
@@ -102,7 +102,7 @@ def test_the_mirrored_walk_needs_a_lead_beyond_the_margin(
 ])
 def test_the_retrieval_left_unfused_needs_a_clear_lead_over_every_fused_hypothesis(
         unfused_fit: float, chosen: int, monkeypatch: pytest.MonkeyPatch) -> None:
-    from cadnerf_core.retrieval.fusion import SET_ASIDE
+    from cadnerf_core.cameras.fusion import SET_ASIDE
 
     retrieved = dataclasses.replace(_walk(1, 0.0), fusion={"photos": [0, 1, 2]})
     other = dataclasses.replace(_walk(1, 0.0, "vase"), fusion={"photos": [0, 1]})

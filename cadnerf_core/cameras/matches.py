@@ -28,10 +28,10 @@ from typing import Any
 import cv2
 import numpy as np
 
+from cadnerf_core.cameras.orbit import object_centre, orbit_consistent
 from cadnerf_core.config import MatchesConfig
 from cadnerf_core.config_matches import MIN_SEARCH_SIDE
 from cadnerf_core.intake.crop import mask_bbox
-from cadnerf_core.retrieval.orbit import object_centre, orbit_consistent
 
 RATIO = 0.8
 """Lowe's ratio test: a match is kept when its nearest descriptor is this much nearer than
@@ -361,7 +361,7 @@ def match_photos(images: Sequence[np.ndarray], masks: Sequence[np.ndarray],
         return [verify_pair(i, j, found[i], found[j], intrinsics[i], intrinsics[j], config,
                             (centres[i], centres[j]))
                 for i in range(len(found)) for j in range(i + 1, len(found))]
-    from cadnerf_core.retrieval import learned
+    from cadnerf_core.cameras import learned
 
     features = []
     for image, mask, use in zip(images, masks, usable, strict=True):

@@ -10,7 +10,7 @@ import pytest
 import torch
 from scipy.spatial.transform import Rotation
 
-from cadnerf_core.cameras import (
+from cadnerf_core.cameras.conventions import (
     from_transforms_json,
     intrinsics_from_fov,
     library_poses,
@@ -144,7 +144,7 @@ def test_pose_errors_report_a_known_rotation_error() -> None:
 
 
 def test_scaling_the_focal_length_keeps_the_principal_point() -> None:
-    from cadnerf_core.cameras import scale_focal
+    from cadnerf_core.cameras.conventions import scale_focal
 
     K = np.array([[100.0, 0.0, 64.0], [0.0, 110.0, 48.0], [0.0, 0.0, 1.0]])
     scaled = scale_focal(K, 1.5)

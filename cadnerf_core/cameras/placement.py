@@ -13,9 +13,9 @@ import logging
 
 import numpy as np
 
-from cadnerf_core.cameras import rotation_angle_deg
-from cadnerf_core.retrieval.fusion import MIN_PHOTOS, anchor, moved_to, scaled_focal
-from cadnerf_core.retrieval.mapper import Mapped
+from cadnerf_core.cameras.conventions import rotation_angle_deg
+from cadnerf_core.cameras.fusion import MIN_PHOTOS, anchor, moved_to, scaled_focal
+from cadnerf_core.cameras.mapper import Mapped
 from cadnerf_core.retrieval.result import RetrievalResult
 
 log = logging.getLogger(__name__)

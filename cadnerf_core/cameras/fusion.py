@@ -27,8 +27,8 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from cadnerf_core.cameras import rotation_angle_deg, scale_focal
-from cadnerf_core.retrieval.matches import PairMatch
+from cadnerf_core.cameras.conventions import rotation_angle_deg, scale_focal
+from cadnerf_core.cameras.matches import PairMatch
 from cadnerf_core.retrieval.result import PhotoMatch, RetrievalResult
 
 log = logging.getLogger(__name__)

@@ -13,7 +13,7 @@ from typing import TYPE_CHECKING, Any
 import cv2
 import numpy as np
 
-from cadnerf_core.retrieval.matches import PairMatch
+from cadnerf_core.cameras.matches import PairMatch
 
 if TYPE_CHECKING:
     from cadnerf_core.config import RetrievalConfig

@@ -23,7 +23,7 @@ from pathlib import Path
 
 import numpy as np
 
-from cadnerf_core.retrieval.matches import PairMatch
+from cadnerf_core.cameras.matches import PairMatch
 
 log = logging.getLogger(__name__)
 

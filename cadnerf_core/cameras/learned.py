@@ -25,8 +25,8 @@ from typing import Any
 import cv2
 import numpy as np
 
+from cadnerf_core.cameras.matches import Features
 from cadnerf_core.intake.crop import mask_bbox
-from cadnerf_core.retrieval.matches import Features
 
 TOP_K = 1536
 """Most keypoints kept per photo (the strongest): bounds LighterGlue's cost a pair."""
