@@ -105,7 +105,7 @@ def retrieval(name: str, shipped: list[Any], learned: list[np.ndarray], library:
     leave-out protocol (the headline: the set's look-alikes excluded) and with them in; where
     they differ, how close each set of masks scores the two models (``walk_scores``)."""
     from cadnerf_core.config_retrieval import RetrievalConfig
-    from cadnerf_core.retrieval.retrieve import retrieve
+    from cadnerf_core.retrieval.search import retrieve
 
     names = [p.name for p in shipped]
     images = [p.rgb for p in shipped]
@@ -134,7 +134,7 @@ def walk_scores(masks: list[np.ndarray], names: list[str], images: list[np.ndarr
     """Each of ``models``' best walk with these masks (retrieval with that model alone in the
     library, its objective over the photos): how far apart the masks put two models."""
     from cadnerf_core.config_retrieval import RetrievalConfig
-    from cadnerf_core.retrieval.retrieve import retrieve
+    from cadnerf_core.retrieval.search import retrieve
 
     ids = [m.id for m in library.models]
     out = []

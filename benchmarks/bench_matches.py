@@ -87,7 +87,7 @@ def walk(name: str, views: int, direction: int, library: Any, work: Path,
     import json
 
     from cadnerf_core.evaluation.dataset import load_dataset
-    from cadnerf_core.retrieval.retrieve import retrieve
+    from cadnerf_core.retrieval.search import retrieve
 
     folder = render_walk(name, work / f"{name}_{views}_{direction}_{elevations[0]:g}", views,
                          size=SIZE, seed=SEED + views, direction=direction,
@@ -135,7 +135,7 @@ def espresso_lines(library: Any) -> list[str]:
     """The espresso photos retrieved with the matches on and off, and the picture."""
     from cadnerf_core.config import MatchesConfig, RetrievalConfig
     from cadnerf_core.intake.photos import load_photos
-    from cadnerf_core.retrieval.retrieve import photo_pairs, retrieve
+    from cadnerf_core.retrieval.search import photo_pairs, retrieve
 
     paths, mask_paths, gt = real_set_photos("ners_espresso")
     photos = load_photos(paths, mask_paths)
@@ -215,7 +215,7 @@ def speed_line(headline: bool = True) -> str:
     from cadnerf_core.cameras import learned
     from cadnerf_core.cameras.matches import verify_matches
     from cadnerf_core.config import MatchesConfig, RetrievalConfig
-    from cadnerf_core.retrieval.retrieve import photo_pairs
+    from cadnerf_core.retrieval.search import photo_pairs
 
     images, masks = ten_photos()
     config = MatchesConfig()

@@ -85,7 +85,7 @@ def photo_likeness(masks: list[np.ndarray], images: list[np.ndarray], library: A
         config: a ``RetrievalConfig`` (None: the defaults).
     """
     from cadnerf_core.config import RetrievalConfig
-    from cadnerf_core.retrieval import retrieve
+    from cadnerf_core.retrieval import search as retrieve
 
     seen = retrieve._look(masks, images, None, library, config or RetrievalConfig())
     found = retrieve._likeness(seen)
@@ -109,7 +109,7 @@ def _retrieve(data: Any, perm: np.ndarray, library: Any, mode: str, exclude: tup
     result said the order is a guess."""
     from cadnerf_core.config import RetrievalConfig
     from cadnerf_core.retrieval.ordering import same_cycle
-    from cadnerf_core.retrieval.retrieve import retrieve
+    from cadnerf_core.retrieval.search import retrieve
 
     config = RetrievalConfig(order=mode, exclude_models=exclude)  # type: ignore[arg-type]
     result = retrieve([data.masks[i] for i in perm], [data.names[i] for i in perm], library,
@@ -195,7 +195,7 @@ def real_lines(library: Any, shuffles: int) -> list[str]:
     from cadnerf_core.config import RetrievalConfig
     from cadnerf_core.intake.photos import load_photos
     from cadnerf_core.retrieval.ordering import same_cycle
-    from cadnerf_core.retrieval.retrieve import retrieve
+    from cadnerf_core.retrieval.search import retrieve
 
     lines = []
     for name in REAL_SETS:

@@ -65,8 +65,8 @@ def speed_lines(library: Any, masks: list[np.ndarray], images: list[np.ndarray],
     """Solver and whole-retrieval timings, as markdown bullet lines."""
     from cadnerf_core.config import RetrievalConfig
     from cadnerf_core.retrieval.posesearch import cyclic_dp, paper_algorithm1
-    from cadnerf_core.retrieval.retrieve import retrieve
     from cadnerf_core.retrieval.scoring import iou_table
+    from cadnerf_core.retrieval.search import retrieve
 
     rng = np.random.default_rng(0)
     iou = rng.random((10, 100))

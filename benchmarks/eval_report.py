@@ -149,8 +149,8 @@ def retrieval_row(name: str, dataset_dir: Path, library: Any,
     from cadnerf_core.evaluation.dataset import load_dataset
     from cadnerf_core.evaluation.metrics import pose_metrics
     from cadnerf_core.intake.photos import canonical_masks
-    from cadnerf_core.retrieval.retrieve import retrieve
     from cadnerf_core.retrieval.scoring import iou_table
+    from cadnerf_core.retrieval.search import retrieve
 
     ds = load_dataset(dataset_dir)
     crops, _ = canonical_masks(list(ds.masks), library.spec.silhouette_size, library.spec.margin)

@@ -52,7 +52,7 @@ def real_set(name: str, library: Any, picture: Path) -> list[str]:
     from cadnerf_core.errors import InputError
     from cadnerf_core.intake.masks import photo_masks
     from cadnerf_core.intake.photos import Photo, load_photos
-    from cadnerf_core.retrieval.retrieve import retrieve
+    from cadnerf_core.retrieval.search import retrieve
 
     paths, mask_paths, gt = real_set_photos(name)
     shipped = load_photos(paths, mask_paths)

@@ -84,7 +84,7 @@ def retrieve_all(masks: list[np.ndarray], names: list[str], library: Any,
     variant that knows them; ``exclude``: library models left out, but by "lookalike").
     Returns variant -> RetrievalResult."""
     from cadnerf_core.config import RetrievalConfig
-    from cadnerf_core.retrieval.retrieve import retrieve
+    from cadnerf_core.retrieval.search import retrieve
 
     walk = "ccw" if direction > 0 else "cw"
     out = {}
@@ -137,7 +137,7 @@ def phone_set(name: str, views: int, direction: int, library: Any, work: Path,
     frame: from nearer at a wider angle) and retrieve it with the photos' focal length known,
     the mesh's look-alikes left out."""
     from cadnerf_core.config import RetrievalConfig
-    from cadnerf_core.retrieval.retrieve import retrieve
+    from cadnerf_core.retrieval.search import retrieve
 
     data = load_walk(name, work / f"fov{fov:g}_{name}_{views}_{direction}", views,
                      seed=SEED + views, direction=direction, fov_deg=fov)

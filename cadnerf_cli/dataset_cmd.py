@@ -26,7 +26,7 @@ def render_dataset_command(
 ) -> None:
     """Render MESH into a NeRF-synthetic dataset (RGBA images, masks, transforms.json)."""
     from cadnerf_core.errors import CadNerfError
-    from cadnerf_core.evaluation.dataset import render_dataset
+    from cadnerf_core.evaluation import render_dataset
 
     try:
         folder = render_dataset(mesh, out, n_views=views, size=size, seed=seed, up=up.value,

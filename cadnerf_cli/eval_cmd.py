@@ -103,9 +103,9 @@ def eval_command(
     from cadnerf_cli.config_cmd import settings_error
     from cadnerf_core.config import resolve_config
     from cadnerf_core.errors import CadNerfError
-    from cadnerf_core.evaluation.evaluate import evaluate_dataset
+    from cadnerf_core.evaluation import evaluate_dataset
     from cadnerf_core.evaluation.metrics import load_lpips
-    from cadnerf_core.library.format import load_library
+    from cadnerf_core.library import load_library
 
     counts = parse_views(views)
     config = {**parse_overrides(overrides), "seed": seed}

@@ -23,7 +23,7 @@ def write_masks(out: Path, photos: list[Any], results: list[Any]) -> list[dict[s
     one JSON-ready record per photo."""
     from PIL import Image
 
-    from cadnerf_core.intake.masks import mask_overlay
+    from cadnerf_core.intake import mask_overlay
 
     out.mkdir(parents=True, exist_ok=True)
     records = []
@@ -50,8 +50,7 @@ def masks_command(
 ) -> None:
     """Write each photo's mask and an overlay picture, and print the method and warnings."""
     from cadnerf_core.errors import CadNerfError
-    from cadnerf_core.intake.masks import photo_masks
-    from cadnerf_core.intake.photos import load_photos
+    from cadnerf_core.intake import load_photos, photo_masks
 
     try:
         loaded = load_photos(photos)

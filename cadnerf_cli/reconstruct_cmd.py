@@ -74,7 +74,7 @@ def reconstruct(
     from cadnerf_core.config import resolve_config
     from cadnerf_core.errors import CadNerfError
     from cadnerf_core.jobfolder import MASKS, MESH, ORBIT_VIDEO, POSES, VIEWS, JobFolder
-    from cadnerf_core.library.format import load_library
+    from cadnerf_core.library import load_library
     from cadnerf_core.pipeline import run_job
     from cadnerf_core.progress import Progress as CoreProgress
 

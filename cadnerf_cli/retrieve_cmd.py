@@ -15,9 +15,9 @@ from cadnerf_cli.eval_cmd import EXCLUDE_HELP, parse_model_ids, parse_overrides
 if TYPE_CHECKING:
     import numpy as np
 
-    from cadnerf_core.intake.photos import Photo
-    from cadnerf_core.library.format import Library
-    from cadnerf_core.retrieval.result import RetrievalResult
+    from cadnerf_core.intake import Photo
+    from cadnerf_core.library import Library
+    from cadnerf_core.retrieval import RetrievalResult
 
 class Solver(StrEnum):
     """Pose solver."""
@@ -112,7 +112,7 @@ def match_rows(photos: list[Photo], masks: list[np.ndarray], library: Library,
     import cv2
     import numpy as np
 
-    from cadnerf_core.intake.photos import canonical_views
+    from cadnerf_core.intake import canonical_views
 
     library = library.view_set(result.perspective)
     spec = library.spec
@@ -251,8 +251,8 @@ def start_cameras(photos: list[Path], masks: list[Path], library: Path, preset: 
     from cadnerf_cli.reconstruct_cmd import stage_inputs
     from cadnerf_core.config import internal_config
     from cadnerf_core.jobfolder import JobFolder
-    from cadnerf_core.library.format import load_library
-    from cadnerf_core.nerf.model import resolve_device
+    from cadnerf_core.library import load_library
+    from cadnerf_core.nerf import resolve_device
     from cadnerf_core.pipeline import start_job
     from cadnerf_core.progress import Progress
 

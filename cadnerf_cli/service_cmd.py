@@ -295,7 +295,7 @@ def run_demo(url: str, preset: str = "preview", views: int = 6, size: int = 160,
         The job's final status.
     """
     from app.client import JobClient
-    from cadnerf_core.evaluation.dataset import render_dataset
+    from cadnerf_core.evaluation import render_dataset
     from cadnerf_core.jobfolder import ORBIT_VIDEO
 
     logging.getLogger("httpx").setLevel(logging.WARNING)  # one line per poll is noise here

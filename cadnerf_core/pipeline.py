@@ -22,7 +22,7 @@ import numpy as np
 
 from cadnerf_core.config import PipelineConfig
 from cadnerf_core.errors import InputError
-from cadnerf_core.intake.crop import apply_crop
+from cadnerf_core.intake import apply_crop
 from cadnerf_core.job_warnings import job_warnings
 from cadnerf_core.jobfolder import CONFIG, INPUTS, OVERLAY_SIDE, JobFolder
 from cadnerf_core.progress import Progress
@@ -30,9 +30,9 @@ from cadnerf_core.progress import Progress
 if TYPE_CHECKING:
     import torch
 
-    from cadnerf_core.library.format import Library
-    from cadnerf_core.nerf.state import TrainData, TrainState
-    from cadnerf_core.retrieval.result import RetrievalResult
+    from cadnerf_core.library import Library
+    from cadnerf_core.nerf import TrainData, TrainState
+    from cadnerf_core.retrieval import RetrievalResult
 
 log = logging.getLogger(__name__)
 
@@ -64,12 +64,16 @@ def run_intake(job_dir: Path, library: Library, config: PipelineConfig,
     """Read photos and masks, remove backgrounds where needed (``mask_model``: the ONNX model
     of the learned method, None for the built-in one), keep the masks with their overlays,
     sources and warnings, and retrieve model and poses."""
-    from cadnerf_core.cameras.pairs_io import job_pairs
-    from cadnerf_core.cameras.stage import place_cameras
-    from cadnerf_core.intake.masks import mask_overlay, photo_masks
-    from cadnerf_core.intake.photos import load_photo, with_focal
-    from cadnerf_core.intake.resize import downscaled, shrunk_mask
-    from cadnerf_core.retrieval.retrieve import retrieve
+    from cadnerf_core.cameras import job_pairs, place_cameras
+    from cadnerf_core.intake import (
+        downscaled,
+        load_photo,
+        mask_overlay,
+        photo_masks,
+        shrunk_mask,
+        with_focal,
+    )
+    from cadnerf_core.retrieval import retrieve
 
     folder = JobFolder(job_dir)
     inputs = folder.photos()
@@ -114,8 +118,8 @@ def training_data(intake: Intake, config: PipelineConfig, margin: float,
     (``intake.photos.doubt_weights``: pixels where a learned mask is in doubt weigh
     ``masks.doubt_weight``)."""
     from cadnerf_core.intake.photos import canonical_views, doubt_weights
+    from cadnerf_core.nerf import TrainData
     from cadnerf_core.nerf.epipolar import match_terms
-    from cadnerf_core.nerf.state import TrainData
 
     kept = intake.retrieval.kept
     photos = [intake.photos[m.index] for m in kept]
@@ -148,8 +152,7 @@ def _initial_state(library: Library, model_id: str, c2w_init: np.ndarray,
                    config: PipelineConfig, device: torch.device,
                    learn_focal: bool = False) -> TrainState:
     """Fresh networks; the skip grid from the CAD occupancy (full without CAD init)."""
-    from cadnerf_core.nerf.grid import grid_from_occupancy
-    from cadnerf_core.nerf.state import TrainState
+    from cadnerf_core.nerf import TrainState, grid_from_occupancy
 
     rcfg = config.render
     grid = None
@@ -179,7 +182,7 @@ def _resume(job_dir: Path, c2w_init: np.ndarray, config: PipelineConfig,
 
 def _run_phase(phase: int, state: TrainState, library: Library, model_id: str,
                data: TrainData, progress: Progress) -> None:
-    from cadnerf_core.library.occupancy import sample_occupancy
+    from cadnerf_core.library import sample_occupancy
     from cadnerf_core.nerf import phases
 
     cfg = state.config
@@ -206,7 +209,7 @@ def train(job_dir: Path, library: Library, retrieval: RetrievalResult, data: Tra
     """
     import torch
 
-    from cadnerf_core.nerf.checkpoint import save_checkpoint
+    from cadnerf_core.nerf import save_checkpoint
 
     kept = retrieval.kept
     c2w_init = np.stack([m.c2w for m in kept])
@@ -249,8 +252,8 @@ def run_job(job_dir: Path, library: Library, progress: Progress | None = None,
     Raises:
         InputError: unusable photos, masks or configuration. JobCancelled: cancelled.
     """
-    from cadnerf_core.export.artifacts import export_job
-    from cadnerf_core.nerf.model import TrainedModel, resolve_device
+    from cadnerf_core.export import export_job
+    from cadnerf_core.nerf import TrainedModel, resolve_device
 
     job_dir = Path(job_dir)
     progress = progress or Progress()
@@ -314,7 +317,7 @@ def robust_start(job_dir: Path, intake: Intake, library: Library, config: Pipeli
     an earlier run of this job wrote (kept when they cover the same hypotheses)."""
     if not intake.retrieval.alternatives:
         return intake
-    from cadnerf_core.cameras.start import choose_start
+    from cadnerf_core.cameras import choose_start
 
     chosen = choose_start(intake.retrieval, intake.photos, intake.masks, library, config,
                           device, learn_focal, progress, recorded)
@@ -327,7 +330,7 @@ def with_focal_scale(retrieval: RetrievalResult, data: TrainData,
     """The retrieval's cameras and the training crops' intrinsics with their focal lengths
     times the learned ``scale`` (``Phase2Config.focal_bound``), so every view, the orbit and
     ``poses.json`` / ``transforms.json`` use the refined focal length."""
-    from cadnerf_core.cameras.conventions import scale_focal
+    from cadnerf_core.cameras import scale_focal
 
     if scale == 1.0:
         return retrieval, data

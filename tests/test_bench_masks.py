@@ -91,7 +91,7 @@ def test_walk_scores_rank_the_model_the_masks_were_drawn_from_first(tiny_library
                                      ["mug", "chair_wood"])
     assert scores[0] > scores[1]
     # The mug alone scores what retrieval over the whole library scores when it picks the mug.
-    from cadnerf_core.retrieval.retrieve import retrieve
+    from cadnerf_core.retrieval.search import retrieve
 
     whole = retrieve(masks, names, lib, images=images)
     assert whole.model_id == "mug"

@@ -39,7 +39,8 @@ def test_the_service_never_imports_torch(code: str) -> None:
              "cadnerf_core.progress", "cadnerf_core.errors", "cadnerf_core.config_bounds",
              "cadnerf_core.config_retrieval", "cadnerf_core.config_matches",
              "cadnerf_core.config_client", "cadnerf_core.job_warnings", "cadnerf_core.intake",
-             "cadnerf_core.intake.limits"}  # the contracts the service shares with the core
+             "cadnerf_core.intake.limits",
+             "cadnerf_core.facade"}  # the contracts the service shares with the core
     assert not {m for m in modules if m.startswith("cadnerf_core.")} - light
 
 
@@ -121,3 +122,23 @@ def test_redis_key_names_are_spelled_in_one_place() -> None:
     for script in _strings(ROOT / "app" / "state" / "scripts.py"):
         if "redis.call" in script:
             assert "cadnerf" not in script and ".." not in script, script
+
+
+STAGES = ("intake", "library", "retrieval", "cameras", "nerf", "export", "evaluation", "mesh")
+
+
+@pytest.mark.parametrize("stage", STAGES)
+def test_each_stage_names_its_public_functions_and_loads_them_on_use(stage: str) -> None:
+    import importlib
+
+    package = importlib.import_module(f"cadnerf_core.{stage}")
+    assert package.__all__ and set(package.__all__) <= set(dir(package))
+    for name in package.__all__:
+        assert callable(getattr(package, name)) or name.isupper(), name
+    with pytest.raises(AttributeError, match="no attribute"):
+        _ = package.not_a_public_name
+    # Importing the facade loads none of its modules (nor torch) until a name is used.
+    modules = _modules_after(f"import cadnerf_core.{stage}")
+    assert "torch" not in _top(modules)
+    loaded = {m for m in modules if m.startswith(f"cadnerf_core.{stage}.")}
+    assert loaded <= {"cadnerf_core.cameras.conventions"}, loaded

@@ -35,7 +35,7 @@ from worker.shutdown import STOPPING
 from worker.webhook import send_webhook
 
 if TYPE_CHECKING:
-    from cadnerf_core.library.format import Library
+    from cadnerf_core.library import Library
 
 log = logging.getLogger(__name__)
 
@@ -50,7 +50,7 @@ Outcome = tuple[JobState, str | None, ErrorDetail | None]  # final state, error,
 @lru_cache(maxsize=2)
 def get_library(root: str) -> Library:
     """The CAD library, loaded once per worker process."""
-    from cadnerf_core.library.format import load_library
+    from cadnerf_core.library import load_library
 
     return load_library(Path(root))
 

@@ -1,20 +1,20 @@
-"""Points the photos share: SIFT matches between every pair, checked by epipolar geometry.
+"""Points the photos share: features matched between every pair, checked by epipolar geometry.
 
 Silhouettes cannot tell which way round a walk went on an object that looks alike from
 mirrored sides (a bottle, a mug, a lamp), but its texture can: a label, a print, wood grain.
-Each photo's SIFT features (OpenCV, no learned weights) are found inside its mask (dilated a
-little, so features on the outline count), on a crop of the object's bounding box downscaled
-to ``MatchesConfig.size`` pixels on its long side, so ten 12-megapixel photos cost seconds;
-and, with their own share, round it (``MatchesConfig.context``): the table, placemat or floor
-the object stands on stays put while the camera walks round, and shares points between photos
-where a polished or plain object has none of its own.
-Every pair is matched by nearest descriptors (Lowe's ratio test, kept only when mutual) and
-the matches are checked by RANSAC on the essential matrix with a focal-length estimate; the
+Each photo's features are found inside its mask (dilated a little, so features on the outline
+count), on a crop of the object's bounding box scaled to ``MatchesConfig.size`` pixels on its
+long side, and, with their own share, round it (``MatchesConfig.context``: the table or floor
+the object stands on shares points between photos where a polished or plain object has none).
+By default they are XFeat's learned features, matched by LighterGlue between the photos the walk
+makes close and by mutual nearest descriptors between the others (``cameras.learned``); SIFT
+with Lowe's ratio test (OpenCV, no learned weights) where ``MatchesConfig.method`` asks. Every
+pair's matches are checked by RANSAC on the essential matrix with a focal-length estimate; the
 surviving inliers give the pair's relative rotation (``cv2.recoverPose``).
 
 Between two photos taken walking round an upright object, that rotation is a turn about the
 object's vertical axis: by the walking step, positive when the library azimuth increases
-(the camera orbits counter-clockwise seen from above, ``cameras.spherical_position``).
+(the camera orbits counter-clockwise seen from above, ``conventions.spherical_position``).
 """
 
 from __future__ import annotations

@@ -113,7 +113,7 @@ def job_pairs(folder: JobFolder, inputs: Sequence[InputPhoto], images: Sequence[
     same photos, settings and focal lengths, else matched (``retrieve.photo_pairs``), stored,
     and each neighbouring pair's picture written. None when the job does not match photos
     (``matches.enabled`` off, or the paper's solver)."""
-    from cadnerf_core.retrieval.retrieve import photo_pairs
+    from cadnerf_core.retrieval.search import photo_pairs
 
     if not config.matches.enabled or config.solver != "dp":
         return None

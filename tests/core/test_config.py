@@ -207,7 +207,7 @@ def test_config_module_does_not_import_torch() -> None:
 def test_one_retrieval_config_for_jobs_and_retrieve() -> None:
     """The job's ``retrieval`` section is what ``retrieve`` takes: its internals are settable
     from a job and the bounds are one set."""
-    from cadnerf_core.retrieval import retrieve as module
+    from cadnerf_core.retrieval import search as module
 
     cfg = internal_config("preview", {"retrieval.spread_weight": 0.0, "retrieval.walk": "cw"})
     assert type(cfg.retrieval) is RetrievalConfig

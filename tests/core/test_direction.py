@@ -12,7 +12,7 @@ from cadnerf_core.config import RetrievalConfig
 from cadnerf_core.intake.photos import canonical_masks
 from cadnerf_core.mesh.renderer import MeshRenderer
 from cadnerf_core.retrieval.posesearch import cyclic_dp
-from cadnerf_core.retrieval.retrieve import direction_evidence
+from cadnerf_core.retrieval.search import direction_evidence
 from cadnerf_core.retrieval.walks import solve_poses
 
 SIZE = 128

@@ -46,7 +46,7 @@ def _intake(job_dir: Path, library: Any) -> Any:
 
 def test_matches_are_kept_pictured_and_fused(tmp_path: Path, tiny_library: Any,
                                              monkeypatch: pytest.MonkeyPatch) -> None:
-    from cadnerf_core.retrieval import retrieve
+    from cadnerf_core.retrieval import search as retrieve
 
     folder = _job(tmp_path, textured=True)
     intake = _intake(tmp_path, tiny_library)

@@ -25,7 +25,7 @@ from cadnerf_core.cameras.matches import (
 )
 from cadnerf_core.config import MatchesConfig, RetrievalConfig
 from cadnerf_core.mesh.renderer import MeshRenderer
-from cadnerf_core.retrieval.retrieve import retrieve
+from cadnerf_core.retrieval.search import retrieve
 
 SIZE = 256
 FOV = 40.0

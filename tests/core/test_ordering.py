@@ -18,7 +18,7 @@ from cadnerf_core.retrieval.ordering import (
     same_cycle,
     walk_score,
 )
-from cadnerf_core.retrieval.retrieve import retrieve
+from cadnerf_core.retrieval.search import retrieve
 from tests.core.test_retrieval import _walk
 
 

@@ -9,8 +9,8 @@ import numpy as np
 import pytest
 
 from cadnerf_core.config import RetrievalConfig
-from cadnerf_core.retrieval.retrieve import retrieve
 from cadnerf_core.retrieval.scoring import azimuth_bins, iou_table, vote_models
+from cadnerf_core.retrieval.search import retrieve
 
 
 def test_iou_table_equals_a_naive_loop() -> None:
