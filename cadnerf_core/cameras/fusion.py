@@ -28,6 +28,7 @@ import cv2
 import numpy as np
 
 from cadnerf_core.cameras.conventions import rotation_angle_deg, scale_focal
+from cadnerf_core.cameras.mapper import Mapped
 from cadnerf_core.cameras.matches import PairMatch
 from cadnerf_core.retrieval.result import PhotoMatch, RetrievalResult
 
@@ -51,6 +52,9 @@ FOCAL_FACTORS = tuple(float(f) for f in np.geomspace(0.5, 2.0, 13))
 """Factors on the retrieved focal length tried where no photo's own is known."""
 FOCAL_MARGIN_DEG = 1.0
 """How much nearer the retrieved cameras another focal length must fuse them to be taken."""
+MAPPED_WEIGHT = 4.0
+"""Weight of a relative rotation between two photos the mapper registered (a pair's own is at
+most 1): bundle adjusted over every match those photos share, it is the surest edge."""
 
 
 @dataclass(frozen=True)
@@ -67,13 +71,15 @@ class Fusion:
     moved_deg: float
     residual_deg: float
     focal_factor: float = 1.0
+    mapped: tuple[int, ...] = ()
+    """Photos whose cameras the mapper registered, joined as one rigid set."""
 
     def to_json(self) -> dict[str, object]:
         """JSON-ready summary."""
         return {"photos": self.photos, "pairs": self.pairs, "dropped": self.dropped,
                 "moved_deg": round(self.moved_deg, 2),
                 "residual_deg": round(self.residual_deg, 2),
-                "focal_factor": round(self.focal_factor, 4)}
+                "focal_factor": round(self.focal_factor, 4), "mapped": list(self.mapped)}
 
 
 def project_rotation(M: np.ndarray) -> np.ndarray:
@@ -304,8 +310,18 @@ def focal_factor(retrieval: RetrievalResult, pairs: Sequence[PairMatch],
     return best, moved[best], moved[1.0]
 
 
+def mapped_edges(mapped: Mapped, photos: Sequence[int]) -> dict[tuple[int, int], np.ndarray]:
+    """The relative rotation ``R_ij`` (``W_j ~ R_ij W_i``, world-to-camera) between every two of
+    ``photos`` the mapper registered, from its cameras."""
+    row = {photo: k for k, photo in enumerate(mapped.photos)}
+    inside = sorted(p for p in photos if p in row)
+    W = {p: mapped.c2w[row[p], :3, :3].T for p in inside}
+    return {(i, j): W[j] @ W[i].T for a, i in enumerate(inside) for j in inside[a + 1:]}
+
+
 def fuse(retrieval: RetrievalResult, pairs: Sequence[PairMatch],
-         min_inliers: int, search_focal: bool = False) -> tuple[RetrievalResult, Fusion | None]:
+         min_inliers: int, search_focal: bool = False,
+         mapped: Mapped | None = None) -> tuple[RetrievalResult, Fusion | None]:
     """The retrieval with its kept photos' cameras fused with the pairs' rotations.
 
     Args:
@@ -313,8 +329,10 @@ def fuse(retrieval: RetrievalResult, pairs: Sequence[PairMatch],
         pairs: verified matches between the photos (as given), with rotations where known.
         min_inliers: fewest inliers of a pair used (``MatchesConfig.min_inliers``).
         search_focal: no photo's focal length is known: the pairs' rotations are taken at the
-            focal length ``focal_factor`` finds, which every camera then gets; else at the
-            retrieved one (the photos' own).
+            focal length ``focal_factor`` finds (the mapper's, given ``mapped``), which every
+            camera then gets; else at the retrieved one (the photos' own).
+        mapped: the mapper's cameras of some of the photos (``mapper.complete`` false): their
+            relative rotations join the pairs' as edges of weight ``MAPPED_WEIGHT``.
     Returns:
         The retrieval with fused ``c2w`` (the other fields as retrieved, but the focal length),
         and what fusing did; when fewer than ``MIN_PHOTOS`` kept photos are connected by usable
@@ -326,11 +344,15 @@ def fuse(retrieval: RetrievalResult, pairs: Sequence[PairMatch],
     weights = {(p.i, p.j): min(1.0, p.inliers / (4.0 * min_inliers)) for p in usable}
     factor = 1.0
     if search_focal:
-        factor, _, _ = focal_factor(retrieval, usable, min_inliers)
+        factor = (focal_factor(retrieval, usable, min_inliers)[0] if mapped is None
+                  else mapped.focal / float(retrieval.matches[0].K_photo[0, 0]))
         edges = _rotations_at(usable, _fundamentals(usable),
                               {i: scale_focal(m.K_photo, factor) for i, m in kept.items()})
     else:
         edges = {(p.i, p.j): np.asarray(p.rotation) for p in usable}
+    rigid = {} if mapped is None else mapped_edges(mapped, list(kept))
+    edges.update(rigid)
+    weights.update({edge: MAPPED_WEIGHT for edge in rigid})
     solved = _solve(kept, edges, weights)
     if solved is None:
         return dataclasses.replace(retrieval, fusion={"photos": [], "pairs": len(edges)}), None
@@ -346,7 +368,8 @@ def fuse(retrieval: RetrievalResult, pairs: Sequence[PairMatch],
     matches = moved_to(scaled_focal(retrieval.matches, factor), cameras)
     summary = Fusion(solved.photos, len(solved.used), solved.dropped,
                      float(np.median(solved.moved)),
-                     float(np.median(residual)) if residual else 0.0, factor)
+                     float(np.median(residual)) if residual else 0.0, factor,
+                     tuple(sorted({p for edge in rigid for p in edge} & set(solved.photos))))
     log.info("fused %d cameras with %d pairs' rotations (%d dropped): moved %.1f deg "
              "(median), pairs within %.1f deg; focal length x%.2f", len(solved.photos),
              summary.pairs, summary.dropped, summary.moved_deg, summary.residual_deg, factor)
@@ -359,26 +382,27 @@ come from silhouettes alone though the photos share points (``job_warnings``).""
 
 
 def fuse_hypotheses(retrieval: RetrievalResult, min_inliers: int,
-                    search_focal: bool = False) -> RetrievalResult:
+                    search_focal: bool = False, mapped: Mapped | None = None) -> RetrievalResult:
     """``fuse`` applied to the retrieval and to each of its alternatives, with its own pairs
     (``search_focal``: the focal length found on the retrieval serves them all). Where the
     pairs moved the retrieved cameras, the retrieval as it was stays among the alternatives:
     pairs matched wrongly that still agree with each other pull every fused hypothesis off,
-    and the start's silhouette fit (``nerf.start``) then tells."""
-    fused, summary = fuse(retrieval, retrieval.pairs, min_inliers, search_focal)
+    and the start's silhouette fit (``start``) then tells. ``mapped``: the mapper's cameras of
+    some of the photos, a rigid set in every hypothesis."""
+    fused, summary = fuse(retrieval, retrieval.pairs, min_inliers, search_focal, mapped)
     factor = 1.0 if summary is None else summary.focal_factor
     others = []
     for other in retrieval.alternatives:
         other = dataclasses.replace(other, matches=scaled_focal(other.matches, factor))
-        others.append(_fuse_at(other, retrieval.pairs, min_inliers) if search_focal
-                      else fuse(other, retrieval.pairs, min_inliers)[0])
+        others.append(_fuse_at(other, retrieval.pairs, min_inliers, mapped) if search_focal
+                      else fuse(other, retrieval.pairs, min_inliers, mapped=mapped)[0])
     if summary is not None and others:  # where the job weighs hypotheses at all
         others.append(dataclasses.replace(retrieval, alternatives=[], fusion=dict(SET_ASIDE)))
     return dataclasses.replace(fused, alternatives=others)
 
 
 def _fuse_at(retrieval: RetrievalResult, pairs: Sequence[PairMatch],
-             min_inliers: int) -> RetrievalResult:
+             min_inliers: int, mapped: Mapped | None = None) -> RetrievalResult:
     """``fuse`` with the pairs' rotations taken at the retrieval's own focal length."""
     kept = {m.index: m for m in retrieval.kept}
     usable = [p for p in pairs if p.rotation is not None and p.inliers >= min_inliers
@@ -387,7 +411,7 @@ def _fuse_at(retrieval: RetrievalResult, pairs: Sequence[PairMatch],
                               {i: m.K_photo for i, m in kept.items()})
     at_focal = [dataclasses.replace(p, rotation=rotations[(p.i, p.j)]) for p in usable
                 if (p.i, p.j) in rotations]
-    return fuse(retrieval, at_focal, min_inliers)[0]
+    return fuse(retrieval, at_focal, min_inliers, mapped=mapped)[0]
 
 
 def pairs_at_focal(retrieval: RetrievalResult) -> RetrievalResult:

@@ -5,12 +5,14 @@ better and the focal length to a few percent, which silhouettes against a librar
 The verified pairs become a COLMAP database (each photo's inlier keypoints, the pairs' inlier
 matches, their geometry marked verified); ``pycolmap.incremental_mapping`` registers the
 photos, triangulates the points the matches share over three and more photos, and bundle
-adjusts. Its cameras are accepted only when the mapper registers every photo given in one
-model (but ``MAX_UNREGISTERED``, which the job then leaves out) with a small reprojection
-error and a plausible lens (``accept``); the job then starts
-from them, carried into the CAD model's frame by ``placement.place`` (the rotation that fits
-the retrieved cameras best, the centres moved onto the retrieved cameras' look-at positions).
-Elsewhere (photos 45 degrees and more apart, little texture) the fused retrieved cameras stay.
+adjusts. Its cameras are trusted with a small reprojection error and a plausible lens
+(``accept``). Where it registers every photo (but ``MAX_UNREGISTERED``, which the job then
+leaves out: ``complete``) the job starts from them, carried into the CAD model's frame by
+``placement.place`` (the rotation that fits the retrieved cameras best, the centres moved onto
+the retrieved cameras' look-at positions). Where it registers three or more but not all (photos
+45 degrees and more apart, little texture), those photos join the fusion with the retrieved
+cameras as one rigid set (``fusion.fuse``): what the mapper found is kept, the rest placed by
+the pairs and the silhouettes.
 """
 
 from __future__ import annotations
@@ -106,8 +108,8 @@ def map_photos(pairs: Sequence[PairMatch], sizes: Sequence[tuple[int, int]],
         focal_known: keep it fixed (EXIF) rather than refine it.
         min_inliers: fewest inliers of a pair given to the mapper.
     Returns:
-        The mapper's cameras of the photos it registered in its largest model, or None when it
-        left out more than ``MAX_UNREGISTERED``.
+        The mapper's cameras of the photos it registered in its largest model (``complete``
+        says whether that is all of them), or None when it registered fewer than three.
     """
     import pycolmap
 
@@ -160,7 +162,7 @@ def map_photos(pairs: Sequence[PairMatch], sizes: Sequence[tuple[int, int]],
         return None
     model = max(models.values(), key=lambda m: m.num_reg_images())
     log.info("mapper: %d of %d photos registered", model.num_reg_images(), n)
-    if model.num_reg_images() < max(3, n - MAX_UNREGISTERED):
+    if model.num_reg_images() < 3:
         return None
     photos, cameras = [], []
     for image in sorted(model.images.values(), key=lambda image: int(image.name)):
@@ -176,9 +178,15 @@ def map_photos(pairs: Sequence[PairMatch], sizes: Sequence[tuple[int, int]],
                   int(model.num_points3D()), float(model.compute_mean_reprojection_error()))
 
 
+def complete(mapped: Mapped, n_photos: int) -> bool:
+    """Whether the mapper registered every photo but ``MAX_UNREGISTERED``: its cameras are the
+    start (``placement``); fewer join the fusion as a rigid set (``fusion.fuse``)."""
+    return len(mapped.photos) >= max(3, n_photos - MAX_UNREGISTERED)
+
+
 def accept(mapped: Mapped | None, long_side: int) -> bool:
-    """Whether the mapper's cameras are trusted: every photo registered (``map_photos``), a
-    reprojection error under ``MAX_REPROJECTION_PX``, little radial distortion, a plausible
+    """Whether the mapper's cameras are trusted: a reprojection error under
+    ``MAX_REPROJECTION_PX``, little radial distortion, a plausible
     focal length, ``MIN_POINTS_PER_PHOTO`` points."""
     if mapped is None:
         return False

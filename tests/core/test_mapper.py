@@ -11,12 +11,14 @@ import numpy as np
 import pytest
 
 from cadnerf_core.cameras.conventions import orbit_pose, pose_errors, project, rotation_angle_deg
+from cadnerf_core.cameras.fusion import fuse
 from cadnerf_core.cameras.mapper import (
     MIN_INLIER_SHARE,
     MIN_POINTS_PER_PHOTO,
     Mapped,
     _keypoints,
     accept,
+    complete,
     map_photos,
     mapper_pairs,
 )
@@ -94,10 +96,15 @@ def test_a_pair_whose_geometry_explains_few_of_its_matches_is_not_mapped() -> No
     assert mapper_pairs([good, chance, few, unverified], 20) == [good]
 
 
-def test_too_few_shared_points_register_no_walk() -> None:
+def test_photos_that_share_nothing_are_not_registered_and_the_rest_kept() -> None:
     truth = _truth()
-    pairs = [p for p in _pairs(truth) if p.j == p.i + 1 and p.i < 3]  # photos 4-7: nothing
-    assert map_photos(pairs, [SIZE] * N, K_TRUE[0, 0], True, 20) is None
+    pairs = [p for p in _pairs(truth) if p.j <= 3]  # photos 4-7 share nothing
+    mapped = map_photos(pairs, [SIZE] * N, K_TRUE[0, 0], True, 20)
+    assert mapped is not None and mapped.photos == [0, 1, 2, 3]
+    assert not complete(mapped, N) and complete(mapped, 5)
+    assert np.median(pose_errors(mapped.c2w, truth[:4])[0]) < 1.0
+    two = [p for p in pairs if p.j == 1]  # two photos: no walk to register
+    assert map_photos(two, [SIZE] * N, K_TRUE[0, 0], True, 20) is None
     assert map_photos(_pairs(truth), [SIZE] * (N - 1) + [(480, 640)], K_TRUE[0, 0], True,
                       20) is None  # photos of another size share no camera
 
@@ -152,3 +159,44 @@ def test_one_photo_the_mapper_leaves_out_is_left_out_of_training() -> None:
     assert [m.discarded for m in placed.matches] == [False] * (N - 1) + [True]
     assert placed.fusion is not None and placed.fusion["unplaced"] == [N - 1]
     assert np.array_equal(placed.matches[-1].c2w, truth[-1])
+
+
+def _noisy(truth: np.ndarray, degrees: float, seed: int) -> list[np.ndarray]:
+    """Each camera turned ``degrees`` about a random axis, at its distance, looking at the
+    centre's side: retrieval's error."""
+    rng = np.random.default_rng(seed)
+    out = []
+    for pose in truth:
+        axis = rng.normal(size=3)
+        turn = cv2.Rodrigues(axis / np.linalg.norm(axis) * np.radians(degrees))[0]
+        noisy = np.eye(4)
+        noisy[:3, :3] = pose[:3, :3] @ turn
+        noisy[:3, 3] = -np.linalg.norm(pose[:3, 3]) * noisy[:3, 2]
+        out.append(noisy)
+    return out
+
+
+def test_the_photos_a_partial_mapper_registered_join_the_fusion_as_one_rigid_set() -> None:
+    truth = _truth()
+    pairs = [p for p in _pairs(truth) if p.j <= 3]  # photos 4-7 share nothing
+    mapped = map_photos(pairs, [SIZE] * N, K_TRUE[0, 0], True, 20)
+    assert mapped is not None and mapped.photos == [0, 1, 2, 3]
+    matches = [PhotoMatch(k, f"p{k}", k, 0.0, 0.0, 0.9, False, c2w, K_TRUE,
+                          CropBox(0, 0, 480, 128), K_TRUE)
+               for k, c2w in enumerate(_noisy(truth, 12.0, 3))]
+    retrieval = RetrievalResult("m", "c", [], matches, "dp", 1, 1.0)
+    alone, _ = fuse(retrieval, [], 20)  # no pairs: the retrieved cameras stay
+    fused, summary = fuse(retrieval, [], 20, mapped=mapped)
+    assert summary is not None and list(summary.mapped) == [0, 1, 2, 3]
+    assert fused.fusion is not None and fused.fusion["mapped"] == [0, 1, 2, 3]
+    poses = np.stack([m.c2w for m in fused.matches])
+    for i in range(3):  # the mapper's relative rotations, kept
+        rel = poses[i + 1, :3, :3].T @ poses[i, :3, :3]
+        truth_rel = truth[i + 1, :3, :3].T @ truth[i, :3, :3]
+        assert rotation_angle_deg((rel.T @ truth_rel)[None])[0] < 1.0
+    assert np.array_equal(poses[5], matches[5].c2w)  # a photo nothing places keeps its own
+    before = rotation_angle_deg(np.stack([m.c2w[:3, :3].T @ t[:3, :3]
+                                          for m, t in zip(alone.matches[:4], truth[:4], strict=True)]))
+    after = rotation_angle_deg(np.stack([p[:3, :3].T @ t[:3, :3]
+                                         for p, t in zip(poses[:4], truth[:4], strict=True)]))
+    assert np.median(after) < 0.6 * np.median(before)  # four errors average in the anchor
