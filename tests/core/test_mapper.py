@@ -195,8 +195,9 @@ def test_the_photos_a_partial_mapper_registered_join_the_fusion_as_one_rigid_set
         truth_rel = truth[i + 1, :3, :3].T @ truth[i, :3, :3]
         assert rotation_angle_deg((rel.T @ truth_rel)[None])[0] < 1.0
     assert np.array_equal(poses[5], matches[5].c2w)  # a photo nothing places keeps its own
-    before = rotation_angle_deg(np.stack([m.c2w[:3, :3].T @ t[:3, :3]
-                                          for m, t in zip(alone.matches[:4], truth[:4], strict=True)]))
+    start = [m.c2w for m in alone.matches[:4]]
+    before = rotation_angle_deg(np.stack([c[:3, :3].T @ t[:3, :3]
+                                          for c, t in zip(start, truth[:4], strict=True)]))
     after = rotation_angle_deg(np.stack([p[:3, :3].T @ t[:3, :3]
                                          for p, t in zip(poses[:4], truth[:4], strict=True)]))
     assert np.median(after) < 0.6 * np.median(before)  # four errors average in the anchor
