@@ -32,6 +32,14 @@ FOCAL_UNKNOWN_WARNING = (
 """No photo's focal length was known and the mapper did not measure it (``focal_guessed``)."""
 
 
+def outlines_alone_warning(names: Sequence[str]) -> str:
+    """Some photos' cameras rest on their outlines alone while the others share points."""
+    listed = ", ".join(names)
+    return (f"The cameras of {listed} rest on their outlines alone (the other photos share "
+            "points): retake those from between their neighbours, about 30 degrees from each, "
+            "with the object's print or grain in view.")
+
+
 def direction_guess_hint(direction: int) -> str:
     """The walking direction was a guess (``RetrievalResult.direction_ambiguous``): the way
     round it was taken (``direction`` +1 counter-clockwise seen from above, -1 clockwise) and
@@ -110,4 +118,11 @@ def job_warnings(retrieval: dict[str, Any], names: Sequence[str],
         warnings.append(MATCHES_SET_ASIDE_WARNING)
     elif isinstance(fusion, dict) and not fusion.get("photos") and len(small) < len(names):
         warnings.append(MATCHES_FEW_WARNING)  # not where every photo was too small to match
+    elif isinstance(fusion, dict):
+        from cadnerf_core.cameras.confidence import camera_placements
+
+        alone = [names[p.index] for p in camera_placements(retrieval)
+                 if p.placed == "silhouettes" and 0 <= p.index < len(names)]
+        if alone:
+            warnings.append(outlines_alone_warning(alone))
     return warnings

@@ -37,20 +37,27 @@ if TYPE_CHECKING:
 def poses_json(model: TrainedModel, retrieval: RetrievalResult,
                sizes: dict[int, tuple[int, int]],
                scales: dict[int, float] | None = None) -> list[dict[str, Any]]:
-    """Per photo: name, refined and initial c2w, IoU, discarded, K (crop and photo pixels),
-    and the photo's width and height (``sizes``: photo index -> (width, height) as uploaded).
+    """Per photo: name, refined and initial c2w, IoU, discarded, how its camera was placed and
+    a confidence (``cameras.confidence``; None for a discarded photo), K (crop and photo
+    pixels), and the photo's width and height (``sizes``: photo index -> (width, height) as
+    uploaded).
 
     ``scales``: per photo index, uploaded pixels per working pixel (``Photo.scale``), so that
     ``K_photo`` holds for the photo as uploaded; None: 1.
     """
+    from cadnerf_core.cameras.confidence import camera_placements
     from cadnerf_core.intake.crop import uncrop_intrinsics
 
     refined = dict(zip([m.index for m in retrieval.kept], model.c2w, strict=True))
+    placed = {p.index: p for p in camera_placements(retrieval.to_json())}
     out = []
     for m in retrieval.matches:
         pose = refined.get(m.index)
         width, height = sizes[m.index]
+        how = placed.get(m.index)
         out.append({"name": m.name, "index": m.index, "discarded": m.discarded, "iou": m.iou,
+                    "placed": None if how is None else how.placed,
+                    "confidence": None if how is None else how.confidence,
                     "c2w": None if pose is None else pose.tolist(),
                     "c2w_initial": m.c2w.tolist(), "library_view": m.view,
                     "K_canonical": m.K_canon.tolist(), "canonical_size": m.box.size,
