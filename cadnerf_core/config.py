@@ -206,8 +206,12 @@ class ExportConfig(_Frozen):
     """Occupancy level of the extracted surface."""
     mesh_faces: int = Field(default=20000, ge=100, le=200_000)
     """Triangles mesh.glb is decimated to (fewer when marching cubes gives fewer)."""
-    texture_size: int = Field(default=1024, ge=16, le=2048)
-    """Side in pixels of the mesh's baked colour texture."""
+    texture_size: int = Field(default=2048, ge=16, le=4096)
+    """Side in pixels of the mesh's colour texture."""
+    texture_from_photos: bool = True
+    """Colour the mesh's texture from the photos themselves (each texel from the photos that
+    see it, at their own resolution, exposures matched; ``export.photo_texture``), the field's
+    colour only where no photo sees the surface; false: the field's colour everywhere."""
 
     @model_validator(mode="after")
     def _even(self) -> ExportConfig:

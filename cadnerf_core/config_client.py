@@ -49,6 +49,8 @@ CLIENT_SETTINGS: dict[str, str] = {
     "export.mesh_resolution": "Marching-cubes grid side of the mesh: more is finer and slower.",
     "export.mesh_faces": "Triangles the mesh is simplified to.",
     "export.texture_size": "Side in pixels of the mesh's colour texture.",
+    "export.texture_from_photos": "Colour the mesh from the photos themselves; false: from "
+                                  "the learned field.",
 }
 """Every setting a client may send, by dotted path, with its one-line description."""
 

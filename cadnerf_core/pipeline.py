@@ -278,7 +278,8 @@ def run_job(job_dir: Path, library: Library, progress: Progress | None = None,
         extra["timings"].update(intake_s=intake_s, start_s=start_s)
         model = TrainedModel(state, extra)
         retrieval, data = with_focal_scale(intake.retrieval, data, state.focal_scale())
-        return export_job(job_dir, model, retrieval, intake.photos, data, progress)
+        return export_job(job_dir, model, retrieval, intake.photos, data, progress,
+                          intake.masks)
     finally:
         _detach_log(handler)
 

@@ -22,6 +22,7 @@ from cadnerf_core.export.bundle import (
     write_bundle,
 )
 from cadnerf_core.export.mesh import EXPORT_STEPS, export_mesh
+from cadnerf_core.export.photo_texture import photo_views
 from cadnerf_core.export.renders import novel_cameras, render_orbit, render_views
 from cadnerf_core.jobfolder import (
     JobFolder,
@@ -96,7 +97,8 @@ def metrics_json(model: TrainedModel, retrieval: RetrievalResult,
 
 
 def export_job(job_dir: Path, model: TrainedModel, retrieval: RetrievalResult,
-               photos: list[Any], data: TrainData, progress: Progress) -> dict[str, Any]:
+               photos: list[Any], data: TrainData, progress: Progress,
+               masks: list[np.ndarray] | None = None) -> dict[str, Any]:
     """Write every artifact of a trained job and return the service's summary.
 
     Timings of each part land in ``metrics.json`` (``timings_s``: ``views_s``, ``orbit_s``,
@@ -104,7 +106,9 @@ def export_job(job_dir: Path, model: TrainedModel, retrieval: RetrievalResult,
 
     Args:
         photos: the job's photos (cadnerf_core.intake.photos.Photo), for their pixel sizes as
-            uploaded (working size times ``scale``).
+            uploaded (working size times ``scale``), and their pixels for the mesh's texture.
+        masks: per photo, its object mask [H, W] bool at working size (``Intake.masks``), so
+            the texture reads only the object; None: the photos' own (``Photo.mask``).
     """
     import time
 
@@ -124,7 +128,8 @@ def export_job(job_dir: Path, model: TrainedModel, retrieval: RetrievalResult,
     render_orbit(job_dir, model, data, progress, n_views, total)
     lap("orbit_s")
     progress.step("export", 0, EXPORT_STEPS)
-    mesh = export_mesh(job_dir, model, progress)
+    seen_by = photo_views(model, retrieval, photos, masks) if ecfg.texture_from_photos else []
+    mesh = export_mesh(job_dir, model, progress, seen_by)
     lap("mesh_s")
     sizes = {i: tuple(p.size) for i, p in enumerate(photos)}
     poses = poses_json(model, retrieval, sizes, {i: float(p.scale) for i, p in enumerate(photos)})

@@ -1,5 +1,5 @@
 """The mesh: marching cubes on the learned density, its specks dropped, decimated, textured from
-the colour field.
+the photos (``photo_texture``) and, where no photo sees it, from the colour field.
 
 Written as ``mesh.glb`` (binary glTF 2.0: +Y up as glTF wants, which is our world's up; one
 unit = the radius of the object's bounding sphere, not metres, as ``poses.json`` says) and as
@@ -9,13 +9,15 @@ unit = the radius of the object's bounding sphere, not metres, as ``poses.json``
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
+from functools import partial
 from pathlib import Path
 from typing import TYPE_CHECKING
 
 import numpy as np
 import trimesh
 
+from cadnerf_core.export.photo_texture import PhotoView, photo_colours
 from cadnerf_core.export.texture import TexturedMesh, bake_texture, decimate
 from cadnerf_core.export.usdz import write_usdz
 from cadnerf_core.jobfolder import (
@@ -152,11 +154,17 @@ EXPORT_STEPS = 6
 (``export_mesh``), the files for other tools, ``results.zip`` (``artifacts.export_job``)."""
 
 
-def export_mesh(job_dir: Path, model: TrainedModel,
-                progress: Progress | None = None) -> TexturedMesh:
+def export_mesh(job_dir: Path, model: TrainedModel, progress: Progress | None = None,
+                views: Sequence[PhotoView] = ()) -> TexturedMesh:
     """mesh.glb, mesh.obj and mesh.usdz: marching cubes on the learned occupancy, decimated to
-    ``export.mesh_faces`` triangles, its colour baked into an ``export.texture_size`` texture.
-    Returns the textured mesh."""
+    ``export.mesh_faces`` triangles, coloured into an ``export.texture_size`` texture.
+
+    Args:
+        views: the photos with their refined cameras (``photo_texture.photo_views``); with
+            ``export.texture_from_photos`` they colour every texel they see, the field the rest.
+    Returns:
+        The textured mesh.
+    """
     ecfg = model.state.config.export
     check = None if progress is None else progress.check
 
@@ -172,7 +180,9 @@ def export_mesh(job_dir: Path, model: TrainedModel,
     def color(p: np.ndarray, d: np.ndarray) -> np.ndarray:
         return model.colors(p, d, check=check)
 
-    textured = bake_texture(mesh, color, ecfg.texture_size, check)
+    photos = (partial(photo_colours, mesh, views, check=check)
+              if ecfg.texture_from_photos and views else None)
+    textured = bake_texture(mesh, color, ecfg.texture_size, check, photos)
     report(3)  # then checks: before any output, a cancelled or deleted job writes nothing more
     folder = JobFolder(job_dir)
     write_glb(folder.file(MESH), textured)

@@ -19,6 +19,10 @@ from cadnerf_core.export.atlas import unwrap
 ColorFn = Callable[[np.ndarray, np.ndarray], np.ndarray]
 """Colour of points [P, 3] seen along unit directions [P, 3] -> [P, 3] in [0, 1]."""
 
+PhotoFn = Callable[[np.ndarray, np.ndarray], tuple[np.ndarray, np.ndarray]]
+"""Colour the photos give surface points [P, 3] with unit outward normals [P, 3]: rgb [P, 3]
+in [0, 1] and seen [P] bool (``photo_texture.photo_colours``)."""
+
 PADDING = 2
 """Texels between charts in the atlas, so bilinear sampling at a seam stays in its chart."""
 
@@ -135,7 +139,8 @@ def fill_empty(texture: np.ndarray, covered: np.ndarray) -> np.ndarray:
 
 
 def bake_texture(mesh: trimesh.Trimesh, color: ColorFn, size: int,
-                 check: Callable[[], None] | None = None) -> TexturedMesh:
+                 check: Callable[[], None] | None = None,
+                 photos: PhotoFn | None = None) -> TexturedMesh:
     """UV-unwrap ``mesh`` and bake ``color`` (seen head-on, against each point's normal) into a
     ``size`` x ``size`` sRGB texture.
 
@@ -143,6 +148,8 @@ def bake_texture(mesh: trimesh.Trimesh, color: ColorFn, size: int,
         mesh: the (decimated) surface, outward normals.
         color: the radiance field's colour at points seen along directions.
         check: called while the atlas is made (a cancel raises).
+        photos: the photos' colour of the texels; where given, ``color`` only fills the
+            texels no photo sees.
     """
     vertices = np.asarray(mesh.vertices, np.float64)
     normals = np.asarray(mesh.vertex_normals, np.float64)
@@ -155,8 +162,23 @@ def bake_texture(mesh: trimesh.Trimesh, color: ColorFn, size: int,
     rgb = np.zeros((size * size, 3), np.float32)
     covered = np.zeros(size * size, bool)
     if len(texel):
-        rgb[texel] = np.asarray(color(points.astype(np.float32), (-normal).astype(np.float32)))
+        rgb[texel] = _texel_colours(points, normal, color, photos)
         covered[texel] = True
     texture = fill_empty(rgb.reshape(size, size, 3), covered.reshape(size, size))
     texture_u8 = np.round(np.clip(texture, 0.0, 1.0) * 255.0).astype(np.uint8)
     return TexturedMesh(vertices=vertices, faces=faces, uv=uv, texture=texture_u8)
+
+
+def _texel_colours(points: np.ndarray, normal: np.ndarray, color: ColorFn,
+                   photos: PhotoFn | None) -> np.ndarray:
+    """The photos' colour of texels where some photo sees them, the field's elsewhere.
+
+    points, normal [T, 3] -> rgb [T, 3] float32."""
+    if photos is None:
+        return np.asarray(color(points.astype(np.float32), (-normal).astype(np.float32)))
+    rgb, seen = photos(points, normal)
+    rgb = np.array(rgb, np.float32)
+    if not seen.all():
+        rest = ~seen
+        rgb[rest] = color(points[rest].astype(np.float32), (-normal[rest]).astype(np.float32))
+    return rgb

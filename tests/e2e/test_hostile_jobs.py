@@ -53,7 +53,7 @@ NOT_A_SETTING = "not a setting a client may send"
     ({"export.orbit_frames": 720, "export.orbit_size": 2048}, "export.orbit_frames", "240"),
     ({"export.orbit_size": 2048}, "export.orbit_size", "1024"),
     ({"export.mesh_resolution": 512}, "export.mesh_resolution", "256"),
-    ({"export.texture_size": 1e9}, "export.texture_size", "2048"),
+    ({"export.texture_size": 1e9}, "export.texture_size", "4096"),
     ({"image_size": 4096}, "image_size", "1024"),
     ({"seed": 1e23}, "seed", "2147483647"),
     ({"phase1.batch_points": 1e9}, "phase1.batch_points", NOT_A_SETTING),
