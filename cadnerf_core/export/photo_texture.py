@@ -25,6 +25,7 @@ import numpy as np
 import trimesh
 
 if TYPE_CHECKING:
+    from cadnerf_core.mesh.renderer import MeshRenderer
     from cadnerf_core.nerf.model import TrainedModel
     from cadnerf_core.retrieval.result import RetrievalResult
 
@@ -113,20 +114,18 @@ def photo_views(model: TrainedModel, retrieval: RetrievalResult, photos: Sequenc
     return views
 
 
-def _depth_map(mesh: trimesh.Trimesh, view: PhotoView) -> tuple[np.ndarray, float]:
+def _depth_map(renderer: MeshRenderer, view: PhotoView) -> tuple[np.ndarray, float]:
     """The mesh's depth from the photo's camera at ``DEPTH_SIDE`` on the long side.
 
     Returns depth [h, w] float32 (inf where no hit) and the depth-map pixels per photo pixel.
     """
-    from cadnerf_core.mesh.renderer import MeshRenderer
-
     height, width = view.rgb.shape[:2]
     scale = min(1.0, DEPTH_SIDE / max(height, width))
     w, h = max(1, round(width * scale)), max(1, round(height * scale))
     K = np.array(view.K, np.float64)
     K[0] *= w / width
     K[1] *= h / height
-    result = MeshRenderer(mesh).render(K, view.c2w, w, h)
+    result = renderer.render(K, view.c2w, w, h)
     return np.where(result.mask, result.depth, np.inf).astype(np.float32), w / width
 
 
@@ -169,9 +168,9 @@ def _sharpness(rgb: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
     return cv2.resize(energy, shape[::-1], interpolation=cv2.INTER_AREA)
 
 
-def prepare(mesh: trimesh.Trimesh, view: PhotoView) -> _Prepared:
-    """A photo's depth, feather and sharpness maps against ``mesh`` (world frame)."""
-    depth, scale = _depth_map(mesh, view)
+def prepare(renderer: MeshRenderer, view: PhotoView) -> _Prepared:
+    """A photo's depth, feather and sharpness maps against the mesh of ``renderer``."""
+    depth, scale = _depth_map(renderer, view)
     return _Prepared(view=view, w2c=np.linalg.inv(view.c2w), scale=scale, depth=depth,
                      feather=_feather(depth, view.mask),
                      sharpness=_sharpness(view.rgb, depth.shape))
@@ -179,10 +178,11 @@ def prepare(mesh: trimesh.Trimesh, view: PhotoView) -> _Prepared:
 
 def _project(prep: _Prepared, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Points [T, 3] in photo pixels [T, 2] and their camera depth [T]."""
-    cam = points @ prep.w2c[:3, :3].T + prep.w2c[:3, 3]
+    # einsum, not @: BLAS is slow on [T, 3] x [3, 3] products and fights other threads.
+    cam = np.einsum("td,kd->tk", points, prep.w2c[:3, :3]) + prep.w2c[:3, 3]
     z = cam[:, 2]
-    proj = cam @ np.asarray(prep.view.K, np.float64).T
-    return proj[:, :2] / np.where(z > 1e-9, z, 1.0)[:, None], z
+    proj = np.einsum("td,kd->tk", cam, np.asarray(prep.view.K, np.float64)[:2])
+    return proj / np.where(z > 1e-9, z, 1.0)[:, None], z
 
 
 def _lookup(grid: np.ndarray, rows: np.ndarray, cols: np.ndarray) -> np.ndarray:
@@ -359,7 +359,10 @@ def photo_colours(mesh: trimesh.Trimesh, views: Sequence[PhotoView], points: np.
     seen = np.zeros(len(points), bool)
     if not views or not len(points):
         return rgb, seen
-    preps = [prepare(mesh, view) for view in views]
+    from cadnerf_core.mesh.renderer import MeshRenderer
+
+    renderer = MeshRenderer(mesh)
+    preps = [prepare(renderer, view) for view in views]
     gains = _gains(preps, points, normals)
     log.info("photo texture: exposure gains %s", np.round(gains, 3).tolist())
     for start in range(0, len(points), CHUNK):
