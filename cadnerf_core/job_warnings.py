@@ -118,11 +118,12 @@ def job_warnings(retrieval: dict[str, Any], names: Sequence[str],
         warnings.append(MATCHES_SET_ASIDE_WARNING)
     elif isinstance(fusion, dict) and not fusion.get("photos") and len(small) < len(names):
         warnings.append(MATCHES_FEW_WARNING)  # not where every photo was too small to match
-    elif isinstance(fusion, dict):
+    elif isinstance(fusion, dict) and fusion.get("photos"):
         from cadnerf_core.cameras.confidence import camera_placements
 
         alone = [names[p.index] for p in camera_placements(retrieval)
-                 if p.placed == "silhouettes" and 0 <= p.index < len(names)]
+                 if p.placed == "silhouettes" and 0 <= p.index < len(names)
+                 and names[p.index] not in small]  # those are named above already
         if alone:
             warnings.append(outlines_alone_warning(alone))
     return warnings
