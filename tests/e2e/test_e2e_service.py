@@ -57,6 +57,8 @@ def test_a_job_runs_to_its_artifacts(live_service, photo_set: list[Path]) -> Non
     progress = [s["progress"] for s in seen]
     assert progress == sorted(progress)  # never goes backwards
     result = httpx.get(f"{url}/v1/jobs/{job['id']}/result", timeout=10).json()
+    written = httpx.get(f"{url}/v1/jobs/{job['id']}/artifacts/result.json", timeout=10)
+    assert written.json() == result  # the pipeline's result.json is the API's result
     assert result["model"]["id"] and len(result["photos"]) == len(photo_set)
     kept = [p for p in result["photos"] if not p["discarded"]]
     assert len(kept) >= len(photo_set) - 2
