@@ -85,12 +85,16 @@ def serve(host: str = typer.Option("127.0.0.1", help="Address to listen on."),
         # below. limit_concurrency is the last resort on open connections; upload time limits
         # and the upload cap live in the app (app.multipart), since uvicorn has no
         # request-body timeout.
-        _serve_api(create_app(settings), host, port, verbose, settings.max_connections,
+        api = create_app(settings)
+        api.state.local_only = host in LOOPBACK_HOSTS
+        _serve_api(api, host, port, verbose, settings.max_connections,
                    on_stop=supervisor.request_stop if supervisor is not None else None)
     finally:
         _stop_backends(supervisor, embedded)
 
 
+LOOPBACK_HOSTS = ("127.0.0.1", "::1", "localhost")
+"""Addresses only this machine reaches: an open service there warns no one (``warn_if_open``)."""
 API_STOP_S = 2.0
 """Seconds the API gives open requests (a poll, a download) to finish once asked to stop."""
 
