@@ -52,6 +52,8 @@ def job_result(retrieval: RetrievalResult, poses: Sequence[dict[str, Any]],
         metrics: ``metrics.json`` (``export.artifacts.metrics_json``).
         masks: ``masks.json``'s records, one per photo.
         artifacts: the downloadable files' names.
+    Returns:
+        What ``result.json`` holds.
     """
     by_name = {entry["name"]: entry for entry in metrics.get("photos", [])}
     records = {record.index: record for record in masks}
