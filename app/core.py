@@ -3,7 +3,8 @@
 
 The contracts behind it: the job folder and where its bytes live (``jobfolder``), the
 configuration and what a client may set (``config``, ``config_client``), the limits a photo
-must meet (``intake.limits``), the job's stages and warnings, and the library's files.
+must meet (``intake.limits``), the job's stages, its result (``jobresult``: written by the
+pipeline, served as it is), and the library's files.
 """
 
 from pathlib import Path
@@ -19,24 +20,23 @@ from cadnerf_core.config import (
 from cadnerf_core.config_client import ClientSettings, inline_refs, refused_names
 from cadnerf_core.errors import LibraryError
 from cadnerf_core.intake.limits import COVER_SIDE, cover_problem, mask_cover, shape_problem
-from cadnerf_core.job_warnings import job_warnings, walk_order
 from cadnerf_core.jobfolder import (
     JobFolder,
     JobStorage,
     LocalStorage,
-    MaskRecord,
     StorageError,
     media_type,
     open_storage,
 )
+from cadnerf_core.jobresult import JobResult
 from cadnerf_core.progress import STAGES
 
 __all__ = [
     "COVER_SIDE", "DEFAULT_PRESET", "PRESETS", "STAGES",
-    "ClientSettings", "JobFolder", "JobStorage", "LibraryError", "LocalStorage", "MaskRecord",
+    "ClientSettings", "JobFolder", "JobResult", "JobStorage", "LibraryError", "LocalStorage",
     "PipelineConfig", "StorageError", "cover_problem", "field_bounds", "inline_refs",
-    "job_warnings", "library_silhouettes", "mask_cover", "media_type", "open_storage",
-    "refused_names", "resolve_config", "shape_problem", "walk_order",
+    "library_silhouettes", "mask_cover", "media_type", "open_storage", "refused_names",
+    "resolve_config", "shape_problem",
 ]
 
 

@@ -71,15 +71,22 @@ OPEN_SERVICE_WARNING = (
     "network.")
 
 
-def warn_if_open(settings: Settings) -> None:
-    """Log, once per start, that an open service lets every client see and delete every job."""
-    if not settings.api_key_hashes:
+def warn_if_open(settings: Settings, local_only: bool = False) -> None:
+    """Log, once per start, that an open service lets every client see and delete every job;
+    only a note where it listens on a loopback address (``local_only``: no other machine can
+    reach it, as under ``cadnerf serve`` by default)."""
+    if settings.api_key_hashes:
+        return
+    if local_only:
+        log.info("no API keys: every client shares one owner; the service answers this "
+                 "machine only")
+    else:
         log.warning(OPEN_SERVICE_WARNING)
 
 
 @contextlib.asynccontextmanager
 async def _lifespan(app: FastAPI) -> AsyncIterator[None]:
-    warn_if_open(app.state.settings)
+    warn_if_open(app.state.settings, app.state.local_only)
     with contextlib.suppress(OSError):  # a broken data root is reported per request (503)
         app.state.settings.data_root.mkdir(parents=True, exist_ok=True)
     tasks = [asyncio.create_task(_cleanup_loop(app)), asyncio.create_task(_recovery_loop(app))]
@@ -115,6 +122,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
                   description="Camera poses, novel views, an orbit video and a mesh from 3-10 "
                               "ordered photos (CAD-NeRF).")
     app.state.settings = settings
+    app.state.local_only = False  # ``cadnerf serve`` on a loopback address sets it
     app.state.store = JobStore.open(settings.redis_url, settings.data_root,
                                     open_checked_storage(settings))
     app.state.reader = AsyncJobReader(settings.redis_url, settings.device)

@@ -2,7 +2,8 @@
 
 ``JobCreate`` (the request's config) -> ``JobPublic`` (id, state, links) -> ``JobStatus``
 (stage, progress, ETA, queue position, timestamps, error) ; ``JobResult`` (the outcome of a
-succeeded job). ``JobState`` and ``ErrorDetail`` belong to the job state (``app.state``).
+succeeded job) is the core's (``cadnerf_core.jobresult``: the pipeline writes it, the API serves
+it as written). ``JobState`` and ``ErrorDetail`` belong to the job state (``app.state``).
 """
 
 from __future__ import annotations
@@ -12,6 +13,7 @@ from typing import Any, Literal
 from pydantic import BaseModel, ConfigDict, Field
 
 from app.core import ClientSettings, inline_refs
+from app.core import JobResult as JobResult  # one schema, the core's: re-exported
 from app.state import ErrorDetail, JobState
 
 
@@ -78,58 +80,6 @@ class JobList(BaseModel):
     limit: int
     offset: int
     next: str | None = Field(None, description="URL of the next page, if any.")
-
-
-class PhotoResult(BaseModel):
-    """One uploaded photo's outcome."""
-
-    index: int
-    name: str
-    discarded: bool
-    iou: float | None = None
-    view: int | None = None
-    azimuth: float | None = None
-    elevation: float | None = None
-    c2w: list[list[float]] | None = Field(None, description="4x4 camera-to-world, OpenCV axes.")
-    K: list[list[float]] | None = Field(None, description="3x3 intrinsics in the photo's pixels.")
-    mask_source: Literal["uploaded", "alpha", "learned", "grabcut"] | None = Field(
-        None, description="Where the photo's mask came from: the uploaded mask, the photo's "
-        "alpha, or background removal (learned or grabcut); the mask used is an artifact.")
-    mask_warnings: list[str] = Field(
-        default_factory=list, description="What looks wrong with the photo's mask and what to "
-        "do (crop, retake, or upload a mask); empty when it looks fine.")
-    mask: str | None = Field(None, description="URL of the mask the photo used (PNG, 255 = "
-                             "object, the photo's size).")
-    overlay: str | None = Field(None, description="URL of a picture of that mask over the "
-                                "photo (JPEG).")
-    silhouette: str | None = Field(None, description="URL of the library silhouette the "
-                                   "photo was matched to (PNG); null for a discarded photo.")
-
-
-class ModelRef(BaseModel):
-    """The retrieved CAD model."""
-
-    id: str
-    category: str | None = None
-
-
-class JobResult(BaseModel):
-    """A succeeded job's outcome."""
-
-    id: str
-    model: ModelRef
-    photos: list[PhotoResult]
-    discarded: list[str]
-    order: list[str] = Field(default_factory=list, description="The photos' names in the "
-                             "walking order the poses were found in (retrieval.order: the "
-                             "given order, or the one found for photos in any order).")
-    reordered: bool = Field(default=False, description="The walking order differs from the "
-                            "order the photos were given in.")
-    metrics: dict[str, Any]
-    artifacts: dict[str, str] = Field(description="Artifact name -> download URL.")
-    warnings: list[str] = Field(default_factory=list, description="What may be wrong with "
-                                "the result and what to do about it (e.g. a walking "
-                                "direction that the photos could not tell).")
 
 
 class ErrorBody(BaseModel):

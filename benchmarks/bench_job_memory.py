@@ -38,7 +38,7 @@ QUICK = {"phase1.steps": 20, "phase2.steps": 40, "phase3.steps": 200, "phase3.sc
 
 def make_photos(folder: Path, n: int, megapixels: float) -> list[Path]:
     """``n`` JPEG photos of a chair walked around, ``megapixels`` each (4:3)."""
-    from cadnerf_cli.service_cmd import demo_mesh
+    from cadnerf_cli.demo_photos import demo_mesh
     from cadnerf_core.evaluation.dataset import render_dataset
 
     dataset = render_dataset(demo_mesh(folder / "chair.ply"), folder / "dataset", n_views=n,

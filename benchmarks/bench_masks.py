@@ -220,7 +220,7 @@ def training(name: str, paths: list[Path], mask_paths: list[Path], library: Any,
                 run = run_job(job, library, photos=paths, masks=masks,
                               config=internal_config(PRESET, values), device="auto")
                 psnr[label] = float(run.metrics["mean_psnr"])
-                model[label] = run.summary["model_id"]
+                model[label] = run.summary.model.id
             finally:
                 shutil.rmtree(job, ignore_errors=True)
         runs.append((psnr, model))

@@ -45,7 +45,7 @@ class _Counting:
 
 def _job_folder(folder: Path, quick: bool) -> None:
     """The photos and config of a preview job, as the API lays them out."""
-    from cadnerf_cli.service_cmd import demo_mesh
+    from cadnerf_cli.demo_photos import demo_mesh
     from cadnerf_core.evaluation.dataset import load_dataset, render_dataset
     from cadnerf_core.evaluation.jobio import write_job
 

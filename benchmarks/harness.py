@@ -31,6 +31,7 @@ from benchmarks.lookalikes import Protocol, exclude_overrides
 if TYPE_CHECKING:
     from cadnerf_core.evaluation.dataset import Dataset
     from cadnerf_core.evaluation.evaluate import EvalReport
+    from cadnerf_core.jobresult import JobResult
     from cadnerf_core.library.format import Library
     from cadnerf_core.progress import Progress
 
@@ -173,7 +174,7 @@ class JobRun:
 
     job: Path
     seconds: float
-    summary: dict[str, Any]  # ``pipeline.run_job``'s return value
+    summary: JobResult  # ``pipeline.run_job``'s return value (its ``result.json``)
     retrieval: dict[str, Any]  # retrieval.json ({} where absent)
     metrics: dict[str, Any]  # metrics.json ({} where absent)
 

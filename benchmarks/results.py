@@ -6,6 +6,10 @@ the conditions it was measured in ("2 CPU cores", "one GPU": never a processor's
 the day. ``make bench`` (``benchmarks.run``) then renders the table between the README's
 markers ``<!-- results:start -->`` and ``<!-- results:end -->`` (``update_readme``);
 ``tests/test_bench_results.py`` checks that the README's table is what the file renders.
+
+Elsewhere a document quotes a headline figure only between ``<!-- result:KEY -->`` and
+``<!-- /result -->`` (``FIGURE``): ``update_documents`` rewrites each such figure from the file,
+and ``tests/test_docs.py`` fails where one differs from it or a figure stands unmarked.
 """
 
 from __future__ import annotations
@@ -13,6 +17,7 @@ from __future__ import annotations
 import datetime as dt
 import json
 import os
+import re
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
@@ -22,6 +27,10 @@ RESULTS = DOCS / "results.json"
 README = ROOT / "README.md"
 START = "<!-- results:start -->"
 END = "<!-- results:end -->"
+FIGURE = re.compile(r"<!-- result:(\w+) -->(.*?)<!-- /result -->", re.S)
+"""A headline figure quoted in a document: its key, then the figure as the table shows it."""
+DOCUMENTS = (README, *sorted(DOCS.glob("*.md")))
+"""The documents whose quoted figures ``update_documents`` keeps current."""
 # The table's rows in this order; a key not listed follows them, by name.
 ORDER = ("unseen_psnr", "unseen_rotation", "captures_real_rotation",
          "captures_textured_rotation", "mesh_f_score", "masks_iou_espresso", "masks_iou_robot",
@@ -120,3 +129,32 @@ def update_readme(readme: Path | None = None, path: Path | None = None) -> bool:
     if new != old:
         readme.write_text(new)
     return new != old
+
+
+def quoted_figures(document: str) -> list[tuple[str, str]]:
+    """The headline figures ``document`` quotes: (key, text as written), in order."""
+    return [(match.group(1), match.group(2)) for match in FIGURE.finditer(document)]
+
+
+def splice_figures(document: str, results: dict[str, Result]) -> str:
+    """``document`` with each quoted figure of a recorded key written from ``results``."""
+    def current(match: re.Match[str]) -> str:
+        found = results.get(match.group(1))
+        text = match.group(2) if found is None else found.text()
+        return f"<!-- result:{match.group(1)} -->{text}<!-- /result -->"
+
+    return FIGURE.sub(current, document)
+
+
+def update_documents(path: Path | None = None) -> list[Path]:
+    """The README's table and every quoted figure in ``DOCUMENTS`` from the recorded figures
+    (default ``RESULTS``). Returns the documents changed."""
+    changed = [README] if update_readme(path=path) else []
+    recorded = read_results(path)
+    for document in DOCUMENTS:
+        old = document.read_text()
+        new = splice_figures(old, recorded)
+        if new != old:
+            document.write_text(new)
+            changed.append(document)
+    return sorted(set(changed))

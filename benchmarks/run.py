@@ -291,8 +291,8 @@ def main(argv: list[str] | None = None) -> int:
     log.info("wrote %s", args.out)
     if args.out.resolve() == (DOCS / "benchmarks.md").resolve():  # the project's, not a copy
         try:
-            if results.update_readme():
-                log.info("wrote the results table of %s", results.README)
+            for document in results.update_documents():
+                log.info("wrote the headline figures of %s", document)
         except ValueError as exc:
             log.warning("README.md's results table not written: %s", exc)
     return 0

@@ -23,7 +23,7 @@ from typing import Any
 from app.client import JobClient
 from app.routes.pages import VENDOR
 from benchmarks.harness import DOCS, EVAL_ROOT, LIBRARY_DIR, PHOTOS, ROOT
-from cadnerf_cli.service_cmd import _StatusPrinter
+from cadnerf_cli.demo_cmd import StatusPrinter
 from tests.e2e.pages import CHROMIUM, WEBGL_LAUNCH_ARGS, drag_across
 from tests.e2e.test_serve import _ready_workers, _start_serve, _stop
 
@@ -48,7 +48,7 @@ def run_job(url: str, photos: list[Path], masks: list[Path]) -> tuple[str, float
         started = time.monotonic()
         job = client.submit(photos, masks, config={"preset": "preview"})
         print(f"job {job['id']}: {len(photos)} photos with masks, preset preview")
-        final = client.follow(job["id"], on_update=_StatusPrinter(), poll_s=2.0,
+        final = client.follow(job["id"], on_update=StatusPrinter(), poll_s=2.0,
                               timeout_s=3600)
         wall_s = time.monotonic() - started
     finally:

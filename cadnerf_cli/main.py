@@ -36,6 +36,8 @@ def _register() -> None:
     retrieve_cmd.register(app)
     from cadnerf_cli import service_cmd
     service_cmd.register(app)
+    from cadnerf_cli import demo_cmd
+    demo_cmd.register(app)
     from cadnerf_cli import dataset_cmd
     dataset_cmd.register(app)
     from cadnerf_cli import masks_cmd

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import logging
 from pathlib import Path
 from typing import Any
 
@@ -73,7 +72,7 @@ def reconstruct(
 
     from cadnerf_core.config import resolve_config
     from cadnerf_core.errors import CadNerfError
-    from cadnerf_core.jobfolder import MASKS, MESH, ORBIT_VIDEO, POSES, VIEWS, JobFolder
+    from cadnerf_core.jobfolder import MASKS, MESH, ORBIT_VIDEO, POSES, RESULT, VIEWS, JobFolder
     from cadnerf_core.library import load_library
     from cadnerf_core.pipeline import run_job
     from cadnerf_core.progress import Progress as CoreProgress
@@ -106,18 +105,17 @@ def reconstruct(
                 if task is not None:
                     bar.update(task, completed=done, total=max(total, 1), visible=True)
 
-            summary = run_job(out, library, CoreProgress(report), device, mask_model)
+            result = run_job(out, library, CoreProgress(report), device, mask_model)
     except (CadNerfError, ValueError, OSError) as exc:
         typer.echo(f"error: {settings_error(exc)}", err=True)
         raise typer.Exit(2) from exc
-    metrics = summary["metrics"]
-    logging.getLogger(__name__).debug("summary: %s", summary)
-    typer.echo(f"model: {summary['model_id']} ({summary['category']}); "
-               f"mean training PSNR {metrics['mean_psnr']:.2f} dB")
-    for warning in JobFolder(out).read_warnings() or []:
+    psnr = result.metrics.mean_psnr
+    typer.echo(f"model: {result.model.id} ({result.model.category}); mean training PSNR "
+               + ("-" if psnr is None else f"{psnr:.2f} dB"))
+    for warning in result.warnings:
         typer.echo(f"warning: {warning}")
-    typer.echo(f"results in {out.resolve()}: {ORBIT_VIDEO}, {MESH}, {POSES}, {VIEWS}/, "
-               f"{MASKS}/")
+    typer.echo(f"results in {out.resolve()}: {RESULT}, {ORBIT_VIDEO}, {MESH}, {POSES}, "
+               f"{VIEWS}/, {MASKS}/")
 
 
 def register(app: typer.Typer) -> None:

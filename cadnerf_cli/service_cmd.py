@@ -1,4 +1,5 @@
-"""`cadnerf serve`, `cadnerf worker` and `cadnerf demo`: the service from the command line."""
+"""`cadnerf serve` and `cadnerf worker`: the service from the command line (`serve --demo` runs
+``demo_cmd``'s demo once it is up)."""
 
 from __future__ import annotations
 
@@ -6,9 +7,7 @@ import logging
 import os
 import signal
 import sys
-import tempfile
 import threading
-import time
 import warnings
 from collections.abc import Callable
 from pathlib import Path
@@ -86,12 +85,16 @@ def serve(host: str = typer.Option("127.0.0.1", help="Address to listen on."),
         # below. limit_concurrency is the last resort on open connections; upload time limits
         # and the upload cap live in the app (app.multipart), since uvicorn has no
         # request-body timeout.
-        _serve_api(create_app(settings), host, port, verbose, settings.max_connections,
+        api = create_app(settings)
+        api.state.local_only = host in LOOPBACK_HOSTS
+        _serve_api(api, host, port, verbose, settings.max_connections,
                    on_stop=supervisor.request_stop if supervisor is not None else None)
     finally:
         _stop_backends(supervisor, embedded)
 
 
+LOOPBACK_HOSTS = ("127.0.0.1", "::1", "localhost")
+"""Addresses only this machine reaches: an open service there warns no one (``warn_if_open``)."""
 API_STOP_S = 2.0
 """Seconds the API gives open requests (a poll, a download) to finish once asked to stop."""
 
@@ -222,6 +225,8 @@ def _when_ready(url: str, demo_preset: str | None) -> None:
     typer.echo(f"ready: web page {url}/ , API {url}/v1/jobs (docs at {url}/docs)")
     if demo_preset is None:
         return
+    from cadnerf_cli.demo_cmd import run_demo
+
     try:
         run_demo(url, preset=demo_preset)
     except httpx.HTTPError as exc:  # the service stopped under the demo (Ctrl-C)
@@ -262,111 +267,7 @@ def worker(loglevel: str = typer.Option("INFO", help="Celery log level."),
     celery.worker_main(["--quiet", *options] if quiet else options)
 
 
-def demo_mesh(path: Path) -> Path:
-    """Write a chair-like mesh (seat, back, four legs) made with trimesh.creation."""
-    import trimesh
-
-    parts = [trimesh.creation.box((1.0, 0.12, 1.0), trimesh.transformations.translation_matrix(
-        (0, 0.0, 0)))]
-    parts.append(trimesh.creation.box((1.0, 1.0, 0.12),
-                                      trimesh.transformations.translation_matrix((0, 0.56, -0.44))))
-    for x in (-0.42, 0.42):
-        for z in (-0.42, 0.42):
-            parts.append(trimesh.creation.box(
-                (0.12, 0.9, 0.12), trimesh.transformations.translation_matrix((x, -0.5, z))))
-    trimesh.util.concatenate(parts).export(path)
-    return path
-
-
-DEMO_FOCAL_35MM = 42.0
-"""The 35 mm equivalent focal length of the demo's renders (``render_dataset``'s 40-degree
-field of view on a square frame)."""
-
-
-def run_demo(url: str, preset: str = "preview", views: int = 6, size: int = 160,
-             mesh: Path | None = None, out: Path | None = None,
-             api_key: str | None = None,
-             overrides: dict[str, Any] | None = None) -> dict[str, Any]:
-    """Render a synthetic object, submit it over HTTP, follow it, download the orbit.
-
-    ``overrides`` go with the preset in the job's config, as an API client would send them.
-
-    Returns:
-        The job's final status.
-    """
-    from app.client import JobClient
-    from cadnerf_core.evaluation import render_dataset
-    from cadnerf_core.jobfolder import ORBIT_VIDEO
-
-    logging.getLogger("httpx").setLevel(logging.WARNING)  # one line per poll is noise here
-    out = out or Path(tempfile.mkdtemp(prefix="cadnerf-demo-"))
-    mesh = mesh or demo_mesh(out / "chair.ply")
-    dataset = render_dataset(mesh, out / "dataset", n_views=views, size=size, seed=0)
-    photos = sorted((dataset / "images").glob("*.png"))
-    client = JobClient(url, api_key=api_key)
-    try:
-        submitted = time.monotonic()
-        # The renders carry no EXIF; their lens is known (40 degrees across a square frame).
-        told = {"retrieval": {"focal_35mm": DEMO_FOCAL_35MM}}
-        sent = {**told, **(overrides or {})}
-        sent["retrieval"] = {**told["retrieval"], **(overrides or {}).get("retrieval", {})}
-        job = client.submit(photos, config={"preset": preset, "overrides": sent})
-        typer.echo(f"demo job {job['id']}: {len(photos)} photos, preset {preset}")
-        typer.echo(f"watch it at {url}/?job={job['id']}")
-        final = client.follow(job["id"], on_update=_StatusPrinter(), poll_s=1.0)
-        if final["state"] != "succeeded":
-            typer.echo(f"demo job {final['state']}: {final.get('error')}", err=True)
-            return final
-        for warning in client.result(job["id"]).get("warnings", []):
-            typer.echo(f"warning: {warning}")
-        orbit = client.download(job["id"], ORBIT_VIDEO, out / ORBIT_VIDEO)
-        typer.echo(f"result (model, poses, metrics): {url}/v1/jobs/{job['id']}/result")
-        typer.echo(f"orbit video: {url}/v1/jobs/{job['id']}/artifacts/{ORBIT_VIDEO}")
-        typer.echo(f"downloaded to {orbit} ({time.monotonic() - submitted:.0f} s after the "
-                   "photos were sent)")
-        return final
-    finally:
-        client.close()
-
-
-class _StatusPrinter:
-    """Prints a job's state, stage, progress and ETA when the state or stage changes, the
-    progress moves by ``step`` or ``every_s`` seconds pass (not once per poll)."""
-
-    def __init__(self, step: float = 0.05, every_s: float = 15.0) -> None:
-        self.step, self.every_s = step, every_s
-        self._last: tuple[str, str, float, float] | None = None
-
-    def __call__(self, status: dict[str, Any]) -> None:
-        state, stage = status["state"], status.get("stage") or "-"
-        progress, now = float(status.get("progress") or 0), time.monotonic()
-        last = self._last
-        if last is not None and (state, stage) == last[:2] and progress < last[2] + self.step \
-                and now < last[3] + self.every_s:
-            return
-        self._last = (state, stage, progress, now)
-        eta = status.get("eta_s")
-        running = state == "running" and isinstance(eta, int | float)
-        eta_text = f", about {eta:.0f} s left" if running else ""
-        typer.echo(f"  {state:9s} {stage:9s} {100 * progress:5.1f}%{eta_text}")
-
-
-def demo(url: str = typer.Option("http://127.0.0.1:8000", help="The service's base URL."),
-         preset: str = typer.Option("preview", help="Preset of the job."),
-         views: int = typer.Option(6, min=3, max=10, help="Photos to render."),
-         size: int = typer.Option(160, min=64, max=1024, help="Photo side in pixels."),
-         mesh: Path | None = typer.Option(None, help="A mesh file instead of the built-in chair."),
-         out: Path | None = typer.Option(None, help="Folder for the photos and the orbit."),
-         api_key: str | None = typer.Option(None, envvar="CADNERF_DEMO_API_KEY",
-                                            help="API key, if the server needs one.")) -> None:
-    """Render a synthetic object, send it to a running service and follow it to the orbit."""
-    final = run_demo(url, preset, views, size, mesh, out, api_key)
-    if final["state"] != "succeeded":
-        raise typer.Exit(1)
-
-
 def register(app: typer.Typer) -> None:
-    """Add `serve`, `worker` and `demo` to the `cadnerf` command."""
+    """Add `serve` and `worker` to the `cadnerf` command."""
     app.command("serve")(serve)
     app.command("worker")(worker)
-    app.command("demo")(demo)

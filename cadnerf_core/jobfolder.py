@@ -14,6 +14,7 @@ One job is one folder, written by the app at upload (or the CLI), then by the pi
     matches/NNN_MMM.jpg       a picture of neighbouring photos NNN and MMM's matches
     retrieval.json            model, matches and discarded photos (the retrieval stage)
     poses.json, transforms.json, metrics.json
+    result.json               the job's result (``jobresult.JobResult``), written last
     views/NNN.png, orbit.mp4, orbit.gif, mesh.glb, mesh.obj, mesh.mtl, mesh_texture.png,
     mesh.usdz                 the mesh for AR Quick Look (where usd-core is installed)
     images/NNN_<stem>.<ext>   the photos for other tools: the upload itself (linked) when it is
@@ -49,6 +50,7 @@ from pydantic import BaseModel, ConfigDict
 from cadnerf_core.config import PipelineConfig, resolve_config
 from cadnerf_core.jobnames import *  # noqa: F403 - the names are part of this owner
 from cadnerf_core.jobnames import _NUMBERED
+from cadnerf_core.jobresult import JobResult
 from cadnerf_core.jobstorage import (  # noqa: F401 - where the bytes live, part of this owner
     JobStorage,
     LocalStorage,
@@ -302,6 +304,20 @@ class JobFolder:
         """``metrics.json``, None before export."""
         return self._read_object(METRICS)
 
+    def write_result(self, result: JobResult) -> None:
+        """Write ``result.json``: what the job gives its user (the last file a job writes)."""
+        with atomic_path(self.root / RESULT) as tmp:
+            tmp.write_text(result.model_dump_json(indent=2), encoding="utf-8")
+
+    def read_result(self) -> JobResult | None:
+        """``result.json``, None before the job finished.
+
+        Raises:
+            ValueError: a broken file, or one not in ``JobResult``'s shape.
+        """
+        path = self.root / RESULT
+        return JobResult.model_validate_json(path.read_bytes()) if path.is_file() else None
+
     # Masks used, their overlays, where each came from and what looks wrong.
 
     def write_masks(self, photos: Sequence[InputPhoto], found: Sequence[FoundMask],
@@ -393,7 +409,8 @@ class JobFolder:
     def bundle_members(self) -> list[str]:
         """What ``results.zip`` holds, of the files present: photos, used masks (no overlays),
         ``transforms.json``, the COLMAP model, ``poses.json``, metrics, meshes and renders."""
-        names = [n for n in self.artifacts() if n not in (BUNDLE, LOG, CONFIG, MASK_SOURCES)
+        names = [n for n in self.artifacts()
+                 if n not in (BUNDLE, LOG, CONFIG, MASK_SOURCES, RESULT)
                  and not n.endswith(OVERLAY_SUFFIX)]
         return sorted(names, key=lambda n: (not n.startswith(f"{IMAGES}/"), n))
 

@@ -26,6 +26,7 @@ MASK_SOURCES = "masks.json"
 POSES = "poses.json"
 TRANSFORMS = "transforms.json"
 METRICS = "metrics.json"
+RESULT = "result.json"
 ORBIT_VIDEO = "orbit.mp4"
 ORBIT_GIF = "orbit.gif"
 MESH = "mesh.glb"
@@ -49,7 +50,8 @@ MEDIA_TYPES: dict[str, str] = {
     MESH_OBJ: "model/obj", MESH_MTL: "model/mtl", MESH_TEXTURE: "image/png",
     MESH_USDZ: "model/vnd.usdz+zip",
     BUNDLE: "application/zip",
-    POSES: "application/json", TRANSFORMS: "application/json", METRICS: "application/json",
+    RESULT: "application/json", POSES: "application/json", TRANSFORMS: "application/json",
+    METRICS: "application/json",
     RETRIEVAL: "application/json", WARNINGS: "application/json", CONFIG: "application/json",
     MASK_SOURCES: "application/json",
     COLMAP_CAMERAS: "text/plain", COLMAP_IMAGES: "text/plain", COLMAP_POINTS: "text/plain",

@@ -25,6 +25,7 @@ from cadnerf_core.errors import InputError
 from cadnerf_core.intake import apply_crop
 from cadnerf_core.job_warnings import job_warnings
 from cadnerf_core.jobfolder import CONFIG, INPUTS, OVERLAY_SIDE, JobFolder
+from cadnerf_core.jobresult import JobResult
 from cadnerf_core.progress import Progress
 
 if TYPE_CHECKING:
@@ -235,7 +236,7 @@ def train(job_dir: Path, library: Library, retrieval: RetrievalResult, data: Tra
 
 
 def run_job(job_dir: Path, library: Library, progress: Progress | None = None,
-            device: str = "auto", mask_model: Path | None = None) -> dict[str, Any]:
+            device: str = "auto", mask_model: Path | None = None) -> JobResult:
     """Run (or resume) a whole job in its folder.
 
     Args:
@@ -247,8 +248,7 @@ def run_job(job_dir: Path, library: Library, progress: Progress | None = None,
         mask_model: an ONNX background-removal model for the learned method (a runtime
             argument, not config: a client must not name files on the server); None: built-in.
     Returns:
-        Summary: model_id, category, photos (per photo: name, pose, IoU, discarded, PSNR),
-        metrics (summary), artifacts (file names relative to the job folder).
+        The job's result, as written to ``result.json`` (``jobresult.JobResult``).
     Raises:
         InputError: unusable photos, masks or configuration. JobCancelled: cancelled.
     """

@@ -105,6 +105,86 @@ def test_the_job_folder_section_lists_every_file_the_owner_names() -> None:
 
     section = DOC.split("\n## Job folder\n", 1)[1].split("\n## ", 1)[0]
     names = [jobfolder.INPUTS, jobfolder.CONFIG, jobfolder.RETRIEVAL, jobfolder.MASK_SOURCES,
+             jobfolder.RESULT, jobfolder.WARNINGS,
              jobfolder.POSES, jobfolder.TRANSFORMS, jobfolder.METRICS, jobfolder.ORBIT_VIDEO,
              jobfolder.MESH, jobfolder.LOG, jobfolder.overlay_name(0).replace("000", "NNN")]
     assert [n for n in names if n not in section] == []
+
+
+# Each headline figure once: docs/results.json (``benchmarks.results``).
+
+HAND_WRITTEN = ("README.md", "docs/guide.md", "docs/presets.md", "docs/architecture.md",
+                "docs/reliability.md")
+"""The documents written by hand (the others are benchmarks' output, of which each headline
+figure is recorded from)."""
+
+
+def _documents() -> list[Path]:
+    return [ROOT / "README.md", *sorted((ROOT / "docs").glob("*.md"))]
+
+
+def test_every_quoted_headline_figure_is_the_one_in_results_json() -> None:
+    from benchmarks import results
+
+    recorded = results.read_results()
+    quoted = {str(p.relative_to(ROOT)): results.quoted_figures(p.read_text())
+              for p in _documents()}
+    assert quoted["docs/presets.md"], "the presets page quotes no headline figure"
+    wrong = {name: [(key, text) for key, text in figures
+                    if key not in recorded or text != recorded[key].text()]
+             for name, figures in quoted.items()}
+    assert not {name: bad for name, bad in wrong.items() if bad}, (
+        "a quoted figure differs from docs/results.json: run "
+        "`python -c 'from benchmarks import results; results.update_documents()'`")
+
+
+def _unmarked(text: str) -> str:
+    """``text`` without its results table and its quoted figures."""
+    from benchmarks import results
+
+    start, end = text.find(results.START), text.find(results.END)
+    if 0 <= start < end:
+        text = text[:start] + text[end:]
+    return results.FIGURE.sub("", text)
+
+
+def test_hand_written_docs_state_a_headline_figure_only_quoted() -> None:
+    """A figure restated by hand would stay behind when the benchmark runs again."""
+    from benchmarks import results
+
+    stated = {}
+    for name in HAND_WRITTEN:
+        text = " ".join(_unmarked((ROOT / name).read_text()).split())
+        for r in results.read_results().values():
+            figure = f"{r.value:.{r.digits}f}" + (f" {r.unit.split()[0]}" if r.unit else "")
+            if re.search(rf"(?<![\d.]){re.escape(figure)}(?![\d])", text):
+                stated.setdefault(name, []).append((r.key, figure))
+    assert not stated, f"quote these as <!-- result:KEY -->...<!-- /result -->: {stated}"
+
+
+def test_splicing_writes_each_quoted_figure_from_the_recorded_one() -> None:
+    from benchmarks.results import Result, quoted_figures, splice_figures
+
+    recorded = {"job": Result("job", "a job", 101.4, "s", 0, "2 CPU cores", "make job",
+                              "2026-12-01")}
+    old = "took <!-- result:job -->157 s<!-- /result -->, <!-- result:gone -->1 s<!-- /result -->"
+    new = splice_figures(old, recorded)
+    assert quoted_figures(new) == [("job", "101 s"), ("gone", "1 s")]
+
+
+@pytest.mark.parametrize("name", HAND_WRITTEN)
+def test_the_hand_written_docs_point_at_nothing_outside_the_repository(name: str) -> None:
+    path = ROOT / name
+    text = path.read_text()
+    targets = re.findall(r"\]\(([^)#\s]+)", text)  # links (``../x`` in code is an example)
+    outside = [t for t in targets if not t.startswith(("http://", "https://"))
+               and not (path.parent / t).resolve().is_relative_to(ROOT)]
+    assert not outside, f"{name} points outside the repository: {outside}"
+    assert "/work/" not in text and "../shared" not in text
+
+
+def test_the_reliability_page_holds_what_is_held_not_a_history_of_defects() -> None:
+    text = (ROOT / "docs" / "reliability.md").read_text()
+    headings = re.findall(r"^#+ (.*)$", text, re.M)
+    assert not [h for h in headings if re.search(r"defect|fix|bug", h, re.I)], headings
+    assert not re.search(r"\bFix:|\(fix \d+\)", text)

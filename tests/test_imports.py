@@ -38,7 +38,7 @@ def test_the_service_never_imports_torch(code: str) -> None:
              "cadnerf_core.jobstorage",
              "cadnerf_core.progress", "cadnerf_core.errors", "cadnerf_core.config_bounds",
              "cadnerf_core.config_retrieval", "cadnerf_core.config_matches",
-             "cadnerf_core.config_client", "cadnerf_core.job_warnings", "cadnerf_core.intake",
+             "cadnerf_core.config_client", "cadnerf_core.jobresult", "cadnerf_core.intake",
              "cadnerf_core.intake.limits",
              "cadnerf_core.facade"}  # the contracts the service shares with the core
     assert not {m for m in modules if m.startswith("cadnerf_core.")} - light
@@ -56,6 +56,26 @@ def test_the_app_reaches_the_core_only_through_app_core() -> None:
             reaching[str(path.relative_to(ROOT))] = found
     assert "app/core.py" in reaching  # the check sees imports at all
     assert set(reaching) == {"app/core.py"}, reaching
+
+
+def _names(path: Path) -> set[str]:
+    """Every name, attribute and string constant a file spells."""
+    tree = ast.parse(path.read_text(), str(path))
+    return ({n.id for n in ast.walk(tree) if isinstance(n, ast.Name)}
+            | {n.attr for n in ast.walk(tree) if isinstance(n, ast.Attribute)}
+            | {n.name for n in ast.walk(tree) if isinstance(n, ast.alias)}
+            | set(_strings(path)))
+
+
+def test_the_app_serves_the_result_the_pipeline_wrote_and_reads_no_stage_file() -> None:
+    """The result is built once, by the pipeline (``result.json``); the API reads neither the
+    retrieval's nor the poses' file, nor remakes the warnings."""
+    stage_files = {"read_retrieval", "read_poses", "read_metrics", "read_warnings",
+                   "read_mask_sources", "RETRIEVAL", "POSES", "METRICS", "WARNINGS",
+                   "retrieval.json", "poses.json", "job_warnings", "walk_order"}
+    seen = {str(p.relative_to(ROOT)): _names(p) for p in (ROOT / "app").rglob("*.py")}
+    assert "read_result" in seen["app/results.py"]  # the check sees the reader at all
+    assert not {f: names & stage_files for f, names in seen.items() if names & stage_files}
 
 
 def test_the_core_never_imports_the_service_stack() -> None:

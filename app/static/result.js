@@ -5,20 +5,33 @@ import { attachViewer } from "./viewer.js";
 
 const SVG_NS = "http://www.w3.org/2000/svg";
 
+// The result (the job's result.json) names its artifacts; each downloads from its own URL.
+function artifactLinks(jobId, names) {
+  return Object.fromEntries(names.map((name) => [name, `/v1/jobs/${jobId}/artifacts/${name}`]));
+}
+
+// The library silhouette a photo was matched to (none for a discarded photo).
+function silhouetteUrl(model, photo) {
+  if (photo.discarded || photo.view === null || photo.view === undefined) return null;
+  const near = model.perspective === "near" ? "?perspective=near" : "";
+  return `/v1/library/${encodeURIComponent(model.id)}/silhouette/${photo.view}${near}`;
+}
+
 export async function showResult(jobId) {
   const result = await api(`/v1/jobs/${jobId}/result`);
+  const links = artifactLinks(jobId, result.artifacts || []);
   $("result").hidden = false;
   const video = $("orbit");
-  if (result.artifacts["orbit.mp4"]) {
+  if (links["orbit.mp4"]) {
     // Inline, silent and looping: phones play only muted videos by themselves, and without
     // playsinline iOS takes over the whole screen.
     video.muted = true;
     video.playsInline = true;
     video.loop = true;
-    video.src = await artifactUrl(result.artifacts["orbit.mp4"]);
+    video.src = await artifactUrl(links["orbit.mp4"]);
     video.play().catch(() => {});
   }
-  attachViewer(result.artifacts, video).catch((err) => showNotice(`the 3D view could not be shown: ${err.message}`));
+  attachViewer(links, video).catch((err) => showNotice(`the 3D view could not be shown: ${err.message}`));
   const category = result.model.category ? ` (${result.model.category})` : "";
   $("model").textContent = `Retrieved CAD model: ${result.model.id}${category}`;
   const warnings = $("warnings");
@@ -30,10 +43,10 @@ export async function showResult(jobId) {
   warnings.hidden = !warnings.children.length;
   renderMatches(result.photos);
   plotCameras(result.photos, result.order || []);
-  renderMasks(result.photos).catch((err) => showNotice(`the mask pictures could not be loaded: ${err.message}`));
+  renderMasks(result.photos, links, (photo) => silhouetteUrl(result.model, photo)).catch((err) => showNotice(`the mask pictures could not be loaded: ${err.message}`));
   const list = $("downloads");
   list.replaceChildren();
-  for (const [name, url] of Object.entries(result.artifacts)) {
+  for (const [name, url] of Object.entries(links)) {
     const item = document.createElement("li");
     const link = document.createElement("a");
     link.href = url;
@@ -95,7 +108,7 @@ async function maskPicture(url, alt, className) {
 
 // Per photo: the mask it used over the photo, the library silhouette it matched, the mask's
 // source and warnings; a badly cut object is seen here, not mistaken for a failure of the method.
-async function renderMasks(photos) {
+async function renderMasks(photos, links, silhouette) {
   const gallery = $("mask-gallery");
   gallery.replaceChildren();
   const shown = photos.filter((p) => p.overlay);
@@ -105,8 +118,8 @@ async function renderMasks(photos) {
     if (photo.discarded) item.className = "discarded";
     const pair = document.createElement("div");
     pair.className = "pair";
-    pair.append(await maskPicture(photo.overlay, `Mask of photo ${photo.index + 1} over it`, "overlay"),
-      await maskPicture(photo.discarded ? null : photo.silhouette,
+    pair.append(await maskPicture(links[photo.overlay], `Mask of photo ${photo.index + 1} over it`, "overlay"),
+      await maskPicture(silhouette(photo),
         `Library silhouette matched to photo ${photo.index + 1}`, "silhouette"));
     const caption = document.createElement("p");
     caption.className = "mask-caption";

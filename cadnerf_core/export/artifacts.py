@@ -24,9 +24,9 @@ from cadnerf_core.export.bundle import (
 from cadnerf_core.export.mesh import EXPORT_STEPS, export_mesh
 from cadnerf_core.export.photo_texture import photo_views
 from cadnerf_core.export.renders import novel_cameras, render_orbit, render_views
-from cadnerf_core.jobfolder import (
-    JobFolder,
-)
+from cadnerf_core.export.result import job_result
+from cadnerf_core.jobfolder import RESULT, JobFolder
+from cadnerf_core.jobresult import JobResult
 from cadnerf_core.progress import Progress
 
 if TYPE_CHECKING:
@@ -98,8 +98,9 @@ def metrics_json(model: TrainedModel, retrieval: RetrievalResult,
 
 def export_job(job_dir: Path, model: TrainedModel, retrieval: RetrievalResult,
                photos: list[Any], data: TrainData, progress: Progress,
-               masks: list[np.ndarray] | None = None) -> dict[str, Any]:
-    """Write every artifact of a trained job and return the service's summary.
+               masks: list[np.ndarray] | None = None) -> JobResult:
+    """Write every artifact of a trained job, then its result (``result.json``), and return
+    the result.
 
     Timings of each part land in ``metrics.json`` (``timings_s``: ``views_s``, ``orbit_s``,
     ``mesh_s`` with the texture bake, ``bundle_s``, and their sum ``export_s``).
@@ -147,13 +148,13 @@ def export_job(job_dir: Path, model: TrainedModel, retrieval: RetrievalResult,
     metrics = metrics_json(model, retrieval, scores)
     progress.check()
     folder.write_metrics(metrics)
+    result = job_result(retrieval, poses, metrics, folder.read_mask_sources(), [])
     progress.check()
+    folder.write_warnings(result.warnings)  # the intake's, now those of the chosen start
     write_bundle(folder)
+    artifacts = [name for name in folder.artifacts() if name != RESULT]
+    result = result.model_copy(update={"artifacts": [*artifacts, RESULT]})
+    progress.check()
+    folder.write_result(result)
     progress.step("export", EXPORT_STEPS, EXPORT_STEPS)
-    psnr_by_name = {p["name"]: p for p in metrics["photos"]}
-    return {"model_id": retrieval.model_id, "category": retrieval.category,
-            "photos": [{"name": p["name"], "iou": p["iou"], "discarded": p["discarded"],
-                        "c2w": p["c2w"], "psnr": psnr_by_name.get(p["name"], {}).get("psnr")}
-                       for p in poses],
-            "metrics": {k: v for k, v in metrics.items() if k != "photos"},
-            "artifacts": folder.artifacts()}
+    return result

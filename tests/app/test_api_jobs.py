@@ -11,7 +11,6 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
-import pytest
 import redis
 from fastapi.testclient import TestClient
 from PIL import Image
@@ -21,6 +20,7 @@ from app.settings import Settings
 from app.state import JobState, JobStore, connect, keys
 from cadnerf_core.jobfolder import JobFolder, MaskSource
 from tests.configs import TINY_PRESET, tiny_config, tiny_request_json
+from tests.job_results import write_fake_result
 
 
 def _store(settings: Settings) -> JobStore:
@@ -48,22 +48,12 @@ def _succeed(settings: Settings, job_id: str) -> Path:
     (folder / "orbit.mp4").write_bytes(bytes(range(256)) * 8)
     (folder / "mesh.glb").write_bytes(b"glTF" + bytes(60))
     Image.new("RGB", (32, 32), "gray").save(job.view_path(0))
-    eye = [[1.0, 0, 0, 0.5], [0, 1.0, 0, 0.2], [0, 0, 1.0, 3.9], [0, 0, 0, 1.0]]
-    retrieval = {"model_id": "chair_01", "category": "chair", "matches": [
-        {"index": i, "name": f"photo_{i}.png", "view": 3 * i, "azimuth": 18.0 * i,
-         "elevation": 15.0, "iou": 0.9 - 0.1 * i, "discarded": i == 2, "c2w": eye}
-        for i in range(3)]}
-    poses = {"model_id": "chair_01", "photos": [
-        {"index": i, "name": f"photo_{i}.png", "c2w": eye, "K": [[50, 0, 40], [0, 50, 32],
-                                                                  [0, 0, 1]]} for i in range(2)]}
-    job.write_retrieval(retrieval)
-    job.write_poses(poses["model_id"], poses["photos"])
-    job.write_metrics({"mask_iou": 0.91})
     photos = job.photos()
     found = [_Found(np.ones((64, 80), bool), source, [])
              for source in ("uploaded", "alpha", "learned")]
     found[2].warnings.append(f"{photos[2].name}: the mask touches three borders (crop or retake)")
     job.write_masks(photos, found, (np.full((64, 80, 3), 90, np.uint8) for _ in photos))
+    write_fake_result(job, discarded=(2,))
     store = _store(settings)
     assert store.update(job_id, state=JobState.succeeded, progress=1.0, finished_at=time.time())
     store.mirror(job_id)
@@ -121,71 +111,44 @@ def test_list_is_newest_first_and_paginated(client: TestClient, photos) -> None:
     assert client.get("/v1/jobs", params={"limit": 0}).status_code == 422
 
 
-def test_result_is_409_until_succeeded_then_complete(client: TestClient, settings: Settings,
-                                                     photos) -> None:
+def test_result_is_409_until_succeeded_then_the_file_the_pipeline_wrote(
+        client: TestClient, settings: Settings, photos) -> None:
     job = _submit(client, photos)
     early = client.get(f"/v1/jobs/{job['id']}/result")
     assert early.status_code == 409 and early.json()["error"]["code"] == "not_ready"
     assert client.get(f"/v1/jobs/{job['id']}/artifacts/orbit.mp4").status_code == 409
-    _succeed(settings, job["id"])
-    result = client.get(f"/v1/jobs/{job['id']}/result").json()
-    assert result["model"] == {"id": "chair_01", "category": "chair"}
-    assert [p["iou"] for p in result["photos"]] == pytest.approx([0.9, 0.8, 0.7])
-    assert result["discarded"] == ["photo_2.png"]
-    assert result["photos"][0]["K"][0][0] == 50 and result["photos"][2]["c2w"] is None
-    assert result["metrics"] == {"mask_iou": 0.91}
-    assert result["artifacts"]["orbit.mp4"] == f"/v1/jobs/{job['id']}/artifacts/orbit.mp4"
-    assert "views/000.png" in result["artifacts"] and "orbit.gif" not in result["artifacts"]
+    folder = JobFolder(_succeed(settings, job["id"]))
+    response = client.get(f"/v1/jobs/{job['id']}/result")
+    assert response.status_code == 200, response.text
+    result = response.json()
+    assert result == json.loads(folder.file("result.json").read_text())
+    assert result["model"] == {"id": "chair_01", "category": "chair", "perspective": "far"}
+    assert result["discarded"] == ["002_photo_2.png"]
+    assert result["photos"][2]["c2w"] is None and result["photos"][0]["K"][0][0] == 50
     assert [p["mask_source"] for p in result["photos"]] == ["uploaded", "alpha", "learned"]
-    mask_warning = result["photos"][2]["mask_warnings"]
-    assert len(mask_warning) == 1 and "002_photo_2.png" in mask_warning[0]
-    assert result["photos"][0]["mask_warnings"] == [] and result["warnings"] == mask_warning
-    base = f"/v1/jobs/{job['id']}/artifacts"
-    assert result["photos"][1]["mask"] == f"{base}/masks/001.png"
-    assert result["photos"][1]["overlay"] == f"{base}/masks/001_overlay.jpg"
-    overlay = client.get(result["photos"][1]["overlay"])
+    assert "photo_2.png" in result["warnings"][0]
+    for name in ("orbit.mp4", "views/000.png", "masks/001_overlay.jpg", "result.json"):
+        assert name in result["artifacts"], name
+        assert client.get(f"/v1/jobs/{job['id']}/artifacts/{name}").status_code == 200, name
+    overlay = client.get(f"/v1/jobs/{job['id']}/artifacts/{result['photos'][1]['overlay']}")
     assert overlay.status_code == 200 and overlay.headers["content-type"] == "image/jpeg"
     assert "attachment" not in overlay.headers.get("content-disposition", "")
     assert Image.open(io.BytesIO(overlay.content)).size == (80, 64)
-    assert result["photos"][1]["silhouette"] == "/v1/library/chair_01/silhouette/3"
-    assert result["photos"][2]["silhouette"] is None  # discarded
-    # A walking direction the photos could not tell: the result says so and what to send.
-    folder = JobFolder(settings.data_root / job["id"])
-    folder.write_retrieval({**(folder.read_retrieval() or {}), "direction_ambiguous": True,
-                            "perspective": "near"})
-    result = client.get(f"/v1/jobs/{job['id']}/result").json()
-    warnings = result["warnings"]
-    assert len(warnings) == 2 and "walking direction is a guess" in warnings[1]
-    assert 'retrieval.walk to "cw"' in warnings[1]
-    assert result["photos"][0]["silhouette"].endswith("/silhouette/0?perspective=near")
-    assert result["order"] == ["photo_0.png", "photo_1.png", "photo_2.png"]
-    assert not result["reordered"]
-    # Photos given as a walk that did not look like one: the order found, and a warning.
-    folder.write_retrieval({**(folder.read_retrieval() or {}), "direction_ambiguous": False,
-                            "order": [2, 0, 1], "order_mode": "auto", "reordered": True})
-    result = client.get(f"/v1/jobs/{job['id']}/result").json()
-    assert result["order"] == ["photo_2.png", "photo_0.png", "photo_1.png"] and result["reordered"]
-    assert "photo_2.png, photo_0.png, photo_1.png" in result["warnings"][-1]
-    # Asked for ("any"): reported, not warned; an unusable order falls back to the given one.
-    folder.write_retrieval({**(folder.read_retrieval() or {}), "order_mode": "any"})
-    assert len(client.get(f"/v1/jobs/{job['id']}/result").json()["warnings"]) == 1
-    # An order no better than another: the warning says it is a guess and how to give it.
-    folder.write_retrieval({**(folder.read_retrieval() or {}), "order_ambiguous": True})
-    last = client.get(f"/v1/jobs/{job['id']}/result").json()["warnings"][-1]
-    assert "walking order is a guess" in last and "photo_2.png, photo_0.png" in last
-    assert 'retrieval.order to "walk"' in last
-    folder.write_retrieval({**(folder.read_retrieval() or {}), "order_ambiguous": False})
-    folder.write_retrieval({**(folder.read_retrieval() or {}), "order": [0, 0, 7]})
-    result = client.get(f"/v1/jobs/{job['id']}/result").json()
-    assert result["order"] == ["photo_0.png", "photo_1.png", "photo_2.png"]
-    # No photo told its focal length: the last warning says so and what to send.
-    before = client.get(f"/v1/jobs/{job['id']}/result").json()["warnings"]
-    folder.write_retrieval({**(folder.read_retrieval() or {}), "focal_known": False})
-    warnings = client.get(f"/v1/jobs/{job['id']}/result").json()["warnings"]
-    assert warnings[:-1] == before and "focal length (EXIF)" in warnings[-1]
-    assert "retrieval.focal_35mm" in warnings[-1]
-    folder.write_retrieval({**(folder.read_retrieval() or {}), "focal_known": True})
-    assert client.get(f"/v1/jobs/{job['id']}/result").json()["warnings"] == before
+    # Served as written: what the folder says is what the API says, nothing merged on top.
+    write_fake_result(folder, warnings=["written by the pipeline"], reordered=True)
+    again = client.get(f"/v1/jobs/{job['id']}/result").json()
+    assert again["warnings"] == ["written by the pipeline"] and again["reordered"]
+
+
+def test_a_succeeded_job_without_a_readable_result_is_404_not_500(
+        client: TestClient, settings: Settings, photos) -> None:
+    job = _submit(client, photos)
+    folder = JobFolder(_succeed(settings, job["id"]))
+    folder.file("result.json").write_text('{"model": {"id": "x"}, "photos": "not a list"}')
+    response = client.get(f"/v1/jobs/{job['id']}/result")
+    assert response.status_code == 404 and response.json()["error"]["code"] == "no_result"
+    folder.file("result.json").unlink()
+    assert client.get(f"/v1/jobs/{job['id']}/result").status_code == 404
 
 
 def test_library_silhouettes_are_served_as_png_for_listed_models_only(

@@ -145,3 +145,13 @@ def test_a_service_with_keys_does_not_warn(make_settings,
     with caplog.at_level(logging.WARNING, logger="app.main"):
         _start(make_settings(api_keys="key-one"))
     assert not [r for r in caplog.records if "no API keys" in r.getMessage()]
+
+
+def test_an_open_service_on_a_loopback_address_only_notes_it(
+        make_settings, caplog: pytest.LogCaptureFixture) -> None:
+    from app.main import warn_if_open
+
+    with caplog.at_level(logging.INFO, logger="app.main"):
+        warn_if_open(make_settings(), local_only=True)
+    notes = [r for r in caplog.records if "no API keys" in r.getMessage()]
+    assert len(notes) == 1 and notes[0].levelno == logging.INFO

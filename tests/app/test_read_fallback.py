@@ -15,7 +15,9 @@ from app.main import create_app
 from app.settings import Settings, hash_key
 from app.state import ANON_OWNER, JobRecord, JobState, JobStore, connect
 from app.state.store import STATE_FILE
+from cadnerf_core.jobfolder import RESULT, JobFolder
 from tests.configs import TINY_PRESET
+from tests.job_results import write_fake_result
 
 VIDEO = bytes(range(256)) * 4
 
@@ -30,9 +32,7 @@ def _on_disk(settings: Settings, state: JobState, owner: str = ANON_OWNER,
     folder.mkdir(parents=True)
     if state == JobState.succeeded:
         (folder / "orbit.mp4").write_bytes(VIDEO)
-        (folder / "retrieval.json").write_text(json.dumps(
-            {"model_id": "chair_01", "category": "chair", "matches": []}))
-        (folder / "metrics.json").write_text(json.dumps({"mask_iou": 0.9}))
+        write_fake_result(JobFolder(folder))
     JobStore(connect("redis://127.0.0.1:1/0"), settings.data_root).write_state_file(record)
     assert (folder / STATE_FILE).is_file()
     return record
@@ -64,8 +64,7 @@ def test_a_succeeded_job_is_served_from_disk_while_redis_is_down(make_settings) 
 
         result = client.get(f"/v1/jobs/{record.id}/result")
         assert result.status_code == 200, result.text
-        assert result.json()["model"] == {"id": "chair_01", "category": "chair"}
-        assert result.json()["metrics"] == {"mask_iou": 0.9}
+        assert result.json() == json.loads((settings.data_root / record.id / RESULT).read_text())
         assert "orbit.mp4" in result.json()["artifacts"]
 
         video = client.get(f"/v1/jobs/{record.id}/artifacts/orbit.mp4")

@@ -6,6 +6,7 @@ store that cannot be used stops start-up with a message that says which and what
 from __future__ import annotations
 
 import hashlib
+import json
 import os
 import subprocess
 import sys
@@ -21,7 +22,8 @@ from app import jobs
 from app.main import create_app
 from app.settings import Settings, SettingsError, load_settings
 from app.state import JobState
-from cadnerf_core.jobfolder import StorageError
+from cadnerf_core.jobfolder import RESULT, JobFolder, StorageError
+from tests.job_results import write_fake_result
 from tests.s3_fixture import bucket_objects
 
 PREFIX = "deploy/jobs"
@@ -101,6 +103,7 @@ def _finish_in_store(client: TestClient, job_id: str) -> dict[str, bytes]:
     for name, data in written.items():
         (scratch / name).parent.mkdir(parents=True, exist_ok=True)
         (scratch / name).write_bytes(data)
+    written[RESULT] = write_fake_result(JobFolder(scratch)).model_dump_json(indent=2).encode()
     store.storage.push(job_id, scratch)
     store.storage.release(scratch)
     store.update(job_id, state=JobState.succeeded, finished_at=time.time(), progress=1.0)
@@ -113,6 +116,7 @@ def test_a_finished_jobs_artifacts_are_served_from_the_store(
     written = _finish_in_store(s3_client_app, job_id)
     result = s3_client_app.get(f"/v1/jobs/{job_id}/result")
     assert result.status_code == 200, result.text
+    assert result.json() == json.loads(written[RESULT])  # the file, fetched from the store
     assert set(written) <= set(result.json()["artifacts"])
     assert "inputs/000_photo_0.png" not in result.json()["artifacts"]
     base = f"/v1/jobs/{job_id}/artifacts"

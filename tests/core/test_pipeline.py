@@ -45,11 +45,13 @@ def test_run_job_writes_every_artifact(tmp_path: Path, tiny_library: Any) -> Non
     write_job(tmp_path, tiny_library)
     written = (tmp_path / "config.json").read_bytes()
     stages: list[str] = []
-    summary = run_job(tmp_path, tiny_library, Progress(lambda s, d, t: stages.append(s)), "cpu")
-    assert summary["model_id"] in {m.id for m in tiny_library.models}
-    assert len(summary["photos"]) == 4
-    for name in summary["artifacts"]:
+    result = run_job(tmp_path, tiny_library, Progress(lambda s, d, t: stages.append(s)), "cpu")
+    assert result.model.id in {m.id for m in tiny_library.models}
+    assert [p.index for p in result.photos] == [0, 1, 2, 3]
+    assert "result.json" in result.artifacts and "results.zip" in result.artifacts
+    for name in result.artifacts:
         assert (tmp_path / name).is_file(), name
+    assert JobFolder(tmp_path).read_result() == result  # what it returns is what it wrote
     for name in ("poses.json", "transforms.json", "metrics.json", "orbit.mp4", "orbit.gif",
                  "mesh.glb", "retrieval.json", "config.json", "masks.json", "views/000.png",
                  "masks/003.png", "masks/003_overlay.jpg", "log.txt", "checkpoints/phase1.pt",
@@ -135,7 +137,7 @@ def test_resume_after_cancel_in_phase_three(tmp_path: Path, tiny_library: Any,
     summary = run_job(tmp_path, tiny_library, Progress(lambda s, d, t: stages.append(s)), "cpu")
     assert "phase3" in stages and "phase2" not in stages and "phase1" not in stages
     assert (tmp_path / "mesh.glb").is_file()
-    assert summary["metrics"]["resumed_after_phase"] == 2
+    assert summary.metrics.resumed_after_phase == 2
 
 
 def test_cli_reports_errors_in_one_line(tmp_path: Path, tiny_library_dir: Path) -> None:
@@ -323,7 +325,7 @@ def test_several_start_hypotheses_are_fitted_and_the_best_kept(tmp_path: Path,
     fits = retrieval["hypotheses"]
     assert len(fits) == 3 and sum(h["chosen"] for h in fits) == 1
     best = max(fits, key=lambda h: h["fit"])
-    assert best["chosen"] and best["model_id"] == retrieval["model_id"] == summary["model_id"]
+    assert best["chosen"] and best["model_id"] == retrieval["model_id"] == summary.model.id
     assert len({(h["model_id"], h["direction"], h["perspective"]) for h in fits}) == 3
     assert fits[1]["perspective"] == "near"  # no focal length known: the near set's walk
     assert retrieval["focal_known"] is False  # kept by the start chosen, whichever it is

@@ -57,6 +57,8 @@ def test_a_job_runs_to_its_artifacts(live_service, photo_set: list[Path]) -> Non
     progress = [s["progress"] for s in seen]
     assert progress == sorted(progress)  # never goes backwards
     result = httpx.get(f"{url}/v1/jobs/{job['id']}/result", timeout=10).json()
+    written = httpx.get(f"{url}/v1/jobs/{job['id']}/artifacts/result.json", timeout=10)
+    assert written.json() == result  # the pipeline's result.json is the API's result
     assert result["model"]["id"] and len(result["photos"]) == len(photo_set)
     kept = [p for p in result["photos"] if not p["discarded"]]
     assert len(kept) >= len(photo_set) - 2
@@ -118,17 +120,20 @@ def test_an_unusable_photo_fails_the_job_with_its_name(live_service, tmp_path: P
     assert final["state"] == "failed" and "blank_0.png" in final["error"], final
 
 
-def test_the_demo_command_follows_a_job_to_its_orbit(live_service, tmp_path: Path,
-                                                      capsys: pytest.CaptureFixture[str]) -> None:
-    from cadnerf_cli.service_cmd import run_demo
+def test_the_demo_command_follows_a_job_to_its_orbit_and_says_what_to_open(
+        live_service, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """The demo's flow at a tiny size, matching off (the photos' own matching is the slow part
+    of a demo job; ``tests/core/test_demo_photos.py`` checks the photos are matchable)."""
+    from cadnerf_cli.demo_cmd import run_demo
+    from cadnerf_core.job_warnings import FOCAL_UNKNOWN_WARNING
 
-    final = run_demo(live_service.url, preset=TINY_PRESET, overrides={"seed": 1}, views=4,
-                     size=64, out=tmp_path)
+    final = run_demo(live_service.url, preset=TINY_PRESET, views=4, size=96, out=tmp_path,
+                     overrides={"seed": 1, "retrieval": {"matches": {"enabled": False}}})
     assert final["state"] == "succeeded"
     assert (tmp_path / "orbit.mp4").read_bytes()[4:8] == b"ftyp"
     printed = capsys.readouterr().out
-    assert f"/v1/jobs/{final['id']}/artifacts/orbit.mp4" in printed and "%" in printed
-    # The demo tells its renders' lens: no warning asks for EXIF the renders cannot carry.
-    from cadnerf_core.job_warnings import FOCAL_UNKNOWN_WARNING
-
-    assert FOCAL_UNKNOWN_WARNING not in printed
+    lines = printed.splitlines()
+    assert lines[-2] == f"open the result page: {live_service.url}/?job={final['id']}"
+    assert lines[-1].startswith(f"the orbit video: {tmp_path / 'orbit.mp4'} ")
+    assert "%" in printed  # the progress was shown
+    assert FOCAL_UNKNOWN_WARNING not in printed  # the photos' EXIF gives the lens

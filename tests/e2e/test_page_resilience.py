@@ -65,14 +65,17 @@ def _job(job_id: str, polls: int) -> dict[str, Any]:
                    progress=progress, eta_s=30.0 if state == "running" else None)
 
 
-def _result(job_id: str) -> dict[str, Any]:
-    photos = [{"index": i, "name": f"photo{i}.png", "discarded": False, "iou": 0.9,
-               "azimuth": 90.0 * i, "elevation": 10.0,
-               "c2w": [[1, 0, 0, 2.0 * (i - 1)], [0, 1, 0, 0], [0, 0, 1, 2.0], [0, 0, 0, 1]]}
-              for i in range(3)]
-    return {"id": job_id, "model": {"id": "mug", "category": "mug"}, "photos": photos,
-            "discarded": [], "metrics": {},
-            "artifacts": {"mesh.glb": f"/v1/jobs/{job_id}/artifacts/mesh.glb"}}
+def _result() -> dict[str, Any]:
+    """A result in the API's one schema (``cadnerf_core.jobresult``), as its JSON."""
+    from cadnerf_core.jobresult import JobResult, ModelRef, PhotoResult
+
+    photos = [PhotoResult(index=i, name=f"photo{i}.png", discarded=False, iou=0.9,
+                          azimuth=90.0 * i, elevation=10.0,
+                          c2w=[[1, 0, 0, 2.0 * (i - 1)], [0, 1, 0, 0], [0, 0, 1, 2.0],
+                               [0, 0, 0, 1]]) for i in range(3)]
+    result = JobResult(model=ModelRef(id="mug", category="mug"), photos=photos,
+                       artifacts=["mesh.glb"])
+    return result.model_dump(mode="json")
 
 
 def _handler(api: FakeApi) -> type[BaseHTTPRequestHandler]:
@@ -113,7 +116,7 @@ def _handler(api: FakeApi) -> type[BaseHTTPRequestHandler]:
                                                            "the retention period"}})
                         return
                     if match.group(2):
-                        self._json(200, _result(job_id))
+                        self._json(200, _result())
                         return
                     api.polls[job_id] += 1
                     self._json(200, _job(job_id, api.polls[job_id]))

@@ -47,8 +47,8 @@ def _png(mask: np.ndarray) -> bytes:
 
 
 def _run(url: str, files: list[tuple[str, tuple[str, bytes, str]]],
-         log_tail: Any) -> dict[str, Any]:
-    """Submit a tiny job, wait for it to succeed, return its result."""
+         log_tail: Any) -> tuple[str, dict[str, Any]]:
+    """Submit a tiny job, wait for it to succeed; its id and result."""
     response = httpx.post(f"{url}/v1/jobs", files=files, data={"config": tiny_request_json()},
                           timeout=30)
     assert response.status_code == 202, response.text
@@ -62,7 +62,7 @@ def _run(url: str, files: list[tuple[str, tuple[str, bytes, str]]],
         time.sleep(0.3)
     assert status.get("state") == "succeeded", f"{status}\n{log_tail()}"
     result: dict[str, Any] = httpx.get(f"{url}/v1/jobs/{job_id}/result", timeout=10).json()
-    return result
+    return job_id, result
 
 
 def _download(url: str, link: str, content_type: str) -> Image.Image:
@@ -74,12 +74,12 @@ def _download(url: str, link: str, content_type: str) -> Image.Image:
     return image
 
 
-def _used_mask(url: str, result: dict[str, Any], index: int) -> np.ndarray:
+def _used_mask(url: str, job_id: str, result: dict[str, Any], index: int) -> np.ndarray:
     """The mask photo ``index`` used (``masks/NNN.png``: 8-bit, 0 or 255), downloaded from the
-    job's artifacts; the result's photo links to the same file."""
-    link = result["artifacts"][f"masks/{index:03d}.png"]
-    assert result["photos"][index]["mask"] == link
-    image = _download(url, link, "image/png")
+    job's artifacts; the result's photo names the same file."""
+    name = f"masks/{index:03d}.png"
+    assert name in result["artifacts"] and result["photos"][index]["mask"] == name
+    image = _download(url, f"/v1/jobs/{job_id}/artifacts/{name}", "image/png")
     assert image.mode == "L"
     pixels = np.asarray(image)
     assert set(np.unique(pixels)) <= {0, 255}
@@ -94,11 +94,11 @@ def test_uploaded_masks_named_unlike_their_photos_are_the_masks_the_job_uses(
              for stem, path in zip("abc", sources, strict=True)]
     files += [("masks", (f"{stem}_mask.png", _png(mask), "image/png"))
               for stem, mask in zip("abc", masks, strict=True)]
-    result = _run(live_service.url, files, live_service.log_tail)
-    assert [p["name"] for p in result["photos"]] == ["a.jpg", "b.jpg", "c.jpg"]
+    job_id, result = _run(live_service.url, files, live_service.log_tail)
+    assert [p["name"] for p in result["photos"]] == ["000_a.jpg", "001_b.jpg", "002_c.jpg"]
     assert [p["mask_source"] for p in result["photos"]] == ["uploaded"] * 3
     for index, mask in enumerate(masks):
-        assert np.array_equal(_used_mask(live_service.url, result, index), mask), index
+        assert np.array_equal(_used_mask(live_service.url, job_id, result, index), mask), index
 
 
 def test_without_uploaded_masks_a_photo_uses_its_alpha_else_background_removal(
@@ -107,7 +107,7 @@ def test_without_uploaded_masks_a_photo_uses_its_alpha_else_background_removal(
     files = [("images", ("a.png", sources[0].read_bytes(), "image/png"))]
     files += [("images", (f"{stem}.jpg", _jpeg_on_white(path), "image/jpeg"))
               for stem, path in zip("bc", sources[1:], strict=True)]
-    result = _run(live_service.url, files, live_service.log_tail)
+    job_id, result = _run(live_service.url, files, live_service.log_tail)
     photos = result["photos"]
     assert photos[0]["mask_source"] == "alpha"
     assert all(p["mask_source"] == "learned" for p in photos[1:])
@@ -120,16 +120,19 @@ def test_without_uploaded_masks_a_photo_uses_its_alpha_else_background_removal(
     assert any("focal length (EXIF)" in w for w in result["warnings"])
     with Image.open(sources[0]) as image:
         alpha = np.asarray(image.convert("RGBA"))[..., 3] > 127
-    assert np.array_equal(_used_mask(live_service.url, result, 0), alpha)
+    assert np.array_equal(_used_mask(live_service.url, job_id, result, 0), alpha)
     for index, source in enumerate(sources):
         with Image.open(source) as image:
             size = image.size
-        assert _used_mask(live_service.url, result, index).shape == size[::-1]
-        link = result["artifacts"][f"masks/{index:03d}_overlay.jpg"]
-        assert photos[index]["overlay"] == link
-        overlay = _download(live_service.url, link, "image/jpeg")
+        assert _used_mask(live_service.url, job_id, result, index).shape == size[::-1]
+        name = f"masks/{index:03d}_overlay.jpg"
+        assert name in result["artifacts"] and photos[index]["overlay"] == name
+        overlay = _download(live_service.url, f"/v1/jobs/{job_id}/artifacts/{name}", "image/jpeg")
         assert overlay.size == size and overlay.mode == "RGB"
     matched = [p for p in photos if not p["discarded"]]
-    assert matched and all(p["silhouette"] for p in matched)
-    silhouette = _download(live_service.url, matched[0]["silhouette"], "image/png")
+    assert matched and all(isinstance(p["view"], int) for p in matched)
+    model = result["model"]
+    near = "?perspective=near" if model["perspective"] == "near" else ""
+    silhouette = _download(live_service.url, f"/v1/library/{model['id']}/silhouette/"
+                           f"{matched[0]['view']}{near}", "image/png")
     assert silhouette.size[0] == silhouette.size[1] > 0

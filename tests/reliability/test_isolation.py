@@ -14,6 +14,8 @@ from fastapi.testclient import TestClient
 
 from app.main import create_app
 from app.state import JobState, JobStore, connect
+from cadnerf_core.jobfolder import JobFolder
+from tests.job_results import write_fake_result
 from tests.reliability.support import Live, photo_files
 
 KEY_A, KEY_B = "key-alpha-0123456789", "key-bravo-9876543210"
@@ -40,6 +42,7 @@ def _succeed(store: JobStore, job_id: str, outside: Path) -> Path:
     (folder / "poses.json").write_text("{}")
     (folder / "views" / "001.png").symlink_to(outside)
     (folder / "mesh.glb").symlink_to(outside)
+    write_fake_result(JobFolder(folder))
     assert store.update(job_id, state=JobState.succeeded, progress=1.0, finished_at=time.time())
     return folder
 

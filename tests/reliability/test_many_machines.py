@@ -9,6 +9,7 @@ back within 10 s, and a fresh worker on another empty data root finishes it.
 
 from __future__ import annotations
 
+import json
 import os
 import signal
 import time
@@ -128,18 +129,19 @@ def _worker_pid(name: str) -> int:
     return int(name.rsplit("-", 1)[1])
 
 
-def _assert_downloads_match_the_store(cluster: Cluster, job_id: str) -> dict[str, str]:
+def _assert_downloads_match_the_store(cluster: Cluster, job_id: str) -> list[str]:
     result = httpx.get(f"{cluster.url}/v1/jobs/{job_id}/result", timeout=30)
     assert result.status_code == 200, result.text
-    artifacts: dict[str, str] = result.json()["artifacts"]
+    assert result.json() == json.loads(_object(cluster, job_id, "result.json"))
+    artifacts: list[str] = result.json()["artifacts"]
     assert {"results.zip", "mesh.glb", "orbit.mp4", "poses.json"} <= set(artifacts)
-    for name, link in artifacts.items():
-        answer = httpx.get(f"{cluster.url}{link}", timeout=30)
+    base = f"{cluster.url}/v1/jobs/{job_id}/artifacts"
+    for name in artifacts:
+        answer = httpx.get(f"{base}/{name}", timeout=30)
         assert answer.status_code == 200, (name, answer.text)
         assert answer.content == _object(cluster, job_id, name), f"{name} differs from the store"
     whole = _object(cluster, job_id, "results.zip")
-    part = httpx.get(f"{cluster.url}{artifacts['results.zip']}",
-                     headers={"Range": "bytes=10-109"}, timeout=30)
+    part = httpx.get(f"{base}/results.zip", headers={"Range": "bytes=10-109"}, timeout=30)
     assert part.status_code == 206 and part.content == whole[10:110]
     return artifacts
 
