@@ -205,3 +205,22 @@ def test_a_capture_without_masks_is_masked_as_a_job_masks_it(tmp_path: Path,
     assert {r.source for r in folder.read_mask_sources()} <= {"learned", "grabcut"}
     assert folder.read_mask(0).mean() < 0.6  # the box, not the whole frame
     assert 0.0 < report.image_masked.psnr < 100.0
+
+
+def test_a_frame_a_rig_took_upside_down_is_loaded_upright() -> None:
+    """``upside_down_by_design``: the image turned half a turn, its camera rolled and its
+    principal point moved to match, so a world point lands on the turned image's pixel."""
+    from cadnerf_core.cameras import orbit_pose, project
+    from cadnerf_core.evaluation.capture import upright
+
+    rgb = np.random.default_rng(0).random((6, 8, 3)).astype(np.float32)
+    mask = np.zeros((6, 8), bool)
+    mask[1, 2] = True
+    c2w = orbit_pose(30.0, 20.0, 4.0)
+    K = np.array([[7.0, 0.0, 3.6], [0.0, 7.0, 2.9], [0.0, 0.0, 1.0]])
+    turned_rgb, turned_mask, turned_c2w, turned_K = upright(rgb, mask, c2w, K)
+    assert np.array_equal(turned_rgb, rgb[::-1, ::-1]) and turned_mask[4, 5]
+    point = np.array([[0.1, -0.2, 0.3]])
+    u, v = project(point, K, c2w)[0]
+    np.testing.assert_allclose(project(point, turned_K, turned_c2w)[0], [8 - u, 6 - v],
+                               atol=1e-9)
