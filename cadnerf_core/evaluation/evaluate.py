@@ -25,7 +25,7 @@ import time
 from collections.abc import Callable, Sequence
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
-from typing import Any, Literal
+from typing import TYPE_CHECKING, Any, Literal
 
 import numpy as np
 
@@ -55,6 +55,9 @@ from cadnerf_core.evaluation.metrics import (
 from cadnerf_core.jobfolder import JobFolder
 from cadnerf_core.library.format import Library
 from cadnerf_core.progress import Progress
+
+if TYPE_CHECKING:
+    from cadnerf_core.nerf.model import TrainedModel
 
 log = logging.getLogger(__name__)
 
@@ -200,6 +203,21 @@ def _mesh_renderer(job: Path) -> Renderer:
     return mesh_view
 
 
+def _score_held_out(model: TrainedModel, job: Path, test: Dataset, c2w_nerf: np.ndarray,
+                    Ks: np.ndarray, lpips_net: LpipsNet | None, size: int | None, mesh: bool,
+                    ) -> tuple[HeldOutScores, HeldOutScores | None]:
+    """The held-out views rendered from the field and, where ``mesh``, from the job's mesh,
+    saved in the job's eval folder and scored."""
+    def field_view(c2w: np.ndarray, K: np.ndarray, width: int, height: int) -> np.ndarray:
+        return model.render_image(c2w, K, width, height, background=1.0)[0]
+
+    out_dir = JobFolder(job).eval_dir
+    scores = _render_held_out(field_view, test, c2w_nerf, Ks, out_dir, lpips_net, size)
+    on_mesh = _render_held_out(_mesh_renderer(job), test, c2w_nerf, Ks, out_dir, lpips_net,
+                               size, "mesh") if mesh else None
+    return scores, on_mesh
+
+
 def _cameras_in_gt_frame(train: Dataset, cams: JobCameras) -> dict[str, list[Any]]:
     """Ground-truth, retrieved and refined training cameras, all in the ground truth's frame."""
     gt_kept = train.c2w[cams.kept]
@@ -275,14 +293,8 @@ def evaluate_dataset(dataset_dir: Path, n_views: int, library: Library, preset: 
     Ks = np.stack([eval_intrinsics(k, cams, intrinsics) for k in test.K])
     render_start = time.perf_counter()
     c2w_nerf = to_nerf.apply_to_poses(test.c2w)
-
-    def field_view(c2w: np.ndarray, K: np.ndarray, width: int, height: int) -> np.ndarray:
-        return model.render_image(c2w, K, width, height, background=1.0)[0]
-
-    scores = _render_held_out(field_view, test, c2w_nerf, Ks, folder.eval_dir, lpips_net,
-                              eval_size)
-    on_mesh = _render_held_out(_mesh_renderer(job), test, c2w_nerf, Ks, folder.eval_dir,
-                               lpips_net, eval_size, "mesh") if mesh else None
+    scores, on_mesh = _score_held_out(model, job, test, c2w_nerf, Ks, lpips_net, eval_size,
+                                      mesh)
     render_s = time.perf_counter() - render_start
     metrics = folder.read_metrics() or {}
     names = data.names

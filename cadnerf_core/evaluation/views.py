@@ -111,8 +111,9 @@ def read_views(path: Path, size: int | None = None) -> list[View]:
     """The cameras of a ``transforms.json`` or of a COLMAP text model.
 
     Args:
-        path: a transforms file; or a folder holding ``cameras.txt`` and ``images.txt`` (a
-            ``sparse/0`` folder), its ``sparse/0``, or one of those two files.
+        path: a transforms file; a folder holding ``cameras.txt`` and ``images.txt`` (a
+            ``sparse/0`` folder) or one of those two files; or a folder holding a
+            ``transforms.json`` or a ``sparse/0`` (a job's, nerfstudio's data).
         size: longer side to render at (None: each camera's own size).
     Returns:
         The views, in the file's order (names made unique).
@@ -122,9 +123,13 @@ def read_views(path: Path, size: int | None = None) -> list[View]:
     path = Path(path)
     if path.is_file() and path.name in ("cameras.txt", "images.txt"):
         path = path.parent
-    if path.is_dir() and not (path / "images.txt").is_file() \
-            and (path / "sparse" / "0" / "images.txt").is_file():
-        path = path / "sparse" / "0"
+    if path.is_dir() and not (path / "images.txt").is_file():
+        # A folder others write (a job's, nerfstudio's data): its transforms.json, else its
+        # COLMAP model.
+        if (path / "transforms.json").is_file():
+            path = path / "transforms.json"
+        elif (path / "sparse" / "0" / "images.txt").is_file():
+            path = path / "sparse" / "0"
     try:
         if path.is_dir() and (path / "images.txt").is_file():
             views = _read_colmap(path)

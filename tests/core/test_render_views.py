@@ -59,6 +59,10 @@ def test_render_at_the_jobs_own_cameras_from_both_files(job: Path, tmp_path: Pat
     assert sorted(by_colmap) == sorted(by_transforms)
     for name, image in by_colmap.items():
         assert np.abs(image - by_transforms[name]).mean() < 0.01
+    result = _render(str(job), "--cameras", str(job), "--out", str(tmp_path / "j"), "--size",
+                     "40")  # the job folder itself: its transforms.json
+    assert result.exit_code == 0, result.output
+    assert sorted(_read(tmp_path / "j")) == sorted(by_transforms)
 
 
 def test_render_from_the_mesh_shows_it_in_the_jobs_frame(job: Path, tmp_path: Path) -> None:
