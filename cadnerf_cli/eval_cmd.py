@@ -24,6 +24,18 @@ class Align(StrEnum):
 LPIPS_ENV = "CADNERF_LPIPS_WEIGHTS"
 
 
+def parse_frames(text: str) -> list[int]:
+    """``"2,5"`` -> ``[2, 5]`` (0-based frame positions); raises typer.BadParameter otherwise."""
+    try:
+        frames = [int(part) for part in text.split(",") if part.strip()]
+    except ValueError:
+        raise typer.BadParameter(f"expected comma-separated frame numbers, got {text!r}") \
+            from None
+    if any(f < 0 for f in frames):
+        raise typer.BadParameter(f"frame numbers start at 0, got {text!r}")
+    return frames
+
+
 def parse_views(text: str) -> list[int]:
     """``"3,6,9"`` -> ``[3, 6, 9]``; raises typer.BadParameter on anything else."""
     try:
@@ -64,13 +76,17 @@ def parse_model_ids(items: list[str]) -> tuple[str, ...]:
 
 def _summary(report: dict[str, Any]) -> str:
     img, ref, ret = report["image"], report["pose_refined"], report["pose_retrieved"]
+    inside, on_mesh = report["image_masked"], report["image_mesh"]
 
     def num(value: Any, digits: int = 2) -> str:
         return "-" if value is None else f"{value:.{digits}f}"
 
     return (f"{report['n_views']} views: model {report['model_id']} | "
             f"PSNR {num(img['psnr'])} SSIM {num(img['ssim'], 3)} LPIPS {num(img['lpips'], 3)} "
-            f"Avg {num(img['average'], 3)} | rotation {num(ret['rotation_deg'])} -> "
+            f"Avg {num(img['average'], 3)} | in the mask PSNR {num(inside['psnr'])} SSIM "
+            f"{num(inside['ssim'], 3)}"
+            + (f", mesh {num(on_mesh['psnr'])} / {num(on_mesh['ssim'], 3)}" if on_mesh else "")
+            + f" | rotation {num(ret['rotation_deg'])} -> "
             f"{num(ref['rotation_deg'])} deg, translation x100 {num(ret['translation_x100'])} -> "
             f"{num(ref['translation_x100'])} | focal error "
             f"{num(100 * report['focal_error_retrieved'], 0)} -> "
@@ -79,7 +95,8 @@ def _summary(report: dict[str, Any]) -> str:
 
 def eval_command(
     dataset: Path = typer.Argument(..., help="Dataset folder with a test split (render-dataset "
-                                   "--test-views, or a NeRF-synthetic scene)."),
+                                   "--test-views, or a NeRF-synthetic scene), or a real "
+                                   "capture (photos, masks, cameras.json) with --hold-out."),
     views: str = typer.Option("3,6,9", "--views", help="Comma-separated numbers of input views."),
     preset: str = typer.Option("preview", "--preset", help="Pipeline preset."),
     overrides: list[str] = typer.Option([], "--set", help="A setting key=value (dotted keys, "
@@ -97,7 +114,15 @@ def eval_command(
                               "cameras fitted on the training photos), centred (about the "
                               "object's centre, from the camera centres) or umeyama."),
     eval_size: int | None = typer.Option(None, "--eval-size", min=8, help="Score held-out "
-                                         "views at this side in pixels (default: dataset's)."),
+                                         "views at this longer side in pixels (default: "
+                                         "dataset's)."),
+    hold_out: str = typer.Option("", "--hold-out", help="Frames (0-based, comma-separated) "
+                                 "the job never sees, scored as held-out views: for a capture "
+                                 "or a folder without a test split."),
+    exif_focal: bool = typer.Option(False, "--exif-focal", help="Give the job each photo's "
+                                    "true focal length as EXIF, as a phone's photos carry it."),
+    mesh: bool = typer.Option(False, "--mesh", help="Also render the held-out views from the "
+                              "job's textured mesh.glb and score them inside the mask."),
 ) -> None:
     """Evaluate novel views and camera poses on DATASET for each number of input views."""
     from cadnerf_cli.config_cmd import settings_error
@@ -108,6 +133,7 @@ def eval_command(
     from cadnerf_core.library import load_library
 
     counts = parse_views(views)
+    held_out = parse_frames(hold_out)
     config = {**parse_overrides(overrides), "seed": seed}
     excluded = parse_model_ids(exclude_models)
     if excluded:
@@ -128,11 +154,12 @@ def eval_command(
                 report = evaluate_dataset(dataset, n, lib, preset=preset, overrides=config,
                                           job_dir=root / f"views{n}", lpips_net=lpips_net,
                                           device=device, align=align.value,
-                                          eval_size=eval_size)
+                                          eval_size=eval_size, exif_focal=exif_focal,
+                                          hold_out=held_out, mesh=mesh)
                 reports.append(report.to_json())
                 if not as_json:
                     typer.echo(_summary(reports[-1]))
-    except (CadNerfError, ValueError) as exc:
+    except (CadNerfError, ValueError, OSError) as exc:
         typer.echo(f"error: {exc}", err=True)
         raise typer.Exit(code=2) from None
     if as_json:

@@ -44,6 +44,8 @@ def _register() -> None:
     masks_cmd.register(app)
     from cadnerf_cli import config_cmd
     config_cmd.register(app)
+    from cadnerf_cli import render_cmd
+    render_cmd.register(app)
 
 
 _register()

@@ -313,7 +313,7 @@ def robust_start(job_dir: Path, intake: Intake, library: Library, config: Pipeli
                  device: torch.device, learn_focal: bool, progress: Progress,
                  recorded: list[dict[str, Any]]) -> Intake:
     """The intake with the retrieval hypothesis whose short silhouette fit is best
-    (``RetrievalConfig.hypotheses``; ``nerf.start``), its ``retrieval.json`` rewritten with
+    (``RetrievalConfig.hypotheses``; ``cameras.start``), its ``retrieval.json`` rewritten with
     every fit's score; unchanged when retrieval gave no alternatives. ``recorded``: the fits
     an earlier run of this job wrote (kept when they cover the same hypotheses)."""
     if not intake.retrieval.alternatives:

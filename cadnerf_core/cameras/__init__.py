@@ -16,6 +16,7 @@ from cadnerf_core.cameras.conventions import (  # numpy only: loaded with the pa
     look_at,
     orbit_pose,
     pose_errors,
+    project,
     rotation_angle_deg,
     scale_focal,
     to_transforms_json,
@@ -36,7 +37,8 @@ __getattr__, __dir__ = lazy_exports(__name__, EXPORTS)
 __all__ = ["CV_TO_GL", "Mapped", "PairMatch", "align_poses", "choose_start",
     "from_transforms_json", "fuse", "fuse_hypotheses", "intrinsics_from_fov", "job_pairs",
     "look_at", "map_photos", "match_photos", "orbit_pose", "place", "place_cameras",
-    "place_hypotheses", "pose_errors", "rotation_angle_deg", "scale_focal", "to_transforms_json"]
+    "place_hypotheses", "pose_errors", "project", "rotation_angle_deg", "scale_focal",
+    "to_transforms_json"]
 
 if TYPE_CHECKING:
     from cadnerf_core.cameras.fusion import fuse, fuse_hypotheses

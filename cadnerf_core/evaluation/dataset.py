@@ -4,7 +4,8 @@
 views in order, azimuths going one way round, elevations varying. The folder it writes
 (``images/NNN.png`` RGBA, ``masks/NNN.png``, ``transforms.json``, optional ``test/`` split with
 ``transforms_test.json``, and ``dataset.json`` with the seed and angles) is a NeRF-synthetic
-dataset, so ``load_dataset`` reads it as well as the Blender scenes of the original NeRF.
+dataset, so ``load_dataset`` reads it as well as the Blender scenes of the original NeRF, and a
+real capture's folder (``capture``: photos, masks and ``cameras.json``).
 """
 
 from __future__ import annotations
@@ -12,6 +13,7 @@ from __future__ import annotations
 import json
 import logging
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Literal
@@ -48,6 +50,7 @@ class Dataset:
     names: list[str]  # frame names (file stems), in order
     root: Path  # the dataset folder
     test: Dataset | None = None  # held-out split (transforms_test.json), when present
+    masked: bool = True  # the masks came with the frames (False: whole-frame placeholders)
 
 
 def walking_angles(n_views: int, rng: np.random.Generator, direction: int,
@@ -175,66 +178,103 @@ def _write_split(renderer: MeshRenderer, K: np.ndarray, size: int, azimuths: np.
     (out / transforms_name).write_text(json.dumps(data, indent=2))
 
 
-def load_dataset(path: str | Path) -> Dataset:
-    """Read a dataset folder: ours, or any NeRF-synthetic (Blender) scene.
+def load_dataset(path: str | Path, hold_out: Sequence[int] = ()) -> Dataset:
+    """Read a dataset folder: ours, any NeRF-synthetic (Blender) scene, or a real capture.
 
     The training split comes from ``transforms_train.json`` or ``transforms.json``; the test
     split from ``transforms_test.json`` when present. Frame paths may omit the extension
-    (``.png`` is tried). RGBA images are composited on white and their alpha is the mask;
-    otherwise a ``masks/`` image beside ``images/`` is used, else the whole frame.
+    (``.png`` is tried). Without these files, a capture's ``cameras.json`` (``capture``) is
+    read. RGBA images are composited on white and their alpha is the mask; otherwise a
+    ``masks/`` image beside ``images/`` is the mask and the photo is composited on white by it,
+    else the whole frame is the object (``Dataset.masked`` False).
 
     Args:
         path: the dataset folder.
+        hold_out: training frames (0-based, in the file's order) moved to the test split, for
+            a folder without one (a capture's).
     Returns:
         Dataset with ``test`` set when there is a test split.
     Raises:
-        InputError: no transforms file, or a frame image is missing.
+        InputError: no transforms or cameras file, a broken one, or a frame image is missing.
+        ValueError: ``hold_out`` names a frame that is not there, or the folder has a test
+            split already.
     """
+    from cadnerf_core.evaluation.capture import hold_out_views, load_capture
+
     root = Path(path)
     train_json = next((root / name for name in ("transforms_train.json", "transforms.json")
                        if (root / name).is_file()), None)
-    if train_json is None:
-        raise InputError("no transforms_train.json or transforms.json", item=str(root))
-    dataset = _load_split(root, train_json)
+    if train_json is None and (root / "cameras.json").is_file():
+        dataset = load_capture(root)
+    elif train_json is None:
+        raise InputError("no transforms_train.json, transforms.json or cameras.json",
+                         item=str(root))
+    else:
+        dataset = _load_split(root, train_json)
     if (root / "transforms_test.json").is_file():
         dataset.test = _load_split(root, root / "transforms_test.json")
-    return dataset
+    return hold_out_views(dataset, hold_out) if hold_out else dataset
 
 
 def _load_split(root: Path, json_path: Path) -> Dataset:
     """One split of a NeRF-synthetic folder."""
-    data = json.loads(json_path.read_text())
-    images, masks, names = [], [], []
-    for frame in data["frames"]:
-        rgb, mask = _read_frame(root, str(frame["file_path"]))
+    try:
+        data = json.loads(json_path.read_text())
+        frames = [str(frame["file_path"]) for frame in data["frames"]]
+    except (ValueError, KeyError, TypeError) as exc:
+        raise InputError(f"not a transforms file ({exc})", item=str(json_path)) from None
+    images, masks, names, found = [], [], [], []
+    for file_path in frames:
+        rgb, mask, masked = read_frame(root / file_path)
         images.append(rgb)
         masks.append(mask)
-        names.append(Path(frame["file_path"]).stem)
+        found.append(masked)
+        names.append(Path(file_path).stem)
     shapes = {im.shape for im in images}
     if len(shapes) != 1:
         raise InputError(f"frames have different sizes {sorted(shapes)}", item=str(json_path))
     height, width = images[0].shape[:2]
     c2w, K = from_transforms_json(data, width, height)
     return Dataset(images=np.stack(images), masks=np.stack(masks), c2w=c2w, K=K, names=names,
-                   root=root)
+                   root=root, masked=all(found))
 
 
-def _read_frame(root: Path, file_path: str) -> tuple[np.ndarray, np.ndarray]:
-    """Image [H, W, 3] f32 on white and mask [H, W] bool of one frame."""
-    image_path = root / file_path
+def read_frame(image_path: Path, mask_path: Path | None = None,
+               ) -> tuple[np.ndarray, np.ndarray, bool]:
+    """One frame: its image on white, its mask, and whether the mask came with it.
+
+    The mask is the image's alpha, else ``mask_path``, else ``masks/<stem>.png`` beside an
+    ``images/`` folder; the image is composited on white by it. Without one the whole frame
+    is the object and the image is kept as it is.
+
+    Args:
+        image_path: the image (``.png`` is tried when the path has no such file).
+        mask_path: its mask (white = object), when the dataset names one.
+    Returns:
+        image [H, W, 3] f32 in [0, 1], mask [H, W] bool, and whether a mask was found.
+    Raises:
+        InputError: the image or the named mask is missing, or has another size.
+    """
+    given = image_path
     if not image_path.is_file():
         image_path = image_path.with_name(image_path.name + ".png")
     if not image_path.is_file():
-        raise InputError("frame image not found", item=str(root / file_path))
+        raise InputError("frame image not found", item=str(given))
     with Image.open(image_path) as image:
         has_alpha = image.mode in ("RGBA", "LA") or "transparency" in image.info
         pixels = np.asarray(image.convert("RGBA"), dtype=np.float32) / 255.0
     rgb, alpha = pixels[..., :3], pixels[..., 3]
-    if has_alpha:
-        return rgb * alpha[..., None] + (1.0 - alpha[..., None]), alpha > 0.5
-    mask_path = image_path.parent.parent / "masks" / (image_path.stem + ".png")
-    if image_path.parent.name == "images" and mask_path.is_file():
+    if not has_alpha:
+        beside = image_path.parent.parent / "masks" / (image_path.stem + ".png")
+        if mask_path is None and image_path.parent.name == "images" and beside.is_file():
+            mask_path = beside
+        if mask_path is None:
+            return rgb, np.ones(rgb.shape[:2], dtype=bool), False
+        if not mask_path.is_file():
+            raise InputError("frame mask not found", item=str(mask_path))
         with Image.open(mask_path) as mask_image:
-            mask = np.asarray(mask_image.convert("L")) > 127
-        return rgb, mask
-    return rgb, np.ones(rgb.shape[:2], dtype=bool)
+            alpha = (np.asarray(mask_image.convert("L")) > 127).astype(np.float32)
+        if alpha.shape != rgb.shape[:2]:
+            raise InputError(f"mask is {alpha.shape[::-1]}, its image {rgb.shape[1::-1]}",
+                             item=str(mask_path))
+    return rgb * alpha[..., None] + (1.0 - alpha[..., None]), alpha > 0.5, True

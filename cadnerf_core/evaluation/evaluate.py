@@ -22,6 +22,7 @@ import logging
 import math
 import tempfile
 import time
+from collections.abc import Callable, Sequence
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Literal
@@ -29,6 +30,7 @@ from typing import TYPE_CHECKING, Any, Literal
 import numpy as np
 
 from cadnerf_core.cameras.conventions import align_poses
+from cadnerf_core.evaluation.capture import with_found_masks
 from cadnerf_core.evaluation.dataset import Dataset, load_dataset
 from cadnerf_core.evaluation.frame import frame_mapping
 from cadnerf_core.evaluation.jobio import (
@@ -37,6 +39,7 @@ from cadnerf_core.evaluation.jobio import (
     first_views,
     phase_costs,
     read_job_cameras,
+    with_job_masks,
     write_job,
 )
 from cadnerf_core.evaluation.metrics import (
@@ -45,6 +48,7 @@ from cadnerf_core.evaluation.metrics import (
     LpipsNet,
     PoseMetrics,
     image_metrics,
+    masked_image_metrics,
     mean_image_metrics,
     pose_metrics,
 )
@@ -71,6 +75,9 @@ class EvalReport:
     category: str
     image: ImageMetrics  # mean over held-out views
     per_view: list[ImageMetrics]
+    image_masked: ImageMetrics  # mean over held-out views, inside the object's mask
+    per_view_masked: list[ImageMetrics]
+    test_masks: str  # "dataset" (the frames' own) or "found" (background removal's)
     lpips_note: str | None  # why LPIPS and Average are missing, when they are
     pose_refined: PoseMetrics  # refined cameras of the kept photos vs ground truth
     pose_retrieved: PoseMetrics  # retrieved cameras (before refinement) vs ground truth
@@ -90,6 +97,13 @@ class EvalReport:
     test_names: list[str]
     renders: list[str]  # saved held-out renders, in test order
     cameras: dict[str, list[Any]] = field(default_factory=dict)  # poses in the GT frame
+    # The held-out cameras in the NeRF's frame ("c2w"; "c2w_centred": by the centred mapping,
+    # before the photometric fit) and their intrinsics "K" in the dataset's pixels.
+    held_out: dict[str, list[Any]] = field(default_factory=dict)
+    # The same views rendered from the exported textured mesh (``mesh=True``), in the mask.
+    image_mesh: ImageMetrics | None = None
+    per_view_mesh: list[ImageMetrics] = field(default_factory=list)
+    renders_mesh: list[str] = field(default_factory=list)
 
     def to_json(self) -> dict[str, Any]:
         """Plain, JSON-serialisable dict (infinite PSNR becomes ``null``)."""
@@ -110,41 +124,98 @@ def _finite_or_none(value: Any) -> Any:
 
 def resize_view(image: np.ndarray, K: np.ndarray, size: int | None,
                 ) -> tuple[np.ndarray, np.ndarray]:
-    """A square view and its intrinsics at ``size`` px (area-averaged; unchanged for None).
+    """A view and its intrinsics at ``size`` px on its longer side (area-averaged; unchanged
+    for None).
 
     Args:
-        image: [H, W, 3] float in [0, 1] with H == W; K: [3, 3] for it.
+        image: [H, W, C] float in [0, 1]; K: [3, 3] for it.
     Returns:
-        image [size, size, 3] float32, K [3, 3] scaled to the new size.
+        image [h, w, C] float32 (the aspect kept, sides rounded), K [3, 3] scaled to it.
     """
-    side = image.shape[1]
-    if size is None or size == side:
+    height, width = image.shape[:2]
+    if size is None or size == max(height, width):
         return image.astype(np.float32), K
     import cv2
 
+    new_width = max(1, round(width * size / max(height, width)))
+    new_height = max(1, round(height * size / max(height, width)))
     scaled = np.array(K, dtype=np.float64, copy=True)
-    scaled[:2] *= size / side  # pixel-edge convention: (u + 0.5) scales with the image
-    resized = cv2.resize(image.astype(np.float32), (size, size), interpolation=cv2.INTER_AREA)
-    return np.clip(resized, 0.0, 1.0), scaled
+    # Pixel-edge convention: (u + 0.5) scales with the image, so K's rows scale as its sides.
+    scaled[0] *= new_width / width
+    scaled[1] *= new_height / height
+    resized = cv2.resize(image.astype(np.float32), (new_width, new_height),
+                         interpolation=cv2.INTER_AREA)
+    return np.clip(resized.reshape(new_height, new_width, *image.shape[2:]), 0.0, 1.0), scaled
 
 
-def _render_held_out(model: TrainedModel, test: Dataset, c2w_nerf: np.ndarray, K: np.ndarray,
+def resize_mask(mask: np.ndarray, K: np.ndarray, size: int | None) -> np.ndarray:
+    """A mask [H, W] bool at the size ``resize_view`` gives its view (area-averaged, then
+    half-covered pixels kept). Returns [h, w] bool."""
+    return resize_view(mask.astype(np.float32)[..., None], K, size)[0][..., 0] > 0.5
+
+
+@dataclass(frozen=True)
+class HeldOutScores:
+    """The held-out views' scores and renders."""
+
+    whole: list[ImageMetrics]  # over the whole frame
+    masked: list[ImageMetrics]  # inside the object's mask
+    renders: list[str]  # saved renders, in test order
+
+
+# (c2w [4, 4], K [3, 3], width, height) -> rgb [H, W, 3] on white
+Renderer = Callable[[np.ndarray, np.ndarray, int, int], np.ndarray]
+
+
+def _render_held_out(render: Renderer, test: Dataset, c2w_nerf: np.ndarray, Ks: np.ndarray,
                      out_dir: Path, lpips_net: LpipsNet | None, size: int | None,
-                     ) -> tuple[list[ImageMetrics], list[str]]:
-    """Render every held-out view, save it, and score it against the ground truth."""
+                     prefix: str = "test") -> HeldOutScores:
+    """Render every held-out view (c2w_nerf [T, 4, 4], Ks [T, 3, 3] in the dataset's pixels),
+    save it as ``{prefix}_NNN.png``, and score it against the ground truth."""
     from cadnerf_core.export.media import write_png
 
     out_dir.mkdir(parents=True, exist_ok=True)
-    scores, paths = [], []
-    for i, (c2w, full_gt) in enumerate(zip(c2w_nerf, test.images, strict=True)):
+    scores = HeldOutScores([], [], [])
+    for i, (c2w, K, full_gt, full_mask) in enumerate(zip(c2w_nerf, Ks, test.images, test.masks,
+                                                         strict=True)):
         gt, K_eval = resize_view(full_gt, K, size)
+        mask = resize_mask(full_mask, K, size)
         height, width = gt.shape[:2]
-        rgb, _ = model.render_image(c2w, K_eval, width, height, background=1.0)
-        path = out_dir / f"test_{i:03d}.png"
+        rgb = render(c2w, K_eval, width, height)
+        path = out_dir / f"{prefix}_{i:03d}.png"
         write_png(path, rgb)
-        scores.append(image_metrics(rgb, gt, lpips_net))
-        paths.append(str(path))
-    return scores, paths
+        scores.whole.append(image_metrics(rgb, gt, lpips_net))
+        scores.masked.append(masked_image_metrics(rgb, gt, mask, lpips_net) if mask.any()
+                             else scores.whole[-1])
+        scores.renders.append(str(path))
+    return scores
+
+
+def _mesh_renderer(job: Path) -> Renderer:
+    """The job's textured mesh as a ``Renderer`` (``views.job_renderer``)."""
+    from cadnerf_core.evaluation.views import View, job_renderer
+
+    render = job_renderer(job, "mesh")
+
+    def mesh_view(c2w: np.ndarray, K: np.ndarray, width: int, height: int) -> np.ndarray:
+        return render(View("", c2w, K, width, height))[0]
+
+    return mesh_view
+
+
+def _score_held_out(model: TrainedModel, job: Path, test: Dataset, c2w_nerf: np.ndarray,
+                    Ks: np.ndarray, lpips_net: LpipsNet | None, size: int | None, mesh: bool,
+                    ) -> tuple[HeldOutScores, HeldOutScores | None]:
+    """The held-out views rendered from the field and, where ``mesh``, from the job's mesh,
+    saved in the job's eval folder and scored."""
+    def field_view(c2w: np.ndarray, K: np.ndarray, width: int, height: int) -> np.ndarray:
+        return model.render_image(c2w, K, width, height, background=1.0)[0]
+
+    out_dir = JobFolder(job).eval_dir
+    scores = _render_held_out(field_view, test, c2w_nerf, Ks, out_dir, lpips_net, size)
+    on_mesh = _render_held_out(_mesh_renderer(job), test, c2w_nerf, Ks, out_dir, lpips_net,
+                               size, "mesh") if mesh else None
+    return scores, on_mesh
 
 
 def _cameras_in_gt_frame(train: Dataset, cams: JobCameras) -> dict[str, list[Any]]:
@@ -161,11 +232,14 @@ def evaluate_dataset(dataset_dir: Path, n_views: int, library: Library, preset: 
                      intrinsics: Literal["estimated", "gt"] = "estimated",
                      align: Literal["photometric", "centred", "umeyama"] = "photometric",
                      eval_size: int | None = None, progress: Progress | None = None,
-                     exif_focal: bool = False) -> EvalReport:
+                     exif_focal: bool = False, hold_out: Sequence[int] = (),
+                     mesh: bool = False) -> EvalReport:
     """Run the method on the first ``n_views`` views of a dataset and score it.
 
     Args:
-        dataset_dir: dataset with a test split (``load_dataset``).
+        dataset_dir: dataset with a test split, or a capture and ``hold_out``
+            (``load_dataset``). A dataset without masks is given to the job without them
+            (it makes its own); its held-out views are masked as a job masks its photos.
         n_views: input views (the first ones in walking order).
         library: the CAD library.
         preset, overrides: the job's configuration (``seed`` may be an override).
@@ -181,22 +255,28 @@ def evaluate_dataset(dataset_dir: Path, n_views: int, library: Library, preset: 
             cameras' centres) or "umeyama" (free similarity of camera centres; its translation
             absorbs pose errors and moves the object off-centre). Pose errors always use
             Umeyama.
-        eval_size: side in pixels at which held-out views are rendered and scored (ground
-            truth area-averaged to it); None = the dataset's own size.
+        eval_size: longer side in pixels at which held-out views are rendered and scored
+            (ground truth area-averaged to it); None = the dataset's own size.
         progress: forwarded to the pipeline.
         exif_focal: the photos carry their true focal length in EXIF, as a phone's do.
+        hold_out: frames moved to the test split first (a capture has none of its own;
+            ``load_dataset``).
+        mesh: also render the held-out views from the job's textured ``mesh.glb`` and score
+            them inside the mask.
     Returns:
         EvalReport.
     Raises:
         ValueError: too few views, no test split, or a non-empty job folder.
+        InputError: a broken dataset.
     """
     from cadnerf_core.nerf.model import TrainedModel
     from cadnerf_core.pipeline import run_job
 
     start = time.perf_counter()
     overrides = dict(overrides or {})
-    data = first_views(load_dataset(dataset_dir), n_views)
+    data = first_views(load_dataset(dataset_dir, hold_out), n_views)
     assert data.test is not None
+    test = data.test if data.test.masked else with_found_masks(data.test)
     job = Path(job_dir) if job_dir is not None else Path(tempfile.mkdtemp(prefix="cadnerf-eval-"))
     if job.exists() and any(job.iterdir()):
         raise ValueError(f"job folder {job} is not empty")
@@ -205,30 +285,40 @@ def evaluate_dataset(dataset_dir: Path, n_views: int, library: Library, preset: 
     folder = JobFolder(job)
     model = TrainedModel.load(job, device)
     cams = read_job_cameras(job, model)
+    if not data.masked:  # the frame fit compares the photos on white, as the NeRF renders
+        data = with_job_masks(job, data)
     gt_kept = data.c2w[cams.kept]
+    centred = frame_mapping(model, data, cams, "centred", intrinsics)
     to_nerf = frame_mapping(model, data, cams, align, intrinsics)
-    K = eval_intrinsics(data.test.K[0], cams, intrinsics)
-    focal_gt = float(data.test.K[0][0, 0])
-    retrieved = float(np.median(cams.K_retrieved[:, 0, 0]))
+    Ks = np.stack([eval_intrinsics(k, cams, intrinsics) for k in test.K])
     render_start = time.perf_counter()
-    scores, renders = _render_held_out(model, data.test, to_nerf.apply_to_poses(data.test.c2w),
-                                       K, folder.eval_dir, lpips_net, eval_size)
+    c2w_nerf = to_nerf.apply_to_poses(test.c2w)
+    scores, on_mesh = _score_held_out(model, job, test, c2w_nerf, Ks, lpips_net, eval_size,
+                                      mesh)
     render_s = time.perf_counter() - render_start
     metrics = folder.read_metrics() or {}
     names = data.names
+    focal_gt = float(test.K[0][0, 0])
     return EvalReport(
         dataset=str(dataset_dir), n_views=n_views, preset=preset, overrides=overrides,
         seed=folder.read_config().seed,
         model_id=cams.model_id, category=cams.category,
-        image=mean_image_metrics(scores), per_view=scores,
+        image=mean_image_metrics(scores.whole), per_view=scores.whole,
+        image_masked=mean_image_metrics(scores.masked), per_view_masked=scores.masked,
+        test_masks="found" if test is not data.test else "dataset",
         lpips_note=None if lpips_net is not None else LPIPS_MISSING,
         pose_refined=pose_metrics(cams.refined, gt_kept),
         pose_retrieved=pose_metrics(cams.retrieved, gt_kept),
         kept=[names[i] for i in cams.kept], discarded=[names[i] for i in cams.discarded],
         phases=phase_costs(model.extra, metrics), seconds=time.perf_counter() - start,
-        job_dir=str(job), eval_size=int(eval_size or data.test.images.shape[1]),
-        intrinsics=intrinsics, align=align, focal_used=float(K[0, 0]), focal_gt=focal_gt,
-        focal_error=float(K[0, 0]) / focal_gt - 1.0,
-        focal_error_retrieved=retrieved / focal_gt - 1.0, render_seconds=render_s,
-        test_names=data.test.names, renders=renders,
-        cameras=_cameras_in_gt_frame(data, cams))
+        job_dir=str(job), eval_size=int(eval_size or max(test.images.shape[1:3])),
+        intrinsics=intrinsics, align=align, focal_used=float(Ks[0, 0, 0]), focal_gt=focal_gt,
+        focal_error=float(Ks[0, 0, 0]) / focal_gt - 1.0,
+        focal_error_retrieved=float(np.median(cams.K_retrieved[:, 0, 0])) / focal_gt - 1.0,
+        render_seconds=render_s, test_names=test.names, renders=scores.renders,
+        cameras=_cameras_in_gt_frame(data, cams),
+        held_out={"c2w": c2w_nerf.tolist(), "c2w_centred": centred.apply_to_poses(test.c2w)
+                  .tolist(), "K": Ks.tolist()},
+        image_mesh=mean_image_metrics(on_mesh.masked) if on_mesh else None,
+        per_view_mesh=on_mesh.masked if on_mesh else [],
+        renders_mesh=on_mesh.renders if on_mesh else [])

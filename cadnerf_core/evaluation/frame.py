@@ -4,6 +4,7 @@ of ground-truth cameras into a trained NeRF's frame (by camera centres, then pho
 
 from __future__ import annotations
 
+import logging
 import math
 from dataclasses import dataclass
 from typing import TYPE_CHECKING
@@ -16,6 +17,8 @@ from cadnerf_core.evaluation.jobio import JobCameras, eval_intrinsics
 
 if TYPE_CHECKING:
     from cadnerf_core.nerf.model import TrainedModel
+
+log = logging.getLogger(__name__)
 
 
 @dataclass(frozen=True)
@@ -44,16 +47,44 @@ class Similarity:
                           scale * R @ self.t + np.asarray(t, dtype=np.float64))
 
 
+MEETING_MIN = 1e-3
+"""Least eigenvalue (per camera) of the optical axes' normal equations below which they are
+taken as parallel (``object_centre``): axes within about 2 degrees of each other."""
+
+
+def object_centre(c2w: np.ndarray) -> np.ndarray:
+    """The point nearest every camera's optical axis, in least squares: where cameras that
+    each frame the object look, so its centre (a synthetic walk's origin, a capture's
+    object in a world of its own). The cameras' mean centre where the axes are parallel.
+
+    Args:
+        c2w: [N, 4, 4] OpenCV camera-to-world poses.
+    Returns:
+        [3] float64.
+    """
+    c2w = np.asarray(c2w, dtype=np.float64)
+    axes = c2w[:, :3, 2] / np.linalg.norm(c2w[:, :3, 2], axis=1, keepdims=True)
+    across = np.eye(3)[None] - axes[:, :, None] * axes[:, None, :]  # [N, 3, 3] projectors
+    A = across.sum(0)
+    if np.linalg.eigvalsh(A)[0] < MEETING_MIN * len(c2w):
+        return c2w[:, :3, 3].mean(0)
+    return np.linalg.solve(A, np.einsum("nij,nj->i", across, c2w[:, :3, 3]))
+
+
 def centre_similarity(c2w_src: np.ndarray, c2w_dst: np.ndarray,
-                      fix_origin: bool = False) -> Similarity:
+                      fix_origin: bool = False,
+                      src_centre: np.ndarray | None = None) -> Similarity:
     """The similarity that best maps the source camera centres onto the destination's.
 
     Args:
         c2w_src, c2w_dst: [N, 4, 4] corresponding cameras (N >= 3 for a unique rotation).
-        fix_origin: keep the origin fixed (``t = 0``): the best rotation, and the scale that
-            matches the cameras' RMS distances from the origin. Both our frames hold the
-            object centred at the origin, so this keeps the object centred and in view when
-            the cameras are uncertain (a free translation absorbs pose errors as an offset).
+        fix_origin: map ``src_centre`` onto the origin: the best rotation about it, and the
+            scale that matches the cameras' RMS distances from the two. The NeRF's frame
+            holds the object centred at its origin, so this keeps the object centred and in
+            view when the cameras are uncertain (a free translation absorbs pose errors as
+            an offset).
+        src_centre: [3] the object's centre in the source frame (``object_centre``); None:
+            the origin (a synthetic walk's frame, centred as ours).
     Returns:
         Similarity with ``dst_centre ~ scale * R @ src_centre + t`` (Umeyama, least squares).
     """
@@ -62,6 +93,8 @@ def centre_similarity(c2w_src: np.ndarray, c2w_dst: np.ndarray,
     if not fix_origin:
         scale, R, t = umeyama(src, dst)
         return Similarity(scale, R, t)
+    centre = np.zeros(3) if src_centre is None else np.asarray(src_centre, dtype=np.float64)
+    src = src - centre
     U, _, Vt = np.linalg.svd(dst.T @ src)
     D = np.eye(3)
     if np.linalg.det(U) * np.linalg.det(Vt) < 0:
@@ -71,7 +104,7 @@ def centre_similarity(c2w_src: np.ndarray, c2w_dst: np.ndarray,
     # cameras into the object (the least-squares scale shrinks with the fit).
     norm = float((src**2).sum())
     scale = math.sqrt(float((dst**2).sum()) / norm) if norm > 0 else 1.0
-    return Similarity(scale, R, np.zeros(3))
+    return Similarity(scale, R, -scale * R @ centre)
 
 
 FRAME_FIT_STEPS = 200
@@ -102,7 +135,8 @@ def fit_frame(model: TrainedModel, start: Similarity, c2w_gt: np.ndarray, K: np.
         images: [N, H, W, 3] float in [0, 1], the photos composited on white.
         steps, rays: Adam steps (lr 2e-3) and rays per step; seed: the rays drawn.
     Returns:
-        The refined Similarity (``start`` when ``steps`` is 0).
+        The refined Similarity (``start`` when ``steps`` is 0, or when no ray of the mapped
+        cameras meets the field: their loss has no gradient).
     """
     import torch
 
@@ -125,6 +159,7 @@ def fit_frame(model: TrainedModel, start: Similarity, c2w_gt: np.ndarray, K: np.
     rcfg = st.config.render
     was = [p.requires_grad for p in st.fields.parameters()]
     st.fields.requires_grad_(False)
+    seen = 0  # steps with a gradient
     try:
         for _ in range(steps):
             cam = torch.randint(0, n, (rays,), generator=gen).to(dev)
@@ -138,12 +173,19 @@ def fit_frame(model: TrainedModel, start: Similarity, c2w_gt: np.ndarray, K: np.
                               rcfg.samples_per_ray, rcfg.bound, st.grid, True, False)
             assert out.rgb is not None
             loss = torch.nn.functional.mse_loss(out.rgb, target[cam, y, x])
+            if not loss.requires_grad:  # no ray met the field: nothing to learn from here
+                continue
+            seen += 1
             optimizer.zero_grad()
             loss.backward()
             optimizer.step()
     finally:
         for param, flag in zip(st.fields.parameters(), was, strict=True):
             param.requires_grad_(flag)
+    if seen == 0:
+        log.warning("frame fit: no ray of the mapped cameras meets the field; the centred "
+                    "mapping is kept")
+        return start
     with torch.no_grad():
         E = se3_exp(xi.detach()[None])[0].double().cpu().numpy()
         scale = float(torch.exp(log_scale.detach()).item())
@@ -157,7 +199,8 @@ def frame_mapping(model: TrainedModel, data: Dataset, cams: JobCameras, align: s
     gt_kept = data.c2w[cams.kept]
     if align not in ("photometric", "centred", "umeyama"):
         raise ValueError(f"align must be 'photometric', 'centred' or 'umeyama', not {align!r}")
-    sim = centre_similarity(gt_kept, cams.refined, fix_origin=align != "umeyama")
+    sim = centre_similarity(gt_kept, cams.refined, fix_origin=align != "umeyama",
+                            src_centre=object_centre(gt_kept))
     if align != "photometric":
         return sim
     K = np.stack([eval_intrinsics(data.K[i], cams, intrinsics) for i in cams.kept])

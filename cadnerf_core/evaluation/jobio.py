@@ -4,7 +4,7 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -28,11 +28,12 @@ def first_views(dataset: Dataset, n_views: int) -> Dataset:
     if n_views < 1 or n_views > len(dataset.names):
         raise ValueError(f"asked for {n_views} views, the dataset has {len(dataset.names)}")
     if dataset.test is None or not dataset.test.names:
-        raise ValueError(f"{dataset.root} has no test split (transforms_test.json)")
+        raise ValueError(f"{dataset.root} has no test split (transforms_test.json): name the "
+                         "frames to hold out (--hold-out)")
     sl = slice(0, n_views)
     return Dataset(images=dataset.images[sl], masks=dataset.masks[sl], c2w=dataset.c2w[sl],
                    K=dataset.K[sl], names=dataset.names[sl], root=dataset.root,
-                   test=dataset.test)
+                   test=dataset.test, masked=dataset.masked)
 
 
 def exif_with_focal(K: np.ndarray, width: int, height: int) -> bytes:
@@ -48,7 +49,8 @@ def exif_with_focal(K: np.ndarray, width: int, height: int) -> bytes:
 
 def write_job(job_dir: Path, train: Dataset, preset: str, overrides: dict[str, Any],
               exif_focal: bool = False) -> None:
-    """Create a job folder: the views as RGBA PNG photos (alpha = mask) and the resolved config.
+    """Create a job folder: the views as RGBA PNG photos (alpha = mask; RGB where the dataset
+    has no masks, for the job to make its own) and the resolved config.
 
     Args:
         job_dir: the folder (created; must not hold an earlier job).
@@ -64,12 +66,41 @@ def write_job(job_dir: Path, train: Dataset, preset: str, overrides: dict[str, A
         raise ValueError(f"{job_dir} already holds a job")
     for i, (rgb, mask, name) in enumerate(zip(train.images, train.masks, train.names,
                                               strict=True)):
-        rgba = np.dstack([np.round(np.clip(rgb, 0, 1) * 255).astype(np.uint8),
-                          mask.astype(np.uint8) * 255])
+        pixels = np.round(np.clip(rgb, 0, 1) * 255).astype(np.uint8)
+        if train.masked:
+            pixels = np.dstack([pixels, mask.astype(np.uint8) * 255])
         height, width = mask.shape
         exif = exif_with_focal(train.K[i], width, height) if exif_focal else b""
-        Image.fromarray(rgba, "RGBA").save(folder.new_photo_path(i, name, "png"), exif=exif)
+        Image.fromarray(pixels).save(folder.new_photo_path(i, name, "png"), exif=exif)
     folder.write_config(config)
+
+
+def with_job_masks(job_dir: Path, data: Dataset) -> Dataset:
+    """The views a job was given without masks, composited on white by the masks the job
+    made (``masks/NNN.png``, scaled to the view; a view without one keeps its frame).
+
+    Args:
+        job_dir: a job written by ``write_job`` from ``data`` and run.
+        data: its views (``masked`` False).
+    Returns:
+        The views on white with the job's masks; ``masked`` True.
+    """
+    import cv2
+
+    folder = JobFolder(job_dir)
+    images, masks = data.images.copy(), data.masks.copy()
+    height, width = data.masks.shape[1:]
+    for i in range(len(data.names)):
+        try:
+            mask = folder.read_mask(i)
+        except FileNotFoundError:
+            continue
+        if mask.shape != (height, width):
+            mask = cv2.resize(mask.astype(np.uint8), (width, height),
+                              interpolation=cv2.INTER_NEAREST) > 0
+        masks[i] = mask
+        images[i][~mask] = 1.0
+    return replace(data, images=images, masks=masks, masked=True)
 
 
 @dataclass

@@ -125,3 +125,59 @@ def colmap_text(cameras: Sequence[ColmapCamera], mesh: TexturedMesh,
                         f"{colour[0]} {colour[1]} {colour[2]} 0 {' '.join(tracks[p])}".rstrip())
     return ("\n".join(cam_lines) + "\n", "\n".join(img_lines) + "\n",
             "\n".join(pt_lines) + "\n")
+
+
+_COLMAP_FOCALS = {"SIMPLE_PINHOLE": 1, "SIMPLE_RADIAL": 1, "RADIAL": 1, "SIMPLE_RADIAL_FISHEYE": 1,
+                  "RADIAL_FISHEYE": 1, "PINHOLE": 2, "OPENCV": 2, "OPENCV_FISHEYE": 2,
+                  "FULL_OPENCV": 2, "FOV": 2, "THIN_PRISM_FISHEYE": 2}
+"""COLMAP's camera models by how many focal lengths lead their parameters (then cx, cy; any
+distortion after them is not rendered)."""
+
+
+def _colmap_intrinsics(line: str) -> tuple[int, np.ndarray, int, int]:
+    """One ``cameras.txt`` line: camera id, K [3, 3], width, height."""
+    parts = line.split()
+    model, width, height = parts[1], int(parts[2]), int(parts[3])
+    if model not in _COLMAP_FOCALS:
+        raise ValueError(f"unknown COLMAP camera model {model!r}")
+    params = [float(v) for v in parts[4:]]
+    focals = _COLMAP_FOCALS[model]
+    fx, fy = params[0], params[focals - 1]
+    cx, cy = params[focals], params[focals + 1]
+    return int(parts[0]), np.array([[fx, 0.0, cx], [0.0, fy, cy], [0.0, 0.0, 1.0]]), width, height
+
+
+def read_colmap_text(cameras_text: str, images_text: str) -> list[ColmapCamera]:
+    """The registered images of a COLMAP text model (``cameras.txt``, ``images.txt``).
+
+    Args:
+        cameras_text, images_text: the two files' text.
+    Returns:
+        One camera per image, in the file's order (``name`` as the file gives it).
+    Raises:
+        ValueError: a line that does not parse, or an image of a camera not listed.
+    """
+    from scipy.spatial.transform import Rotation
+
+    intrinsics = {}
+    for line in cameras_text.splitlines():
+        if line.strip() and not line.startswith("#"):
+            cam_id, K, width, height = _colmap_intrinsics(line)
+            intrinsics[cam_id] = (K, width, height)
+    lines = [line for line in images_text.splitlines() if not line.startswith("#")]
+    out, i = [], 0
+    while i < len(lines):
+        if not lines[i].strip():
+            i += 1
+            continue
+        parts = lines[i].split()  # IMAGE_ID QW QX QY QZ TX TY TZ CAMERA_ID NAME; points next
+        qw, qx, qy, qz, tx, ty, tz = (float(v) for v in parts[1:8])
+        if int(parts[8]) not in intrinsics:
+            raise ValueError(f"image {parts[9]!r} names camera {parts[8]}, which is not listed")
+        K, width, height = intrinsics[int(parts[8])]
+        w2c = np.eye(4)
+        w2c[:3, :3] = Rotation.from_quat([qx, qy, qz, qw]).as_matrix()
+        w2c[:3, 3] = (tx, ty, tz)
+        out.append(ColmapCamera(" ".join(parts[9:]), np.linalg.inv(w2c), K, width, height))
+        i += 2
+    return out

@@ -123,9 +123,12 @@ def sample_texture(texture: np.ndarray, uv: np.ndarray) -> np.ndarray:
 class MeshRenderer:
     """Ray-casting renderer of one mesh; the Embree scene is built once, here."""
 
-    def __init__(self, mesh: trimesh.Trimesh) -> None:
-        """Args: mesh: a triangle mesh (texture, vertex or face colours used when present)."""
+    def __init__(self, mesh: trimesh.Trimesh, lit: bool = True) -> None:
+        """Args: mesh: a triangle mesh (texture, vertex or face colours used when present);
+        lit: shade it (``_shade``); False shows its colours as they are (a texture baked
+        from photos or a field already holds the light)."""
         self.mesh = mesh
+        self.lit = lit
         vertices = np.asarray(mesh.vertices, dtype=np.float64)
         # Embree works in float32: shift the mesh to its box centre to keep precision.
         self._offset = (vertices.min(axis=0) + vertices.max(axis=0)) / 2.0
@@ -173,7 +176,9 @@ class MeshRenderer:
         bary = np.stack([1.0 - u - v, u, v], axis=1)
         rgb = np.empty((width * height, 3), dtype=np.float32)
         rgb[:] = np.broadcast_to(np.asarray(background, dtype=np.float32), 3)
-        rgb[hit] = self._colours.colours(faces, bary) * self._shade(faces, directions[hit], c2w)
+        rgb[hit] = self._colours.colours(faces, bary)
+        if self.lit:
+            rgb[hit] *= self._shade(faces, directions[hit], c2w)
         depth = np.zeros(width * height, dtype=np.float32)
         depth[hit] = hits["tfar"][hit]
         return RenderResult(rgb=np.clip(rgb, 0.0, 1.0).reshape(height, width, 3),

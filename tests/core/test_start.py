@@ -1,4 +1,4 @@
-"""The start's choice among retrieval's hypotheses (``nerf.start.choose_start``)."""
+"""The start's choice among retrieval's hypotheses (``cameras.start.choose_start``)."""
 
 from __future__ import annotations
 

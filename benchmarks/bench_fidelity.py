@@ -1,0 +1,223 @@
+"""Fidelity on real captures: held-out photos at 512 px inside the object's mask, from the
+field and from the textured mesh.
+
+Each capture of ``../shared/eval/captures`` (photos round a real object, reference cameras from
+its own calibration or a COLMAP/Bundler reconstruction over many frames) loses two of its
+photos (``held_out_frames``: a third and two thirds of the way round, so that kept photos lie
+on both sides); a ``preview`` job runs on the others, as ``cadnerf eval CAPTURE --hold-out
+... --exif-focal --mesh --eval-size 512`` runs it (``evaluation.evaluate.evaluate_dataset``),
+each photo's true focal length given as EXIF, so that the figure is about rendering rather than
+the focal length. Each held-out reference camera is brought into the job's frame by the
+similarity of the kept photos' reference cameras onto the job's (rotation and scale about the
+object's centre, where the optical axes meet), refined photometrically on the kept photos
+(``evaluation.frame.fit_frame``: one 7-number correction for every camera; the held-out photos
+play no part), rendered at 512 px on the longer side and scored inside the photo's mask (the
+capture's own; found by the job's background removal where the capture has none): PSNR, SSIM
+(scikit-image's map averaged in the mask), LPIPS where its weights are on disk. Scored twice:
+rendered from the field, and from the exported textured ``mesh.glb`` (unlit: its texture is
+baked). Beside them, the camera's error: the kept cameras' rotation error against the
+references (mean, after similarity alignment), and how far the photometric fit moved the
+held-out camera from where the camera centres put it.
+
+QUICK: ``QUICK_CAPTURES``; full: every capture.
+
+Usage: ``python -m benchmarks.bench_fidelity [--quick] [--captures NAME ...] [--rows FILE]``
+(``--rows`` keeps each finished capture's row in a JSON file and skips those already there).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import logging
+import os
+import shutil
+import statistics
+import sys
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from benchmarks.harness import (
+    ABSENT,
+    CAPTURES,
+    DEVICE,
+    LIBRARY_DIR,
+    PRESET,
+    WORK_ROOT,
+    section_head,
+    torch_threads,
+)
+from benchmarks.lookalikes import exclude_overrides
+
+log = logging.getLogger("benchmarks.fidelity")
+
+QUICK_CAPTURES = ("ethiopian_head", "kermit")
+"""One capture with its own masks (a painted head, 1600 px) and one without (a toy, 640 px)."""
+EVAL_SIZE = 512
+"""Longer side in pixels of the scored held-out views."""
+WORK_DIR = WORK_ROOT / "bench_fidelity"
+
+
+def capture_names() -> list[str]:
+    """Every capture of ``../shared/eval/captures`` (none where it is absent), sorted."""
+    return sorted(p.name for p in CAPTURES.iterdir() if (p / "cameras.json").is_file()) \
+        if CAPTURES.is_dir() else []
+
+
+def held_out_frames(n: int) -> list[int]:
+    """The two photos of ``n`` in walking order that the job never sees: a third and two
+    thirds of the way round (one where ``n`` < 5)."""
+    return sorted({n // 3, (2 * n) // 3}) if n >= 5 else [n // 2]
+
+
+def camera_move(before: np.ndarray, after: np.ndarray) -> tuple[float, float]:
+    """How far one camera moved: rotation (degrees) and centre shift as a share of its
+    distance from the object's centre (the origin). before, after: [4, 4] c2w."""
+    from cadnerf_core.cameras import rotation_angle_deg
+
+    turn = float(rotation_angle_deg((after[:3, :3] @ before[:3, :3].T)[None])[0])
+    shift = float(np.linalg.norm(after[:3, 3] - before[:3, 3]) / np.linalg.norm(before[:3, 3]))
+    return turn, shift
+
+
+def _scores(items: list[Any]) -> dict[str, float | None]:
+    """Mean PSNR, SSIM and LPIPS of per-view ImageMetrics."""
+    lp = [m.lpips for m in items]
+    return {"psnr": float(np.mean([m.psnr for m in items])),
+            "ssim": float(np.mean([m.ssim for m in items])),
+            "lpips": float(np.mean(lp)) if lp and None not in lp else None}
+
+
+def run_capture(name: str, library: Any, lpips_net: Any) -> dict[str, Any]:
+    """One capture's job and its held-out views' scores. Returns its row."""
+    from cadnerf_core.evaluation.evaluate import evaluate_dataset
+
+    folder = CAPTURES / name
+    n = len(json.loads((folder / "cameras.json").read_text())["frames"])
+    hold = held_out_frames(n)
+    job = WORK_DIR / name
+    shutil.rmtree(job, ignore_errors=True)
+    try:
+        report = evaluate_dataset(folder, n - len(hold), library, preset=PRESET,
+                                  overrides=exclude_overrides(name), job_dir=job,
+                                  lpips_net=lpips_net, device=DEVICE, eval_size=EVAL_SIZE,
+                                  exif_focal=True, hold_out=hold, mesh=True)
+    finally:
+        shutil.rmtree(job, ignore_errors=True)
+    moves = [camera_move(np.asarray(a), np.asarray(b)) for a, b in
+             zip(report.held_out["c2w_centred"], report.held_out["c2w"], strict=True)]
+    row: dict[str, Any] = {"capture": name, "model": report.model_id, "photos": n,
+           "kept": len(report.kept), "held_out": report.test_names,
+           "masks": report.test_masks, "field": _scores(report.per_view_masked),
+           "mesh": _scores(report.per_view_mesh), "whole_psnr": report.image.psnr,
+           "rotation_deg": report.pose_refined.rotation_deg,
+           "fit_turn_deg": float(np.mean([m[0] for m in moves])),
+           "fit_shift": float(np.mean([m[1] for m in moves])),
+           "focal_error": report.focal_error, "seconds": report.seconds}
+    log.info("%s: field %.2f dB / %.3f, mesh %.2f dB / %.3f, cameras %.1f deg", name,
+             row["field"]["psnr"], row["field"]["ssim"], row["mesh"]["psnr"],
+             row["mesh"]["ssim"], row["rotation_deg"])
+    return row
+
+
+def _num(value: float | None, digits: int) -> str:
+    return "-" if value is None else f"{value:.{digits}f}"
+
+
+def table(rows: list[dict[str, Any]]) -> list[str]:
+    """The per-capture table and the means."""
+    lines = ["| capture | model | kept / photos | held out | masks | field PSNR (dB) | "
+             "field SSIM | mesh PSNR (dB) | mesh SSIM | LPIPS field / mesh | whole-frame PSNR, "
+             "field (dB) | kept cameras' rotation error (deg) | frame fit moved the held-out "
+             "camera (deg, % of distance) | focal error | seconds |",
+             "|---|---|---:|---|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|"]
+    for r in rows:
+        f, m = r["field"], r["mesh"]
+        lines.append(
+            f"| {r['capture']} | {r['model']} | {r['kept']}/{r['photos'] - len(r['held_out'])} "
+            f"| {', '.join(r['held_out'])} | {r['masks']} | **{f['psnr']:.2f}** | "
+            f"{f['ssim']:.3f} | **{m['psnr']:.2f}** | {m['ssim']:.3f} | "
+            f"{_num(f['lpips'], 3)} / {_num(m['lpips'], 3)} | {r['whole_psnr']:.2f} | "
+            f"{r['rotation_deg']:.1f} | {r['fit_turn_deg']:.2f}, {100 * r['fit_shift']:.1f} | "
+            f"{100 * r['focal_error']:+.0f} % | {r['seconds']:.0f} |")
+    if rows:
+        def mean(part: str, key: str) -> float:
+            return statistics.fmean(r[part][key] for r in rows)
+
+        lines += ["", f"- Mean over the {len(rows)} captures: field **{mean('field', 'psnr'):.2f}"
+                  f" dB**, SSIM {mean('field', 'ssim'):.3f}; mesh **{mean('mesh', 'psnr'):.2f}"
+                  f" dB**, SSIM {mean('mesh', 'ssim'):.3f}."]
+    return lines
+
+
+def _rows(names: list[str], library: Any, lpips_net: Any,
+          rows_file: Path | None) -> list[dict[str, Any]]:
+    """Each capture's row (those already in ``rows_file`` kept), in ``names``' order."""
+    rows: dict[str, dict[str, Any]] = {}
+    if rows_file is not None and rows_file.is_file():
+        rows = {r["capture"]: r for r in json.loads(rows_file.read_text())}
+    for name in names:
+        if name in rows:
+            continue
+        log.info("fidelity: %s", name)
+        rows[name] = run_capture(name, library, lpips_net)
+        if rows_file is not None:
+            rows_file.write_text(json.dumps(list(rows.values()), indent=1))
+    return [rows[name] for name in names]
+
+
+def lpips_line(loaded: bool) -> str:
+    """What the section says of LPIPS."""
+    if loaded:
+        return "LPIPS (AlexNet) from the weights named by `CADNERF_LPIPS_WEIGHTS`."
+    return ("LPIPS not measured: its weights are not on this machine (`CADNERF_LPIPS_WEIGHTS` "
+            "unset; the `lpips` wheel ships its linear layers but not torchvision's AlexNet "
+            "backbone, and nothing is downloaded).")
+
+
+def run(quick: bool, library_dir: Path = LIBRARY_DIR, names: list[str] | None = None,
+        rows_file: Path | None = None) -> str:
+    """Run the benchmark. Returns its markdown section."""
+    head = section_head("Fidelity: held-out photos of real captures at 512 px",
+                        "bench_fidelity", quick,
+                        f": `{PRESET}` jobs on the CPU, 2 torch threads, each capture's "
+                        "photos but two, their true focal length as EXIF; held-out views at "
+                        f"{EVAL_SIZE} px on the longer side, scored inside the object's mask.")
+    found = capture_names()
+    if not found:
+        return "\n".join([*head, ABSENT, ""])
+    from cadnerf_core.evaluation.metrics import load_lpips
+    from cadnerf_core.library.format import load_library
+
+    weights = os.environ.get("CADNERF_LPIPS_WEIGHTS")
+    lpips_net = load_lpips(Path(weights) if weights else None)
+    chosen = names or [n for n in (QUICK_CAPTURES if quick else found) if n in found]
+    library = load_library(library_dir)
+    with torch_threads(2):
+        rows = _rows(chosen, library, lpips_net, rows_file)
+    notes = [lpips_line(lpips_net is not None),
+             "Masks: `dataset` where the capture ships them, `found` where the job's own "
+             "background removal made them (the held-out photo masked as the job masks its "
+             "photos).",
+             "The mesh is `mesh.glb` as the job exports it, rendered unlit at the same cameras."]
+    return "\n".join([*head, *table(rows), "", *[f"- {n}" for n in notes], ""])
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Print the section."""
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0] if __doc__ else "")
+    parser.add_argument("--quick", action="store_true")
+    parser.add_argument("--library", type=Path, default=LIBRARY_DIR)
+    parser.add_argument("--captures", nargs="*", default=None)
+    parser.add_argument("--rows", type=Path, default=None)
+    args = parser.parse_args(argv)
+    logging.basicConfig(level=logging.INFO,
+                        format="%(asctime)s %(levelname)s %(name)s: %(message)s")
+    sys.stdout.write(run(args.quick, args.library, args.captures, args.rows))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
