@@ -161,6 +161,26 @@ def walk_frames(frames: list[Frame], spec: WalkSpec) -> tuple[list[int], dict[st
     return chosen, {"centre": centre, "up": up, "azimuth": azimuth, "elevation": elevation}
 
 
+def write_photo(tree: SourceTree, frame: Frame, folder: Path, k: int, stand: dict[str, Any],
+                index: int, mask_path: str | None) -> dict[str, Any]:
+    """Write frame ``index`` as the capture's photo ``k`` (and its mask where it has one).
+    Returns its ``cameras.json`` entry."""
+    rgb, mask, c2w, K, turns = photo(tree, frame, stand["up"], mask_path)
+    Image.fromarray(rgb).save(folder / "images" / f"{k:03d}.jpg", quality=95)
+    entry: dict[str, Any] = {
+        "image": f"images/{k:03d}.jpg", "K": K.tolist(), "c2w": c2w.tolist(),
+        "width": int(rgb.shape[1]), "height": int(rgb.shape[0]), "source_image": frame.image,
+        "azimuth_deg": round(float(stand["azimuth"][index]), 2),
+        "elevation_deg": round(float(stand["elevation"][index]), 2), "quarter_turns": turns,
+        **({"distortion": frame.distortion} if frame.distortion else {})}
+    if mask is not None:
+        (folder / "masks").mkdir(exist_ok=True)
+        Image.fromarray(mask.astype(np.uint8) * 255).save(folder / "masks" / f"{k:03d}.png")
+        entry["mask"] = f"masks/{k:03d}.png"
+        entry["source_mask"] = mask_path
+    return entry
+
+
 def import_capture(tree: SourceTree, name: str, out: Path, meta: dict[str, str],
                    model: str | None = None, images: str | None = None,
                    masks: str | None = None, spec: WalkSpec | None = None) -> Path:
@@ -188,25 +208,9 @@ def import_capture(tree: SourceTree, name: str, out: Path, meta: dict[str, str],
     folder = out / name
     (folder / "images").mkdir(parents=True, exist_ok=True)
     files = tree.files()
-    written = []
-    for k, index in enumerate(chosen):
-        frame = frames[index]
-        mask_path = None if masks is None else find_mask(files, masks, frame.image)
-        rgb, mask, c2w, K, turns = photo(tree, frame, stand["up"], mask_path)
-        Image.fromarray(rgb).save(folder / "images" / f"{k:03d}.jpg", quality=95)
-        entry: dict[str, Any] = {
-            "image": f"images/{k:03d}.jpg", "K": K.tolist(), "c2w": c2w.tolist(),
-            "width": int(rgb.shape[1]), "height": int(rgb.shape[0]),
-            "source_image": frame.image, "azimuth_deg": round(float(stand["azimuth"][index]), 2),
-            "elevation_deg": round(float(stand["elevation"][index]), 2),
-            "quarter_turns": turns, **({"distortion": frame.distortion}
-                                       if frame.distortion else {})}
-        if mask is not None:
-            (folder / "masks").mkdir(exist_ok=True)
-            Image.fromarray(mask.astype(np.uint8) * 255).save(folder / "masks" / f"{k:03d}.png")
-            entry["mask"] = f"masks/{k:03d}.png"
-            entry["source_mask"] = mask_path
-        written.append(entry)
+    written = [write_photo(tree, frames[index], folder, k, stand, index,
+                           None if masks is None else find_mask(files, masks, frames[index].image))
+               for k, index in enumerate(chosen)]
     c2w_all = np.array([e["c2w"] for e in written])
     gaps = view_angles(c2w_all, stand["centre"])
     focal = float(np.median([focal_35mm(np.array(e["K"]), e["width"], e["height"])
