@@ -116,11 +116,23 @@ def read_mask(data: bytes, size: tuple[int, int]) -> np.ndarray:
         return np.asarray(band) > 127
 
 
+def reprojection_px(seen: np.ndarray | None, c2w: np.ndarray, K: np.ndarray) -> float | None:
+    """Median distance (pixels) between where camera (c2w, K) projects the points a frame saw
+    (``Frame.seen``, their pixels carried into the same image) and where it saw them."""
+    if seen is None or not len(seen):
+        return None
+    w2c = np.linalg.inv(c2w)
+    projected = (K @ (w2c[:3, :3] @ seen[:, :3].T + w2c[:3, 3:])).T
+    return float(np.median(np.linalg.norm(projected[:, :2] / projected[:, 2:] - seen[:, 3:],
+                                          axis=1)))
+
+
 def photo(tree: SourceTree, frame: Frame, up: np.ndarray, mask_path: str | None,
           max_side: int = MAX_SIDE) -> tuple[np.ndarray, np.ndarray | None, np.ndarray,
-                                             np.ndarray, int]:
+                                             np.ndarray, int, float | None]:
     """One frame as a user's photo: RGB [H, W, 3] uint8 upright, its mask (None without),
-    c2w, K in its pixels and the quarter turns applied.
+    c2w, K in its pixels, the quarter turns applied, and the median reprojection error in its
+    pixels of the source's points it saw (``reprojection_px``; None without points).
 
     Raises:
         ValueError: the image's size is not the camera's (or a uniform scale of it).
@@ -134,9 +146,14 @@ def photo(tree: SourceTree, frame: Frame, up: np.ndarray, mask_path: str | None,
                          f"{frame.width}x{frame.height}")
     K = scaled_intrinsics(frame.K, sx, sy)
     c2w = frame.c2w.copy()
+    seen = None if frame.seen is None else frame.seen.copy()
+    if seen is not None:
+        seen[:, 3:] = (seen[:, 3:] + 0.5) * (sx, sy) - 0.5
     mask = None if mask_path is None else read_mask(tree.read(mask_path), (width, height))
     turns = quarter_turns(c2w, up)
     for _ in range(turns):
+        if seen is not None:  # the pixels go where the turn takes them: (u, v) -> (H-1-v, u)
+            seen[:, 3:] = np.stack([rgb.shape[0] - 1.0 - seen[:, 4], seen[:, 3]], axis=1)
         rotated, c2w, K = turn_clockwise(rgb, c2w, K)
         mask = None if mask is None else np.ascontiguousarray(np.rot90(mask, k=-1))
         rgb = rotated
@@ -148,7 +165,9 @@ def photo(tree: SourceTree, frame: Frame, up: np.ndarray, mask_path: str | None,
         if mask is not None:
             mask = np.asarray(Image.fromarray(mask).resize(size, Image.Resampling.NEAREST))
         K = scaled_intrinsics(K, size[0] / width, size[1] / height)
-    return rgb, mask, c2w, K, turns
+        if seen is not None:
+            seen[:, 3:] = (seen[:, 3:] + 0.5) * (size[0] / width, size[1] / height) - 0.5
+    return rgb, mask, c2w, K, turns, reprojection_px(seen, c2w, K)
 
 
 def walk_frames(frames: list[Frame], spec: WalkSpec) -> tuple[list[int], dict[str, Any]]:
@@ -165,14 +184,15 @@ def write_photo(tree: SourceTree, frame: Frame, folder: Path, k: int, stand: dic
                 index: int, mask_path: str | None) -> dict[str, Any]:
     """Write frame ``index`` as the capture's photo ``k`` (and its mask where it has one).
     Returns its ``cameras.json`` entry."""
-    rgb, mask, c2w, K, turns = photo(tree, frame, stand["up"], mask_path)
+    rgb, mask, c2w, K, turns, error = photo(tree, frame, stand["up"], mask_path)
     Image.fromarray(rgb).save(folder / "images" / f"{k:03d}.jpg", quality=95)
     entry: dict[str, Any] = {
         "image": f"images/{k:03d}.jpg", "K": K.tolist(), "c2w": c2w.tolist(),
         "width": int(rgb.shape[1]), "height": int(rgb.shape[0]), "source_image": frame.image,
         "azimuth_deg": round(float(stand["azimuth"][index]), 2),
         "elevation_deg": round(float(stand["elevation"][index]), 2), "quarter_turns": turns,
-        **({"distortion": frame.distortion} if frame.distortion else {})}
+        **({"distortion": frame.distortion} if frame.distortion else {}),
+        **({} if error is None else {"reprojection_px": round(error, 3)})}
     if mask is not None:
         (folder / "masks").mkdir(exist_ok=True)
         Image.fromarray(mask.astype(np.uint8) * 255).save(folder / "masks" / f"{k:03d}.png")
@@ -255,6 +275,11 @@ def readme(name: str, tree: SourceTree, meta: dict[str, str], model: str, total:
                  "image's top, as a phone's orientation sensor turns them (cameras rolled "
                  "with them)." if turned else "; already upright."),
              f"- Masks: {'from the source folder ' + masks if masks else 'none in the source'}."]
+    errors = [f["reprojection_px"] for f in frames if "reprojection_px" in f]
+    if errors:
+        lines.append("- Validation: the source model's points reproject into the saved photos "
+                     f"at a median {np.median(errors):.2f} px (per photo "
+                     f"{min(errors):.2f}-{max(errors):.2f}; distortion beyond K unmodelled).")
     if meta.get("caveats"):
         lines.append(f"- Caveats: {meta['caveats']}")
     return "\n".join(lines) + "\n"

@@ -71,7 +71,8 @@ class SourceTree:
 class Frame:
     """One reference camera: ``image`` (path in the source), ``c2w [4, 4]`` OpenCV,
     ``K [3, 3]`` in the pixels of a ``width`` x ``height`` image, ``distortion``: the model's
-    other parameters (not in K)."""
+    other parameters (not in K), ``seen [P, 5]``: the model's points this camera saw (x, y, z
+    in the world, then u, v where it saw them, in pixels; None where the source has none)."""
 
     image: str
     c2w: np.ndarray
@@ -79,6 +80,7 @@ class Frame:
     width: int
     height: int
     distortion: dict[str, float] = field(default_factory=dict)
+    seen: np.ndarray | None = None
 
 
 def find_model(tree: SourceTree) -> str:
@@ -162,8 +164,10 @@ def read_colmap(tree: SourceTree, model: str, images: str) -> list[Frame]:
         # COLMAP puts pixel centres at half-integers, OpenCV (and this project) at integers.
         K[0, 2] -= 0.5
         K[1, 2] -= 0.5
+        seen = np.array([[*reconstruction.points3D[p.point3D_id].xyz, *(p.xy - 0.5)]
+                         for p in image.points2D if p.has_point3D()]).reshape(-1, 5)
         frames.append(Frame(f"{images}/{image.name}", np.linalg.inv(w2c), K,
-                            int(camera.width), int(camera.height), extra))
+                            int(camera.width), int(camera.height), extra, seen))
     return frames
 
 

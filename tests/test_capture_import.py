@@ -11,13 +11,22 @@ import pytest
 from PIL import Image
 
 from benchmarks.capture_import import (
+    SHRUNK_SIDE,
     find_mask,
     import_capture,
+    photo,
     quarter_turns,
+    reprojection_px,
     scaled_intrinsics,
     turn_clockwise,
 )
-from benchmarks.capture_sources import OPENGL_TO_OPENCV, SourceTree, find_model, read_frames
+from benchmarks.capture_sources import (
+    OPENGL_TO_OPENCV,
+    Frame,
+    SourceTree,
+    find_model,
+    read_frames,
+)
 from cadnerf_core.cameras import orbit_pose
 
 WIDTH, HEIGHT = 24, 16
@@ -138,3 +147,19 @@ def test_llff_and_middlebury_cameras_read_back_as_written(tmp_path: Path) -> Non
     (tmp_path / "images" / "extra.jpg").write_bytes((tmp_path / "images" / "0.jpg").read_bytes())
     with pytest.raises(ValueError, match="3 poses for 4 images"):
         read_frames(tree, "poses_bounds.npy")
+
+
+def test_the_source_s_points_reproject_into_a_turned_and_shrunk_photo(tmp_path: Path) -> None:
+    width, height = 2400, 1800  # over MAX_SIDE: shrunk to a phone's size
+    K_big = np.array([[2000.0, 0.0, 1199.5], [0.0, 2000.0, 899.5], [0.0, 0.0, 1.0]])
+    c2w = orbit_pose(10.0, 30.0, 4.0)
+    c2w[:3, :2] = np.stack([c2w[:3, 1], -c2w[:3, 0]], axis=1)  # taken sideways
+    points = np.random.default_rng(0).uniform(-0.5, 0.5, (20, 3))
+    seen = np.array([[*x, *_project(K_big, c2w, x)] for x in points])
+    Image.new("RGB", (width, height)).save(tmp_path / "big.jpg")
+    frame = Frame("big.jpg", c2w, K_big, width, height, seen=seen)
+    rgb, _, c2w_out, K_out, turns, error = photo(SourceTree(tmp_path), frame,
+                                                 np.array([0.0, 1.0, 0.0]), None)
+    assert turns in (1, 3) and max(rgb.shape[:2]) == SHRUNK_SIDE
+    assert error is not None and error < 1e-6
+    assert reprojection_px(seen, c2w, K_big) == pytest.approx(0.0, abs=1e-9)
