@@ -54,6 +54,14 @@ def registered_photos(lines: Sequence[str], fusion: dict[str, Any] | None) -> in
     return 0 if any(MAPPER_RAN.search(line) for line in lines) else None
 
 
+def start_kind(fusion: dict[str, Any] | None) -> str:
+    """Where the started cameras come from: "mapper" (its cameras placed in the CAD frame),
+    "fused" (the retrieved cameras moved by the pairs' rotations) or "retrieved"."""
+    if fusion and fusion.get("start") == "mapper":
+        return "mapper"
+    return "fused" if fusion and fusion.get("photos") else "retrieved"
+
+
 def pair_rotations(pairs: Sequence[Any]) -> list[tuple[int, int, np.ndarray]]:
     """(i, j, R) of the verified pairs that gave a rotation (``matches.PairMatch``)."""
     return [(int(p.i), int(p.j), np.asarray(p.rotation)) for p in pairs
@@ -127,6 +135,7 @@ def run_capture(capture: Capture, library: Any, variant: str) -> dict[str, Any]:
     fusion = retrieval.get("fusion") or {}
     return {**_base_row(capture, variant, "full"), "model": cams.model_id,
             "kept": len(cams.kept), "registered": registered_photos(lines, fusion),
+            "start": start_kind(fusion),
             **score_row(capture, cams.kept, retrieved, cams.retrieved, cams.refined,
                         cams.K_photo[:, 0, 0], pairs),
             "psnr": float(run.metrics.get("mean_psnr", float("nan"))),
@@ -188,5 +197,6 @@ def start_capture(capture: Capture, library: Any, variant: str) -> dict[str, Any
     fusion = retrieval.fusion or {}
     return {**_base_row(capture, variant, "cameras"), "model": retrieval.model_id,
             "kept": len(kept), "registered": registered_photos(lines, fusion),
+            "start": start_kind(fusion),
             **score_row(capture, kept, retrieved, started, None, focal_px, retrieval.pairs),
             "psnr": None, "seconds": seconds, "fused": len(fusion.get("photos", []))}

@@ -44,9 +44,9 @@ def _registered(row: dict[str, Any]) -> str:
 def table(rows: list[dict[str, Any]]) -> list[str]:
     """The per-job table and the summary lines (``summary``)."""
     lines = ["| capture | variant | model | photos | spacing (deg) | EXIF | registered | "
-             "pairs right / wrong | retrieved (deg) | started (deg) | refined (deg) | "
+             "pairs right / wrong | start | retrieved (deg) | started (deg) | refined (deg) | "
              "mirrored | focal error | PSNR (dB) | seconds |",
-             "|---|---|---|---:|---:|---|---:|---:|---:|---:|---:|---|---:|---:|---:|"]
+             "|---|---|---|---:|---:|---|---:|---:|---|---:|---:|---:|---|---:|---:|---:|"]
     for r in rows:
         focal = "-" if r.get("focal") is None else f"{100 * r['focal']:+.0f} %"
         refined = r.get("refined")
@@ -54,6 +54,7 @@ def table(rows: list[dict[str, Any]]) -> list[str]:
             f"| {r['capture']} | {r['variant']} | {r.get('model', '')} | "
             f"{r.get('kept', r['photos'])}/{r['photos']} | {_cell(r.get('spacing'), '.0f')} | "
             f"{'yes' if r.get('exif') else 'no'} | {_registered(r)} | {_pairs(r)} | "
+            f"{r.get('start', '')} | "
             f"{_cell(r['retrieved'], '.1f')} | {_cell(r['started'], '.1f', refined is None)} | "
             f"{_cell(refined, '.1f', True)} | {_mirrored(r)} | {focal} | "
             f"{_cell(r.get('psnr'), '.2f')} | {_cell(r.get('seconds'), '.0f')} |")

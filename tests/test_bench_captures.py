@@ -13,7 +13,7 @@ from PIL import Image
 from trimesh.visual import TextureVisuals
 
 from benchmarks import capture_set
-from benchmarks.capture_jobs import registered_photos
+from benchmarks.capture_jobs import registered_photos, start_kind
 from benchmarks.capture_set import Capture, load_capture, users_capture
 from benchmarks.capture_spacing import (
     choose_walk,
@@ -172,6 +172,9 @@ def test_the_registered_photos_come_from_the_job_s_log() -> None:
     assert registered_photos(["mapper: not used in 0.1 s"], None) == 0
     assert registered_photos([], {"start": "mapper", "photos": [0, 1, 2, 3]}) == 4
     assert registered_photos([], None) is None
+    assert start_kind({"start": "mapper", "photos": [0, 1]}) == "mapper"
+    assert start_kind({"photos": [0, 1], "pairs": 3}) == "fused"
+    assert start_kind({"photos": []}) == start_kind(None) == "retrieved"
 
 
 def test_a_walk_the_other_way_round_is_mirrored_whatever_its_frame() -> None:
@@ -201,6 +204,7 @@ def test_the_floor_is_a_textured_square_under_the_object() -> None:
 def _row(name: str, variant: str, final: float | None, **extra: object) -> dict[str, object]:
     return {"capture": name, "variant": variant, "model": "m", "kept": 8, "photos": 8,
             "spacing": 44.6, "exif": True, "registered": 3, "pairs_right": 5, "pairs_wrong": 2,
+            "start": "fused",
             "retrieved": 30.0, "started": 10.0, "refined": final, "focal": 0.05,
             "psnr": 20.0, "seconds": 100.0, "mirrored": False, **extra}
 
@@ -210,8 +214,8 @@ def test_the_table_states_each_variant_s_median_and_share_over_textured_captures
             _row("b", "matches", 14.0, mirrored=True), _row("a", "silhouettes", 30.0)]
     lines = table(rows)
     assert len([line for line in lines if line.startswith("| ")]) == 1 + len(rows)
-    assert ("| a | matches | m | 8/8 | 45 | yes | 3/8 | 5 / 2 | 30.0 | 10.0 | **2.0** | no | "
-            "+5 % | 20.00 | 100 |") in lines
+    assert ("| a | matches | m | 8/8 | 45 | yes | 3/8 | 5 / 2 | fused | 30.0 | 10.0 | **2.0** | "
+            "no | +5 % | 20.00 | 100 |") in lines
     assert ("- matches: median refined rotation error over the 2 textured captures "
             "**8.0 deg**; within 10 deg: 1 of 2 (50 %); mirrored walks: 1.") in lines
     assert any(line.startswith("- silhouettes: median refined rotation error over the 1 "
@@ -222,8 +226,8 @@ def test_without_training_the_table_scores_the_started_cameras() -> None:
     rows = [_row("a", "matches", None, started=4.0, psnr=None, registered=None),
             _row("a", "silhouettes", None, started=40.0)]
     lines = table(rows)
-    assert ("| a | matches | m | 8/8 | 45 | yes | - | 5 / 2 | 30.0 | **4.0** | - | no | +5 % | "
-            "- | 100 |") in lines
+    assert ("| a | matches | m | 8/8 | 45 | yes | - | 5 / 2 | fused | 30.0 | **4.0** | - | no | "
+            "+5 % | - | 100 |") in lines
     assert any(line.startswith("- matches: median started rotation error over the 1 textured "
                                "captures **4.0 deg**") for line in lines)
 
