@@ -1,26 +1,31 @@
 """Real captures and textured synthetic walks: how far each stage's cameras end from the truth.
 
-Each capture of ``../shared/eval/captures`` (6-10 frames round a real object, reference
-cameras from the capture's own calibration or a COLMAP/Bundler reconstruction over many
-frames, the capture's masks where it ships them) and the espresso phone photos (coarse
-metadata poses) runs as one ``preview`` job, as ``cadnerf reconstruct`` runs it, twice: with
-the photos' matches (the default: learned matches, cameras fused with their rotations, the
-epipolar loss) and on silhouettes alone (``retrieval.matches.enabled`` false). Per job: the
-median rotation error after similarity alignment of the camera centres (``cameras.pose_errors``)
-of the retrieved cameras (library views), the started ones (what training starts from: the
-chosen hypothesis, fused) and the refined ones; the focal length's error against the
-reference (the photos carry no EXIF); training PSNR; seconds.
+Three sets (``capture_set``). The headline, **the users' spacing**: 3 to 10 photos 30 to 60
+degrees apart round a real object, as users take them: the captures ``benchmarks.capture_import``
+made from public dense captures (``benchmarks/captures_sources.md``; in ``data/captures``) and
+the dense captures of ``../shared/eval/captures`` subsampled to that spacing where their frames
+allow. **Dense**: those captures as they are (the DTU arcs 16 degrees apart, the Bundler toy
+...) and the espresso phone photos. **Textured**: synthetic walks round the evaluation set's
+textured meshes on a textured floor (``textured_walks``).
 
-The textured synthetic walks (``textured_walks``: the evaluation set's textured meshes on a
-textured floor, 768 x 576 through a phone's lens, its focal length given as a phone's EXIF
-would) run the same way; their rows also say whether the refined walk went round the wrong
-way (``textured_walks.mirrored``).
+Each capture runs as one ``preview`` job (``capture_jobs``), twice: with the photos' matches
+(the default) and on silhouettes alone (``retrieval.matches.enabled`` false). Per job: the
+photos and their spacing (the median angle between neighbours seen from the object), whether
+the photos carry an EXIF focal length (the imported captures: the reference's, as a phone's
+EXIF gives it), the photos the mapper registered, the verified pairs whose rotation is within
+10 degrees of the reference's or not, the median rotation error after similarity alignment of
+the camera centres of the retrieved cameras (library views), the started ones (what training
+starts from) and the refined ones, the focal length's error, PSNR, seconds.
 
-QUICK: not run (26 whole jobs, about 80 minutes on 2 cores).
+``--cameras-only`` stops each job where training would start (``capture_jobs.start_capture``):
+minutes, not hours, for iterating on camera code; no refined cameras then, and the summary
+lines score the started ones.
 
-Usage: ``python -m benchmarks.bench_captures [--sets real textured] [--captures NAME ...]
-[--variants ...] [--rows FILE]`` prints the section; ``--rows`` keeps each finished job's row
-in a JSON file and skips jobs already there (a long run can be resumed).
+QUICK: not run (whole jobs, hours on 2 cores).
+
+Usage: ``python -m benchmarks.bench_captures [--sets users dense textured] [--captures NAME
+...] [--variants ...] [--cameras-only] [--rows FILE]`` prints the section; ``--rows`` keeps each
+finished job's row in a JSON file and skips jobs already there (a long run can be resumed).
 """
 
 from __future__ import annotations
@@ -28,302 +33,161 @@ from __future__ import annotations
 import argparse
 import json
 import logging
-import shutil
 import sys
 import tempfile
-from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from benchmarks.harness import (
-    ABSENT,
-    CAPTURES,
-    EVAL_ROOT,
-    LIBRARY_DIR,
-    PHOTOS,
-    PRESET,
-    run_job,
-    section_head,
+from benchmarks.capture_jobs import VARIANTS, run_capture, start_capture
+from benchmarks.capture_set import (
+    SETS,
+    Capture,
+    capture_names,
+    dense_captures,
+    load_capture,
+    textured_capture,
+    users_captures,
 )
-from benchmarks.lookalikes import exclude_overrides
+from benchmarks.capture_tables import UNTEXTURED, table, textured_errors
+from benchmarks.harness import ABSENT, EVAL_ROOT, LIBRARY_DIR, PRESET, section_head
 from benchmarks.results import Result, cpu_cores, record, today
+
+__all__ = ["Capture", "UNTEXTURED", "capture_names", "load_capture", "main", "run", "table"]
 
 log = logging.getLogger("benchmarks.captures")
 
-UNTEXTURED = {"dino_ring": "matte white ceramic"}
-"""Captures whose object shows next to no texture (the acceptance's median leaves them out)."""
-VARIANTS: dict[str, dict[str, Any]] = {
-    "matches": {},
-    "silhouettes": {"retrieval.matches.enabled": False},
+RECORDED = {"users": ("captures_users_rotation", "cameras on real captures at the users' "
+                      "spacing ({n} textured captures, 30-60 degrees apart)"),
+            "dense": ("captures_real_rotation", "cameras on real captures ({n} textured sets "
+                      "with reference cameras)"),
+            "textured": ("captures_textured_rotation", "cameras on textured synthetic walks "
+                         "({n} meshes, 768 x 576)")}
+"""Per set: the README figure's key and quantity (median refined error of the matches)."""
+ALIASES = {"real": "dense"}
+"""Earlier names of the sets."""
+INTRO = {
+    "users": "### Real captures at the users' spacing\n\nPhotos 30 to 60 degrees apart (the "
+             "imported captures and the dense captures' frames subsampled; `frames` in the "
+             "rows say which). Preset `{preset}` on a CPU, every capture's look-alikes left "
+             "out (none in the library). Registered: photos the mapper placed, of the kept "
+             "ones. Pairs: verified pairs with a rotation, right when within 10 degrees of "
+             "the reference's relative rotation. Rotation errors: median over the kept photos "
+             "after similarity alignment of the camera centres; retrieved: the library views; "
+             "started: the cameras training starts from; refined: after training. Focal "
+             "error: the job's focal length against the reference (EXIF: the imported "
+             "captures' photos carry the reference's 35 mm focal length as a phone's would).",
+    "dense": "### Dense captures\n\nThe captures of `../shared/eval/captures` as they are "
+             "(no EXIF) and the espresso phone photos (EXIF; reference: the set's coarse "
+             "metadata); columns as above. The temple frames its gantry took upside down are "
+             "given upright, as a phone's orientation tag gives its photos.",
+    "textured": "### Textured synthetic walks\n\n8 photos at 768 x 576 through a 65 degree "
+                "lens (27 mm EXIF) round each textured mesh on a tiled floor, the mesh's "
+                "look-alikes left out of the library; columns as above.",
 }
-
-
-@dataclass(frozen=True)
-class Capture:
-    """One capture: photos in walking order, their masks (None: the job makes them), the
-    reference cameras [N, 4, 4] (OpenCV c2w) and focal lengths [N] in photo pixels (None
-    where unknown)."""
-
-    name: str
-    photos: list[Path]
-    masks: list[Path] | None
-    c2w: np.ndarray
-    focal: np.ndarray | None
-    overrides: dict[str, Any] = field(default_factory=dict)
-    """Configuration values the job gets besides the preset's and the variant's."""
-
-
-def load_capture(name: str) -> Capture:
-    """A capture of ``../shared/eval/captures`` (``cameras.json``: frames with image, K, c2w)
-    or the espresso photos (``../shared/eval/photos``, metadata azimuth and elevation)."""
-    if name == "ners_espresso":
-        from benchmarks.retrieval_real import real_set_photos
-
-        photos, masks, truth = real_set_photos(name)
-        assert truth is not None
-        return Capture(name, photos, masks, truth, None)
-    folder = CAPTURES / name
-    frames = json.loads((folder / "cameras.json").read_text())["frames"]
-    photos = [folder / f["image"] for f in frames]
-    masks = [folder / "masks" / f"{Path(f['image']).stem}.png" for f in frames]
-    c2w = np.array([f["c2w"] for f in frames], dtype=np.float64)
-    flipped = [k for k, f in enumerate(frames) if f.get("upside_down_by_design")]
-    has_masks = all(m.is_file() for m in masks)
-    if flipped:
-        photos, masks, c2w = upright(name, photos, masks if has_masks else None, c2w, flipped)
-    return Capture(name, photos, masks if has_masks else None, c2w,
-                   np.array([f["K"][0][0] for f in frames], dtype=np.float64))
-
-
-def upright(name: str, photos: list[Path], masks: list[Path] | None, c2w: np.ndarray,
-            flipped: list[int]) -> tuple[list[Path], list[Path], np.ndarray]:
-    """The capture as a phone saves it: frames a camera rig took upside down (a gantry's
-    ``upside_down_by_design``) turned upright, as a phone's orientation tag turns its photos
-    (``intake.photos`` applies it), their reference cameras rolled half a turn about the
-    optical axis to match. The turned copies go to a temporary folder."""
-    import cv2
-
-    work = Path(tempfile.gettempdir()) / "cadnerf_bench_upright" / name
-    work.mkdir(parents=True, exist_ok=True)
-    photos, masks = list(photos), list(masks or [])
-    c2w = c2w.copy()
-    roll = np.diag([-1.0, -1.0, 1.0, 1.0])  # half a turn about the camera's z axis
-    for k in flipped:
-        for files, suffix in ((photos, "photo"), (masks, "mask")):
-            if not files:
-                continue
-            image = cv2.imread(str(files[k]), cv2.IMREAD_UNCHANGED)
-            assert image is not None, f"cannot read {files[k]}"
-            turned = work / f"{k:03d}_{suffix}{files[k].suffix}"
-            cv2.imwrite(str(turned), cv2.rotate(image, cv2.ROTATE_180))
-            files[k] = turned
-        c2w[k] = c2w[k] @ roll
-    return photos, masks, c2w
-
-
-def textured_capture(name: str, work: Path) -> Capture:
-    """A textured synthetic walk of mesh ``name`` (``textured_walks``), rendered into ``work``,
-    its focal length given as a phone's EXIF gives it."""
-    from benchmarks.textured_walks import phone_focal_35mm, render_walk
-
-    photos, masks, c2w = render_walk(name, work / name)
-    return Capture(name, photos, masks, c2w, None,
-                   {"retrieval.focal_35mm": round(phone_focal_35mm(), 2)})
-
-
-def capture_names() -> list[str]:
-    """Every capture found, then the espresso photos."""
-    names = sorted(p.name for p in CAPTURES.iterdir() if (p / "cameras.json").is_file()) \
-        if CAPTURES.is_dir() else []
-    if (PHOTOS / "ners_espresso").is_dir():
-        names.append("ners_espresso")
-    return names
-
-
-def run_capture(capture: Capture, library: Any, variant: str) -> dict[str, Any]:
-    """One ``preview`` job on the capture. Returns its row: errors in degrees per stage, focal
-    error (share), PSNR, seconds, pairs and fused photos."""
-    from cadnerf_core.cameras.conventions import pose_errors
-    from cadnerf_core.config import internal_config
-    from cadnerf_core.evaluation.jobio import read_job_cameras
-    from cadnerf_core.nerf.model import TrainedModel
-
-    job = Path(tempfile.mkdtemp(prefix="bench_captures_"))
-    try:
-        run = run_job(job, library, photos=capture.photos, masks=capture.masks,
-                      config=internal_config(PRESET, {**exclude_overrides(capture.name),
-                                                     **capture.overrides, **VARIANTS[variant]}))
-        cams = read_job_cameras(job, TrainedModel.load(job, "cpu"))
-    finally:
-        shutil.rmtree(job, ignore_errors=True)
-    retrieval, metrics, seconds = run.retrieval, run.metrics, run.seconds
-    truth = capture.c2w[cams.kept]
-    by_index = {int(m["index"]): m for m in retrieval["matches"]}
-    retrieved = np.array([by_index[k].get("c2w_retrieved", by_index[k]["c2w"])
-                          for k in cams.kept], dtype=np.float64)
-
-    def median(c2w: np.ndarray) -> float:
-        return float(np.median(pose_errors(c2w, truth)[0]))
-
-    focal = None
-    if capture.focal is not None:
-        focal = float(np.median(cams.K_photo[:, 0, 0] / capture.focal[cams.kept] - 1.0))
-    pairs = [p for p in retrieval.get("photo_pairs", []) if p.get("turn_deg") is not None]
-    from benchmarks.textured_walks import mirrored
-
-    return {"capture": capture.name, "variant": variant, "model": cams.model_id,
-            "mirrored": mirrored(cams.refined, truth),
-            "kept": len(cams.kept), "photos": len(capture.photos),
-            "retrieved": median(retrieved), "started": median(cams.retrieved),
-            "refined": median(cams.refined), "focal": focal,
-            "psnr": float(metrics.get("mean_psnr", float("nan"))), "seconds": seconds,
-            "pairs": len(pairs), "fused": len((retrieval.get("fusion") or {}).get("photos", []))}
-
-
-def _mirrored(row: dict[str, Any]) -> str:
-    return "" if "mirrored" not in row else ("yes" if row["mirrored"] else "no")
-
-
-def textured_refined(rows: list[dict[str, Any]], variant: str) -> list[float]:
-    """The refined rotation errors of ``variant``'s jobs on captures with texture."""
-    return [r["refined"] for r in rows if r["variant"] == variant
-            and r["capture"] not in UNTEXTURED]
 
 
 def record_median(rows: list[dict[str, Any]], tag: str) -> None:
     """The default variant's median refined rotation error over the textured captures of a
-    whole set (``tag``: "real" or "textured") as the README's figure."""
-    errors = textured_refined(rows, "matches")
+    whole set (``tag``) as the README's figure (whole jobs only)."""
+    if tag not in RECORDED or any(r.get("refined") is None for r in rows):
+        return
+    errors = textured_errors(rows, "matches")
     if not errors:
         return
-    what = (f"cameras on real captures ({len(errors)} textured sets with reference cameras)"
-            if tag == "real" else
-            f"cameras on textured synthetic walks ({len(errors)} meshes, 768 x 576)")
-    conditions = f"`{PRESET}`" if tag == "real" else "leave-out"
-    record(Result(f"captures_{tag}_rotation", what, float(np.median(errors)),
+    key, what = RECORDED[tag]
+    conditions = "leave-out" if tag == "textured" else f"`{PRESET}`"
+    record(Result(key, what.format(n=len(errors)), float(np.median(errors)),
                   "degrees (median)", 1, f"{conditions}, {cpu_cores()}",
-                  ".venv/bin/python -m benchmarks.bench_captures --sets real textured "
-                  "--rows ROWS", today()))
+                  f".venv/bin/python -m benchmarks.bench_captures --sets {tag} --rows ROWS",
+                  today()))
 
 
-def table(rows: list[dict[str, Any]]) -> list[str]:
-    """The per-job table and the acceptance lines."""
-    lines = ["| capture | variant | model | kept | retrieved (deg) | started (deg) | "
-             "refined (deg) | mirrored | focal error | PSNR (dB) | pairs with a rotation | "
-             "fused | seconds |", "|---|---|---|---:|---:|---:|---:|---|---:|---:|---:|---:|---:|"]
-    for r in rows:
-        focal = "" if r["focal"] is None else f"{100 * r['focal']:+.0f} %"
-        lines.append(f"| {r['capture']} | {r['variant']} | {r['model']} | "
-                     f"{r['kept']}/{r['photos']} | {r['retrieved']:.1f} | {r['started']:.1f} | "
-                     f"**{r['refined']:.1f}** | {_mirrored(r)} | "
-                     f"{focal} | {r['psnr']:.2f} | {r['pairs']} | {r['fused']} | "
-                     f"{r['seconds']:.0f} |")
-    lines.append("")
-    for variant in VARIANTS:
-        textured = textured_refined(rows, variant)
-        if textured:
-            flipped = sum(bool(r.get("mirrored")) for r in rows if r["variant"] == variant)
-            lines.append(f"- {variant}: median refined rotation error over the {len(textured)} "
-                         f"textured captures **{np.median(textured):.1f} deg**; mirrored "
-                         f"walks: {flipped}.")
-    worse = worse_than_silhouettes(rows)
-    if worse is not None:
-        lines.append("- matches worse than silhouettes alone by more than "
-                     f"{WORSE_MARGIN_DEG:.0f} degrees: "
-                     + (", ".join(f"{name} ({gap:+.1f})" for name, gap in worse) or "none")
-                     + ".")
-    return lines
+def _photos_key(capture: Capture) -> str:
+    return "|".join(str(p) for p in capture.photos)
 
 
-WORSE_MARGIN_DEG = 2.0
-"""How much worse than silhouettes alone the matches may leave a capture's refined cameras."""
-
-
-def worse_than_silhouettes(rows: list[dict[str, Any]]) -> list[tuple[str, float]] | None:
-    """The textured captures whose refined error with the matches exceeds the one on
-    silhouettes alone by more than ``WORSE_MARGIN_DEG`` (name, difference); None when no
-    capture ran both ways."""
-    refined = {(r["capture"], r["variant"]): r["refined"] for r in rows}
-    both = [name for name, variant in refined if variant == "matches"
-            and (name, "silhouettes") in refined and name not in UNTEXTURED]
-    if not both:
-        return None
-    gaps = [(name, refined[(name, "matches")] - refined[(name, "silhouettes")])
-            for name in both]
-    return [(name, gap) for name, gap in gaps if gap > WORSE_MARGIN_DEG]
-
-
-SETS = ("real", "textured")
+def _run_one(capture: Capture, library: Any, variant: str, mode: str,
+             rows: list[dict[str, Any]]) -> dict[str, Any]:
+    """The capture's row under ``variant``: a row of another set on the same photos, else a
+    new job (``start_capture`` for the cameras-only mode, else ``run_capture``)."""
+    key = _photos_key(capture)
+    for row in rows:
+        if row.get("photos_key") == key and row["variant"] == variant and row["mode"] == mode:
+            return dict(row)
+    if mode == "cameras":
+        return start_capture(capture, library, variant)
+    return run_capture(capture, library, variant)
 
 
 def _rows(captures: list[Capture], library: Any, variants: list[str], tag: str,
-          rows_file: Path | None, whole: bool) -> list[dict[str, Any]]:
+          rows_file: Path | None, whole: bool, mode: str) -> list[dict[str, Any]]:
     """Each capture's job under each variant (rows already in ``rows_file`` kept); ``whole``:
     every capture of the set, whose figure is recorded (``record_median``)."""
     rows: list[dict[str, Any]] = []
     if rows_file is not None and rows_file.is_file():
         rows = json.loads(rows_file.read_text())
+
+    def mine(row: dict[str, Any]) -> bool:
+        return ALIASES.get(row.get("set", "dense"), row.get("set", "dense")) == tag \
+            and row.get("mode", "full") == mode
+
     for capture in captures:
         for variant in variants:
-            if any(r["capture"] == capture.name and r["variant"] == variant
-                   and r.get("set", "real") == tag for r in rows):
+            if any(r["capture"] == capture.name and r["variant"] == variant and mine(r)
+                   for r in rows):
                 continue
-            log.info("%s (%s), %s", capture.name, tag, variant)
-            rows.append({**run_capture(capture, library, variant), "set": tag})
+            log.info("%s (%s, %s), %s", capture.name, tag, mode, variant)
+            row = _run_one(capture, library, variant, mode, rows)
+            rows.append({**row, "set": tag, "photos_key": _photos_key(capture)})
             if rows_file is not None:
                 rows_file.write_text(json.dumps(rows, indent=1))
-    names = {c.name for c in captures}
     order = [c.name for c in captures]
-    mine = sorted((r for r in rows if r["capture"] in names and r.get("set", "real") == tag
+    kept = sorted((r for r in rows if r["capture"] in order and mine(r)
                    and r["variant"] in variants),
                   key=lambda r: (list(VARIANTS).index(r["variant"]), order.index(r["capture"])))
     if whole:
-        record_median(mine, tag)
-    return mine
+        record_median(kept, tag)
+    return kept
+
+
+def _captures(tag: str, names: list[str] | None, work: Path) -> list[Capture]:
+    from benchmarks.textured_walks import TEXTURED
+
+    if tag == "users":
+        return users_captures(names)
+    if tag == "dense":
+        return [c for c in dense_captures(names) if c.name not in TEXTURED]
+    return [textured_capture(n, work) for n in names or TEXTURED if n in TEXTURED]
 
 
 def run(quick: bool, library_dir: Path = LIBRARY_DIR, names: list[str] | None = None,
         variants: list[str] | None = None, rows_file: Path | None = None,
-        sets: list[str] | None = None) -> str:
+        sets: list[str] | None = None, cameras_only: bool = False) -> str:
     """Run the benchmark. Returns its markdown section."""
-    head = section_head("Cameras on real captures and textured walks", "bench_captures", quick)
+    head = section_head("Cameras on real captures and textured walks", "bench_captures", quick,
+                        " --cameras-only" if cameras_only else "")
     if not EVAL_ROOT.is_dir():
         return "\n".join([*head, ABSENT, ""])
     if quick:
-        return "\n".join([*head, "Not run in QUICK: 26 whole jobs (about 80 minutes on 2 "
-                          "cores); run without `--quick`.", ""])
-    from benchmarks.textured_walks import TEXTURED
+        return "\n".join([*head, "Not run in QUICK: whole jobs (hours on 2 cores); run "
+                          "without `--quick`, or `--cameras-only` for the cameras in minutes.",
+                          ""])
     from cadnerf_core.library.format import load_library
 
     library = load_library(library_dir)
     variants = variants or list(VARIANTS)
-    sets = sets or list(SETS)
+    mode = "cameras" if cameras_only else "full"
     out = list(head)
-    if "real" in sets:
-        captures = [load_capture(n) for n in names or capture_names()
-                    if n not in TEXTURED]
-        out += [f"### Real captures\n\nPreset `{PRESET}` on a CPU, every capture's look-alikes "
-                "left out (none in the library). Rotation errors: median over the kept photos "
-                "after similarity alignment of the camera centres; retrieved: the library "
-                "views; started: the cameras training starts from (the mapper's where it "
-                "registered the photos, else the chosen hypothesis fused with the pairs' "
-                "rotations); refined: after training. Focal error: the job's focal length "
-                "against the reference (no photo carries EXIF). The espresso reference is the "
-                "set's coarse metadata (azimuth, elevation); its photos carry EXIF. The temple "
-                "frames its gantry took upside down are given upright, as a phone's "
-                "orientation tag gives its photos.", "",
-                *table(_rows(captures, library, variants, "real", rows_file, names is None)),
-                ""]
-    if "textured" in sets:
-        with tempfile.TemporaryDirectory(prefix="bench_textured_") as work:
-            captures = [textured_capture(n, Path(work)) for n in names or TEXTURED
-                        if n in TEXTURED]
-            rows = _rows(captures, library, variants, "textured", rows_file, names is None)
-        out += ["### Textured synthetic walks\n\n8 photos at 768 x 576 through a 65 degree "
-                "lens (27 mm EXIF) round each textured mesh on a tiled floor, the mesh's "
-                "look-alikes left out of the library; columns as above.", "", *table(rows), ""]
+    with tempfile.TemporaryDirectory(prefix="bench_textured_") as work:
+        for tag in [ALIASES.get(s, s) for s in sets or SETS]:
+            captures = _captures(tag, names, Path(work))
+            if not captures:
+                out += [INTRO[tag].split("\n")[0], "", "None found.", ""]
+                continue
+            rows = _rows(captures, library, variants, tag, rows_file, names is None, mode)
+            out += [INTRO[tag].format(preset=PRESET), "", *table(rows), ""]
     return "\n".join(out)
 
 
@@ -335,12 +199,15 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--captures", nargs="*", default=None)
     parser.add_argument("--variants", nargs="*", default=None, choices=list(VARIANTS))
     parser.add_argument("--rows", type=Path, default=None)
-    parser.add_argument("--sets", nargs="*", default=None, choices=list(SETS))
+    parser.add_argument("--sets", nargs="*", default=None, choices=[*SETS, *ALIASES])
+    parser.add_argument("--cameras-only", action="store_true",
+                        help="stop each job where training would start (minutes, no refined "
+                             "cameras)")
     args = parser.parse_args(argv)
     logging.basicConfig(level=logging.INFO,
                         format="%(asctime)s %(levelname)s %(name)s: %(message)s")
     sys.stdout.write(run(args.quick, args.library, args.captures, args.variants, args.rows,
-                         args.sets))
+                         args.sets, args.cameras_only))
     return 0
 
 

@@ -10,11 +10,12 @@ relative rotation, else wrong; the rest get none. Counted twice: with the orbit 
 check removes. Then every pair a job matches (mutual nearest descriptors between the photos
 farther apart), with the check: right / wrong among them, and among those the mapper is given
 (``mapper.mapper_pairs``: the geometry explains ``MIN_INLIER_SHARE`` of the matches or more).
-Masks: the capture's own, else made as a job makes them.
+Masks: the capture's own, else made as a job makes them. ``--users``: the captures at the
+users' spacing instead (``capture_set.users_captures``: photos 30 to 60 degrees apart).
 
 QUICK: not run (matching-only, about 2 minutes on 2 cores).
 
-Usage: ``python -m benchmarks.bench_pairs [--captures NAME ...]``.
+Usage: ``python -m benchmarks.bench_pairs [--captures NAME ...] [--users]``.
 """
 
 from __future__ import annotations
@@ -22,11 +23,13 @@ from __future__ import annotations
 import argparse
 import sys
 from collections.abc import Callable
+from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from benchmarks.bench_captures import Capture, capture_names, load_capture
+from benchmarks.capture_set import users_captures
 from benchmarks.harness import ABSENT, section_head
 
 RIGHT_DEG = 10.0
@@ -42,7 +45,8 @@ def _photos(capture: Capture) -> tuple[list[np.ndarray], list[np.ndarray], list[
     from cadnerf_core.intake.masks import photo_masks
     from cadnerf_core.intake.photos import load_photo
 
-    masks_in = capture.masks or [None] * len(capture.photos)
+    masks_in: list[Path | None] = [*capture.masks] if capture.masks else [None] * len(
+        capture.photos)
     photos = [load_photo(p, i, m) for i, (p, m) in enumerate(zip(capture.photos, masks_in,
                                                                    strict=True))]
     masks = [found.mask for found in photo_masks(photos)]
@@ -112,30 +116,33 @@ def table(rows: list[dict[str, Any]]) -> list[str]:
     return lines
 
 
-def run(quick: bool, names: list[str] | None = None) -> str:
-    """The section's markdown (QUICK: not run)."""
-    return "\n".join(_lines(quick, names)) + "\n"
+def run(quick: bool, names: list[str] | None = None, users: bool = False) -> str:
+    """The section's markdown (QUICK: not run); ``users``: the captures at the users' spacing."""
+    return "\n".join(_lines(quick, names, users)) + "\n"
 
 
-def _lines(quick: bool, names: list[str] | None) -> list[str]:
+def _lines(quick: bool, names: list[str] | None, users: bool = False) -> list[str]:
     head = section_head("Matches on real captures: relative rotations right and wrong",
-                        "bench_pairs", quick,
+                        "bench_pairs" + (" --users" if users else ""), quick,
                         ": close pairs (neighbours and next-but-one) of each capture; a "
                         f"rotation within {RIGHT_DEG:.0f} degrees of the reference cameras' "
                         "is right.")
     if quick:
         return [*head, "Not run under QUICK (matching-only, about 2 minutes)."]
-    names = names or capture_names()
-    if not names:
+    captures = users_captures(names) if users else [load_capture(name)
+                                                    for name in names or capture_names()]
+    if not captures:
         return [*head, ABSENT]
-    return [*head, *table([count_pairs(load_capture(name)) for name in names])]
+    return [*head, *table([count_pairs(capture) for capture in captures])]
 
 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--captures", nargs="*", default=None)
+    parser.add_argument("--users", action="store_true",
+                        help="the captures at the users' spacing (30-60 degrees apart)")
     args = parser.parse_args(argv)
-    print(run(False, args.captures), end="")
+    print(run(False, args.captures, args.users), end="")
     return 0
 
 

@@ -41,6 +41,10 @@ LOOKALIKES: dict[str, dict[str, str]] = {
     # The real captures (``../shared/eval/captures``): nothing in the library was drawn after them.
     "dino_ring": {}, "dtu_scan24": {}, "dtu_scan37": {}, "ethiopian_head": {}, "gold_cape": {},
     "kermit": {}, "temple_ring": {},
+    # The captures ``benchmarks.capture_import`` makes (``benchmarks/captures_sources.md``):
+    # nothing in the library was drawn after them.
+    "beer_can": {}, "cat_toy": {}, "cup": {}, "dino_walk": {}, "figurine": {}, "fruit": {},
+    "milk_carton": {}, "mouse": {}, "temple_walk": {},
 }
 """Evaluation object -> {library model id: why it is a look-alike}."""
 
