@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from pathlib import Path
+from types import SimpleNamespace
 from typing import Any
 
 import numpy as np
@@ -34,13 +35,13 @@ def test_training_sets_the_overrides_in_both_jobs(tmp_path: Path,
                                                   monkeypatch: pytest.MonkeyPatch) -> None:
     seen: list[dict[str, Any]] = []
 
-    def fake_job(job: Path, library: Any, *args: Any) -> dict[str, Any]:
+    def fake_job(job: Path, library: Any, *args: Any) -> SimpleNamespace:
         folder = JobFolder(job)
         config = folder.read_config()
         seen.append({"doubt": config.masks.doubt_weight, "seed": config.seed,
                      "exclude": list(config.retrieval.exclude_models)})
         folder.write_metrics({"mean_psnr": 20.0 + len(seen)})
-        return {"model_id": f"model{len(seen)}"}
+        return SimpleNamespace(model=SimpleNamespace(id=f"model{len(seen)}"))
 
     monkeypatch.setattr(pipeline, "run_job", fake_job)
     paths, masks = _photos(tmp_path, 3)
@@ -59,13 +60,13 @@ def test_training_runs_both_jobs_for_each_seed_and_reports_the_mean(
     seeds: list[int] = []
     psnr = {0: (24.0, 26.0), 1: (25.0, 25.5)}  # seed: (built-in, shipped)
 
-    def fake_job(job: Path, library: Any, *args: Any) -> dict[str, Any]:
+    def fake_job(job: Path, library: Any, *args: Any) -> SimpleNamespace:
         folder = JobFolder(job)
         seed = folder.read_config().seed
         shipped = len(seeds) % 2  # each seed: the built-in masks' job, then the shipped one's
         seeds.append(seed)
         folder.write_metrics({"mean_psnr": psnr[seed][shipped]})
-        return {"model_id": "m"}
+        return SimpleNamespace(model=SimpleNamespace(id="m"))
 
     monkeypatch.setattr(pipeline, "run_job", fake_job)
     paths, masks = _photos(tmp_path, 3)

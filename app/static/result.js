@@ -65,11 +65,11 @@ export async function showResult(jobId) {
   }
 }
 
-// How each camera was placed (the result's `placement`: the points the photos share, those
-// and the outline, or the outline alone), and how sure the job is of it.
+// How each camera was placed (the result's `placement`: the points the photos share, both those
+// and the outline, or the outline alone), and how sure the job is of it, in the last column.
 const PLACEMENT_TEXT = {
   matches: "points",
-  both: "points + outline",
+  both: "both",
   silhouettes: "outline",
 };
 
@@ -80,11 +80,12 @@ function renderMatches(photos) {
     const row = document.createElement("tr");
     if (photo.discarded) row.className = "discarded";
     const fmt = (value, digits, unit = "") => (value === null || value === undefined ? "\u2013" : value.toFixed(digits) + unit);
-    const placed = photo.placement ? `${PLACEMENT_TEXT[photo.placement] || photo.placement}` : "\u2013";
-    const sure = photo.confidence === null || photo.confidence === undefined ? "" : ` (${Math.round(photo.confidence * 100)} %)`;
-    const cells = [photo.index + 1, photo.name, fmt(photo.iou, 3), fmt(photo.azimuth, 0, "\u00b0"),
-      fmt(photo.elevation, 0, "\u00b0"), photo.discarded ? "\u2013" : placed + sure,
-      photo.discarded ? "discarded" : ""];
+    const placed = photo.placement ? PLACEMENT_TEXT[photo.placement] || photo.placement : "";
+    const sure = photo.confidence === null || photo.confidence === undefined ? "" : ` ${Math.round(photo.confidence * 100)}%`;
+    // The stored name is `NNN_<your file's name>`: the page shows the photo by the user's name.
+    const cells = [photo.index + 1, photo.name.replace(/^\d{3}_/, ""), fmt(photo.iou, 3),
+      fmt(photo.azimuth, 0, "\u00b0"), fmt(photo.elevation, 0, "\u00b0"),
+      photo.discarded ? "discarded" : placed + sure];
     for (const value of cells) {
       const cell = document.createElement("td");
       cell.textContent = String(value);

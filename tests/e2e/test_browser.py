@@ -53,7 +53,7 @@ def test_upload_progress_video_and_screenshot(live_service, photo_set: list[Path
             assert page.locator("#matches tbody tr").count() == len(photo_set)
             placed = page.eval_on_selector_all(  # how each camera was placed, and how sure
                 "#matches tbody tr", "(rows) => rows.map((r) => r.cells[5].textContent)")
-            assert any(("points" in text or "outline" in text) and text.endswith("%)")
+            assert any(text.split()[0] in ("points", "both", "outline") and text.endswith("%")
                        for text in placed), placed
             assert page.locator("#cameras circle").count() >= 2 + len(photo_set) - 2
             assert page.locator("#downloads a", has_text="mesh.glb").count() == 1
