@@ -18,14 +18,16 @@ the camera centres of the retrieved cameras (library views), the started ones (w
 starts from) and the refined ones, the focal length's error, PSNR, seconds.
 
 ``--cameras-only`` stops each job where training would start (``capture_jobs.start_capture``):
-minutes, not hours, for iterating on camera code; no refined cameras then, and the summary
-lines score the started ones.
+for iterating on camera code without training; no refined cameras then, and the summary lines
+score the started ones. ``--no-fits`` also skips the start hypotheses' short silhouette fits
+(the retrieved walk alone).
 
 QUICK: not run (whole jobs, hours on 2 cores).
 
 Usage: ``python -m benchmarks.bench_captures [--sets users dense textured] [--captures NAME
-...] [--variants ...] [--cameras-only] [--rows FILE]`` prints the section; ``--rows`` keeps each
-finished job's row in a JSON file and skips jobs already there (a long run can be resumed).
+...] [--variants ...] [--cameras-only [--no-fits]] [--rows FILE]`` prints the section;
+``--rows`` keeps each finished job's row in a JSON file and skips jobs already there (a long
+run can be resumed).
 """
 
 from __future__ import annotations
@@ -116,8 +118,8 @@ def _run_one(capture: Capture, library: Any, variant: str, mode: str,
     for row in rows:
         if row.get("photos_key") == key and row["variant"] == variant and row["mode"] == mode:
             return dict(row)
-    if mode == "cameras":
-        return start_capture(capture, library, variant)
+    if mode.startswith("cameras"):
+        return start_capture(capture, library, variant, fits=mode == "cameras")
     return run_capture(capture, library, variant)
 
 
@@ -164,10 +166,13 @@ def _captures(tag: str, names: list[str] | None, work: Path) -> list[Capture]:
 
 def run(quick: bool, library_dir: Path = LIBRARY_DIR, names: list[str] | None = None,
         variants: list[str] | None = None, rows_file: Path | None = None,
-        sets: list[str] | None = None, cameras_only: bool = False) -> str:
-    """Run the benchmark. Returns its markdown section."""
+        sets: list[str] | None = None, cameras_only: bool = False,
+        fits: bool = True) -> str:
+    """Run the benchmark. Returns its markdown section (``cameras_only``: each job to its
+    start; ``fits`` False: without the start hypotheses' silhouette fits)."""
     head = section_head("Cameras on real captures and textured walks", "bench_captures", quick,
-                        " --cameras-only" if cameras_only else "")
+                        (" --cameras-only" if cameras_only else "")
+                        + ("" if fits or not cameras_only else " --no-fits"))
     if not EVAL_ROOT.is_dir():
         return "\n".join([*head, ABSENT, ""])
     if quick:
@@ -178,7 +183,7 @@ def run(quick: bool, library_dir: Path = LIBRARY_DIR, names: list[str] | None = 
 
     library = load_library(library_dir)
     variants = variants or list(VARIANTS)
-    mode = "cameras" if cameras_only else "full"
+    mode = "full" if not cameras_only else ("cameras" if fits else "cameras-no-fits")
     out = list(head)
     with tempfile.TemporaryDirectory(prefix="bench_textured_") as work:
         for tag in [ALIASES.get(s, s) for s in sets or SETS]:
@@ -203,11 +208,14 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--cameras-only", action="store_true",
                         help="stop each job where training would start (minutes, no refined "
                              "cameras)")
+    parser.add_argument("--no-fits", action="store_true",
+                        help="with --cameras-only: the retrieved walk alone, no start "
+                             "hypotheses fitted (faster)")
     args = parser.parse_args(argv)
     logging.basicConfig(level=logging.INFO,
                         format="%(asctime)s %(levelname)s %(name)s: %(message)s")
     sys.stdout.write(run(args.quick, args.library, args.captures, args.variants, args.rows,
-                         args.sets, args.cameras_only))
+                         args.sets, args.cameras_only, not args.no_fits))
     return 0
 
 

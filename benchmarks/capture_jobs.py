@@ -102,11 +102,15 @@ def _base_row(capture: Capture, variant: str, mode: str) -> dict[str, Any]:
             "exif": capture.exif_35mm is not None, "frames": list(capture.frames)}
 
 
-def _config(capture: Capture, variant: str) -> Any:
+NO_FITS = {"retrieval.hypotheses": 1}
+"""``--no-fits``: the retrieved walk alone, no start hypotheses given a silhouette fit."""
+
+
+def _config(capture: Capture, variant: str, fits: bool = True) -> Any:
     from cadnerf_core.config import internal_config
 
     return internal_config(PRESET, {**exclude_overrides(capture.name), **capture.overrides,
-                                    **VARIANTS[variant]})
+                                    **VARIANTS[variant], **({} if fits else NO_FITS)})
 
 
 def run_capture(capture: Capture, library: Any, variant: str) -> dict[str, Any]:
@@ -164,10 +168,12 @@ def core_log() -> Iterator[list[str]]:
         root.setLevel(previous)
 
 
-def start_capture(capture: Capture, library: Any, variant: str) -> dict[str, Any]:
+def start_capture(capture: Capture, library: Any, variant: str,
+                  fits: bool = True) -> dict[str, Any]:
     """A job on the capture up to the cameras training would start from (no training):
-    ``run_intake`` then ``robust_start``, as ``pipeline.run_job`` calls them. Returns its row
-    (``score_row`` without refined cameras; the focal length is the started one)."""
+    ``run_intake`` then ``robust_start``, as ``pipeline.run_job`` calls them (``fits`` False:
+    one hypothesis, ``NO_FITS``, so none is fitted). Returns its row (``score_row`` without
+    refined cameras; the focal length is the started one)."""
     from cadnerf_cli.reconstruct_cmd import stage_inputs
     from cadnerf_core.jobfolder import JobFolder
     from cadnerf_core.nerf.model import resolve_device
@@ -177,7 +183,7 @@ def start_capture(capture: Capture, library: Any, variant: str) -> dict[str, Any
     job = Path(tempfile.mkdtemp(prefix="bench_captures_start_"))
     try:
         stage_inputs(capture.photos, capture.masks, job)
-        JobFolder(job).write_config(_config(capture, variant))
+        JobFolder(job).write_config(_config(capture, variant, fits))
         config = read_job_config(job)
         start = time.perf_counter()
         with core_log() as lines:
@@ -195,7 +201,8 @@ def start_capture(capture: Capture, library: Any, variant: str) -> dict[str, Any
                           for m in retrieval.kept])
     focal_px = np.array([m.K_photo[0, 0] for m in retrieval.kept])
     fusion = retrieval.fusion or {}
-    return {**_base_row(capture, variant, "cameras"), "model": retrieval.model_id,
+    return {**_base_row(capture, variant, "cameras" if fits else "cameras-no-fits"),
+            "model": retrieval.model_id,
             "kept": len(kept), "registered": registered_photos(lines, fusion),
             "start": start_kind(fusion),
             **score_row(capture, kept, retrieved, started, None, focal_px, retrieval.pairs),
