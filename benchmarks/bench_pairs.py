@@ -15,14 +15,14 @@ users' spacing instead (``capture_set.users_captures``: photos 30 to 60 degrees 
 
 QUICK: not run (matching-only, about 2 minutes on 2 cores).
 
-Usage: ``python -m benchmarks.bench_pairs [--captures NAME ...] [--users]``.
+Usage: ``python -m benchmarks.bench_pairs [--captures NAME ...] [--users] [--set KEY=VALUE]``.
 """
 
 from __future__ import annotations
 
 import argparse
 import sys
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -60,8 +60,9 @@ def _photos(capture: Capture) -> tuple[list[np.ndarray], list[np.ndarray], list[
     return [p.rgb for p in photos], masks, intrinsics
 
 
-def count_pairs(capture: Capture) -> dict[str, Any]:
-    """The capture's close pairs, right / wrong / none, without and with the orbit check."""
+def count_pairs(capture: Capture, config: Any = None) -> dict[str, Any]:
+    """The capture's close pairs, right / wrong / none, without and with the orbit check
+    (``config``: the ``MatchesConfig`` matched with, the default's when None)."""
     from cadnerf_core.cameras import learned
     from cadnerf_core.cameras.mapper import mapper_pairs
     from cadnerf_core.cameras.matches import verify_matches
@@ -69,8 +70,8 @@ def count_pairs(capture: Capture) -> dict[str, Any]:
     from cadnerf_core.config import MatchesConfig
 
     images, masks, intrinsics = _photos(capture)
-    config = MatchesConfig()
-    features = [learned.detect(image, mask, config.size) for image, mask in zip(images, masks,
+    config = config or MatchesConfig()
+    features = [learned.detect(image, mask, config.size, config.context) for image, mask in zip(images, masks,
                                                                                 strict=True)]
     close = learned.close_pairs(len(images))
     indices = learned.match_indices(features, close)
@@ -116,14 +117,34 @@ def table(rows: list[dict[str, Any]]) -> list[str]:
     return lines
 
 
-def run(quick: bool, names: list[str] | None = None, users: bool = False) -> str:
-    """The section's markdown (QUICK: not run); ``users``: the captures at the users' spacing."""
-    return "\n".join(_lines(quick, names, users)) + "\n"
+def run(quick: bool, names: list[str] | None = None, users: bool = False,
+        settings: Sequence[str] = ()) -> str:
+    """The section's markdown (QUICK: not run); ``users``: the captures at the users' spacing;
+    ``settings``: ``MatchesConfig`` fields as ``key=value``."""
+    return "\n".join(_lines(quick, names, users, settings)) + "\n"
 
 
-def _lines(quick: bool, names: list[str] | None, users: bool = False) -> list[str]:
+def matches_config(settings: Sequence[str]) -> Any:
+    """The ``MatchesConfig`` with ``key=value`` settings (values read as JSON, else text)."""
+    import json
+
+    from cadnerf_core.config import MatchesConfig
+
+    fields: dict[str, Any] = {}
+    for setting in settings:
+        key, _, value = setting.partition("=")
+        try:
+            fields[key] = json.loads(value)
+        except json.JSONDecodeError:
+            fields[key] = value
+    return MatchesConfig(**fields)
+
+
+def _lines(quick: bool, names: list[str] | None, users: bool = False,
+           settings: Sequence[str] = ()) -> list[str]:
     head = section_head("Matches on real captures: relative rotations right and wrong",
-                        "bench_pairs" + (" --users" if users else ""), quick,
+                        "bench_pairs" + (" --users" if users else "")
+                        + "".join(f" --set {s}" for s in settings), quick,
                         ": close pairs (neighbours and next-but-one) of each capture; a "
                         f"rotation within {RIGHT_DEG:.0f} degrees of the reference cameras' "
                         "is right.")
@@ -133,7 +154,8 @@ def _lines(quick: bool, names: list[str] | None, users: bool = False) -> list[st
                                                     for name in names or capture_names()]
     if not captures:
         return [*head, ABSENT]
-    return [*head, *table([count_pairs(capture) for capture in captures])]
+    config = matches_config(settings)
+    return [*head, *table([count_pairs(capture, config) for capture in captures])]
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -141,8 +163,10 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--captures", nargs="*", default=None)
     parser.add_argument("--users", action="store_true",
                         help="the captures at the users' spacing (30-60 degrees apart)")
+    parser.add_argument("--set", dest="settings", action="append", default=[],
+                        metavar="KEY=VALUE", help="a MatchesConfig field (repeatable)")
     args = parser.parse_args(argv)
-    print(run(False, args.captures, args.users), end="")
+    print(run(False, args.captures, args.users, args.settings), end="")
     return 0
 
 

@@ -9,8 +9,9 @@ every photo's rotation relative to the others, and one rotation, fitted robustly
 retrieved cameras at once, anchors that rigid set in the CAD model's frame. Each photo's error
 in retrieval then counts once among all of them instead of being its camera.
 
-Steps: pairs whose rotation disagrees with a triangle of other pairs are dropped
-(``CYCLE_DEG``); the largest set of photos the remaining pairs connect is solved by iteratively
+Steps: pairs whose rotation lies far from the retrieved cameras' (``PRIOR_DEG``: matched on
+repeated print or on highlights that travel with the camera) or disagrees with a triangle of
+other pairs (``CYCLE_DEG``) are dropped; the largest set of photos the remaining pairs connect is solved by iteratively
 reweighted chordal averaging (``average_rotations``); the anchor is the robust chordal mean of
 ``W_i^retrieved A_i^T`` (``anchor``). Each fused camera keeps its retrieved distance to the
 object's centre and looks at it, as library cameras do. Photos outside that set keep their
@@ -52,6 +53,13 @@ FOCAL_FACTORS = tuple(float(f) for f in np.geomspace(0.5, 2.0, 13))
 """Factors on the retrieved focal length tried where no photo's own is known."""
 FOCAL_MARGIN_DEG = 1.0
 """How much nearer the retrieved cameras another focal length must fuse them to be taken."""
+PRIOR_DEG = 60.0
+"""Most a pair's rotation may differ from the relative rotation of its two photos' retrieved
+cameras. Retrieval's cameras err by 10 to 40 degrees each at the users' spacing, so a right pair
+lies within; a wrong one mostly does not: the turn of a few degrees that features travelling
+with the camera give two photos 40 degrees apart (highlights, the outline), or the half turn of
+a print repeated on the object's other side (``docs/benchmarks.md``, the cameras at the users'
+spacing: pairs right and wrong before and after)."""
 MAPPED_WEIGHT = 4.0
 """Weight of a relative rotation between two photos the mapper registered (a pair's own is at
 most 1): bundle adjusted over every match those photos share, it is the surest edge."""
@@ -73,13 +81,32 @@ class Fusion:
     focal_factor: float = 1.0
     mapped: tuple[int, ...] = ()
     """Photos whose cameras the mapper registered, joined as one rigid set."""
+    implausible: int = 0
+    """Pairs left out before the solve, their rotation far from the retrieved cameras'
+    (``PRIOR_DEG``)."""
 
     def to_json(self) -> dict[str, object]:
         """JSON-ready summary."""
         return {"photos": self.photos, "pairs": self.pairs, "dropped": self.dropped,
-                "moved_deg": round(self.moved_deg, 2),
+                "implausible": self.implausible, "moved_deg": round(self.moved_deg, 2),
                 "residual_deg": round(self.residual_deg, 2),
                 "focal_factor": round(self.focal_factor, 4), "mapped": list(self.mapped)}
+
+
+def plausible(retrieval: RetrievalResult, pairs: Sequence[PairMatch]) -> list[PairMatch]:
+    """The pairs whose rotation lies within ``PRIOR_DEG`` of the relative rotation of the two
+    photos' retrieved cameras (``c2w_retrieved`` where the cameras were moved since), and the
+    pairs without a rotation or of photos retrieval has no camera for, as given."""
+    cameras = {m.index: (m.c2w if m.c2w_retrieved is None else m.c2w_retrieved)
+               for m in retrieval.matches}
+    kept = []
+    for p in pairs:
+        if p.rotation is not None and p.i in cameras and p.j in cameras:
+            prior = cameras[p.j][:3, :3].T @ cameras[p.i][:3, :3]
+            if _angle(np.asarray(p.rotation) @ prior.T) > PRIOR_DEG:
+                continue
+        kept.append(p)
+    return kept
 
 
 def project_rotation(M: np.ndarray) -> np.ndarray:
@@ -339,8 +366,9 @@ def fuse(retrieval: RetrievalResult, pairs: Sequence[PairMatch],
         pairs, the cameras as retrieved (``fusion`` records no photos) and None.
     """
     kept = {m.index: m for m in retrieval.kept}
-    usable = [p for p in pairs if p.rotation is not None and p.inliers >= min_inliers
-              and p.i in kept and p.j in kept]
+    candidates = [p for p in pairs if p.rotation is not None and p.inliers >= min_inliers
+                  and p.i in kept and p.j in kept]
+    usable = plausible(retrieval, candidates)
     weights = {(p.i, p.j): min(1.0, p.inliers / (4.0 * min_inliers)) for p in usable}
     factor = 1.0
     if search_focal:
@@ -355,7 +383,9 @@ def fuse(retrieval: RetrievalResult, pairs: Sequence[PairMatch],
     weights.update({edge: MAPPED_WEIGHT for edge in rigid})
     solved = _solve(kept, edges, weights)
     if solved is None:
-        return dataclasses.replace(retrieval, fusion={"photos": [], "pairs": len(edges)}), None
+        return dataclasses.replace(retrieval, fusion={
+            "photos": [], "pairs": len(edges),
+            "implausible": len(candidates) - len(usable)}), None
     fused = solved.rotations
     residual = [_angle(R @ fused[i] @ fused[j].T) for (i, j), R in solved.used.items()]
     cameras = {}
@@ -369,10 +399,12 @@ def fuse(retrieval: RetrievalResult, pairs: Sequence[PairMatch],
     summary = Fusion(solved.photos, len(solved.used), solved.dropped,
                      float(np.median(solved.moved)),
                      float(np.median(residual)) if residual else 0.0, factor,
-                     tuple(sorted({p for edge in rigid for p in edge} & set(solved.photos))))
-    log.info("fused %d cameras with %d pairs' rotations (%d dropped): moved %.1f deg "
-             "(median), pairs within %.1f deg; focal length x%.2f", len(solved.photos),
-             summary.pairs, summary.dropped, summary.moved_deg, summary.residual_deg, factor)
+                     tuple(sorted({p for edge in rigid for p in edge} & set(solved.photos))),
+                     len(candidates) - len(usable))
+    log.info("fused %d cameras with %d pairs' rotations (%d far from the retrieved cameras' "
+             "and %d by triangles dropped): moved %.1f deg (median), pairs within %.1f deg; "
+             "focal length x%.2f", len(solved.photos), summary.pairs, summary.implausible,
+             summary.dropped, summary.moved_deg, summary.residual_deg, factor)
     return dataclasses.replace(retrieval, matches=matches, fusion=summary.to_json()), summary
 
 

@@ -20,6 +20,7 @@ from cadnerf_core.cameras.fusion import (
     fuse,
     fuse_hypotheses,
     pairs_at_focal,
+    plausible,
 )
 from cadnerf_core.cameras.matches import PairMatch
 from cadnerf_core.intake.crop import CropBox
@@ -115,6 +116,36 @@ def test_a_wrong_pair_in_a_walk_does_not_bend_the_fused_cameras() -> None:
     for i, j in ((2, 3), (1, 2), (3, 4)):
         assert rotation_angle_deg((_relative(poses, i, j).T
                                    @ _relative(truth, i, j))[None])[0] < 1.0
+
+
+def _still(truth: np.ndarray, i: int, j: int) -> PairMatch:
+    """The pair's rotation a turn of 3 degrees, as features that travel with the camera give
+    two photos 90 degrees apart (next-but-one in the walk)."""
+    return _pair(truth, i, j, rotation=cv2.Rodrigues(np.array([0.0, np.radians(3.0), 0.0]))[0])
+
+
+def test_pairs_far_from_the_retrieved_cameras_are_not_plausible() -> None:
+    truth = _truth()
+    retrieval = _retrieval(_noisy(truth, 20.0), [])
+    right, still = _pair(truth, 0, 1), _still(truth, 1, 3)
+    unknown = dataclasses.replace(_pair(truth, 2, 3), rotation=None)
+    assert plausible(retrieval, [right, still, unknown]) == [right, unknown]
+    # The prior is the retrieved cameras, not those fused since.
+    moved = dataclasses.replace(retrieval, matches=[
+        dataclasses.replace(m, c2w=truth[0], c2w_retrieved=m.c2w) for m in retrieval.matches])
+    assert plausible(moved, [right]) == [right]
+
+
+def test_implausible_pairs_are_left_out_of_the_fusion() -> None:
+    truth = _truth()
+    retrieved = _noisy(truth, 15.0)
+    pairs = [p if (p.i, p.j) not in ((0, 2), (3, 5)) else _still(truth, p.i, p.j)
+             for p in _walk_pairs(truth)]
+    fused, summary = fuse(_retrieval(retrieved, []), pairs, 20)
+    assert summary is not None and summary.implausible == 2
+    assert summary.to_json()["implausible"] == 2
+    poses = np.stack([m.c2w for m in fused.matches])
+    assert np.median(_errors(poses, truth)) < 0.5 * np.median(_errors(retrieved, truth))
 
 
 def test_the_anchor_ignores_one_camera_retrieval_got_wrong() -> None:
@@ -233,7 +264,7 @@ def test_pairs_the_averaged_cameras_cannot_explain_are_left_out() -> None:
         pairs.append(p)
     fused, summary = fuse(_retrieval(_noisy(truth, 10.0), []), pairs, 20)
     assert summary is not None and summary.residual_deg < 1.0
-    assert summary.pairs + summary.dropped == len(pairs)
+    assert summary.pairs + summary.dropped + summary.implausible == len(pairs)
     poses = np.stack([m.c2w for m in fused.matches])
     kept = summary.photos
     for i, j in zip(kept[:-1], kept[1:], strict=True):
