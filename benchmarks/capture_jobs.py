@@ -79,21 +79,27 @@ def score_row(capture: Capture, kept: list[int], retrieved: np.ndarray, started:
               pairs: Sequence[Any]) -> dict[str, Any]:
     """The row's scores: per stage the median rotation error (degrees) of the kept photos,
     whether the walk went the other way (``textured_walks.mirrored``), the focal length's
-    error (share; None where the reference has none), pairs right and wrong."""
+    error (share; None where the reference has none), pairs right and wrong, and of them those
+    the cameras stage uses (``fusion.plausible``: near the retrieved cameras)."""
     from benchmarks.textured_walks import mirrored
+    from cadnerf_core.cameras.fusion import plausible_at
 
     truth = capture.c2w[kept]
     focal = None
     if capture.focal is not None:
         focal = float(np.median(focal_px / capture.focal[kept] - 1.0))
     score = score_pairs(pair_rotations(pairs), capture.c2w, RIGHT_DEG)
+    used = score_pairs(pair_rotations(plausible_at(dict(zip(kept, retrieved, strict=True)),
+                                                   [p for p in pairs if p.i in kept
+                                                    and p.j in kept])),
+                       capture.c2w, RIGHT_DEG)
     last = started if refined is None else refined
     return {"retrieved": _median_error(retrieved, truth),
             "started": _median_error(started, truth),
             "refined": None if refined is None else _median_error(refined, truth),
             "mirrored": mirrored(last, truth), "focal": focal,
             "pairs": score.right + score.wrong, "pairs_right": score.right,
-            "pairs_wrong": score.wrong}
+            "pairs_wrong": score.wrong, "used_right": used.right, "used_wrong": used.wrong}
 
 
 def _base_row(capture: Capture, variant: str, mode: str) -> dict[str, Any]:

@@ -33,7 +33,8 @@ def _cell(value: Any, form: str, bold: bool = False) -> str:
 def _pairs(row: dict[str, Any]) -> str:
     if "pairs_right" not in row:
         return str(row.get("pairs", "-"))
-    return f"{row['pairs_right']} / {row['pairs_wrong']}"
+    used = "" if "used_right" not in row else f" ({row['used_right']} / {row['used_wrong']})"
+    return f"{row['pairs_right']} / {row['pairs_wrong']}{used}"
 
 
 def _registered(row: dict[str, Any]) -> str:
@@ -44,7 +45,7 @@ def _registered(row: dict[str, Any]) -> str:
 def table(rows: list[dict[str, Any]]) -> list[str]:
     """The per-job table and the summary lines (``summary``)."""
     lines = ["| capture | variant | model | photos | spacing (deg) | EXIF | registered | "
-             "pairs right / wrong | start | retrieved (deg) | started (deg) | refined (deg) | "
+             "pairs right / wrong (used) | start | retrieved (deg) | started (deg) | refined (deg) | "
              "mirrored | focal error | PSNR (dB) | seconds |",
              "|---|---|---|---:|---:|---|---:|---:|---|---:|---:|---:|---|---:|---:|---:|"]
     for r in rows:

@@ -13,7 +13,7 @@ from PIL import Image
 from trimesh.visual import TextureVisuals
 
 from benchmarks import capture_set
-from benchmarks.capture_jobs import registered_photos, start_kind
+from benchmarks.capture_jobs import registered_photos, score_row, start_kind
 from benchmarks.capture_set import Capture, load_capture, users_capture
 from benchmarks.capture_spacing import (
     choose_walk,
@@ -163,6 +163,26 @@ def test_a_pair_is_right_when_its_rotation_is_the_reference_s() -> None:
     assert (score.right, score.wrong) == (1, 2)
     assert score.errors_deg[0] == pytest.approx(0.0, abs=1e-6)
     assert score.errors_deg[1] == pytest.approx(20.05, abs=0.1)
+
+
+def test_a_row_counts_the_pairs_the_cameras_stage_uses() -> None:
+    from cadnerf_core.cameras.matches import PairMatch
+
+    c2w = _ring([0.0, 45.0, 90.0])
+
+    def pair(i: int, j: int, R: np.ndarray) -> PairMatch:
+        return PairMatch(i, j, 100, 100, 0.3, 0.0, R, np.zeros((0, 2, 2)))
+
+    right = pair(0, 1, c2w[1][:3, :3].T @ c2w[0][:3, :3])
+    still = pair(0, 2, np.eye(3))  # 90 degrees apart, seen as no turn at all: wrong, far off
+    near = pair(1, 2, right.rotation @ np.array(  # 20 degrees off: wrong, but near enough
+        [[1.0, 0.0, 0.0], [0.0, np.cos(0.35), -np.sin(0.35)], [0.0, np.sin(0.35), np.cos(0.35)]]))
+    capture = Capture("ring", [Path(f"{k}.jpg") for k in range(3)], None, c2w, None)
+    row = score_row(capture, [0, 1, 2], c2w, c2w, None, np.ones(3), [right, still, near])
+    assert (row["pairs_right"], row["pairs_wrong"]) == (1, 2)
+    assert (row["used_right"], row["used_wrong"]) == (1, 1)
+    assert "1 / 2 (1 / 1)" in table([{**row, "capture": "ring", "variant": "matches",
+                                      "photos": 3}])[2]
 
 
 def test_the_registered_photos_come_from_the_job_s_log() -> None:

@@ -97,8 +97,12 @@ def plausible(retrieval: RetrievalResult, pairs: Sequence[PairMatch]) -> list[Pa
     """The pairs whose rotation lies within ``PRIOR_DEG`` of the relative rotation of the two
     photos' retrieved cameras (``c2w_retrieved`` where the cameras were moved since), and the
     pairs without a rotation or of photos retrieval has no camera for, as given."""
-    cameras = {m.index: (m.c2w if m.c2w_retrieved is None else m.c2w_retrieved)
-               for m in retrieval.matches}
+    return plausible_at({m.index: (m.c2w if m.c2w_retrieved is None else m.c2w_retrieved)
+                         for m in retrieval.matches}, pairs)
+
+
+def plausible_at(cameras: dict[int, np.ndarray], pairs: Sequence[PairMatch]) -> list[PairMatch]:
+    """``plausible`` against the given cameras (c2w [4, 4] by photo index)."""
     kept = []
     for p in pairs:
         if p.rotation is not None and p.i in cameras and p.j in cameras:
