@@ -16,8 +16,11 @@ import numpy as np
 import trimesh
 from PIL import Image
 
-WIDTH, HEIGHT = 640, 480
-"""Photo size in pixels: large enough for matching (the chair spans a few hundred pixels)."""
+WIDTH, HEIGHT = 1024, 768
+"""Photo size in pixels, as a phone's photo shrunk for upload: the chair spans some 500 pixels,
+and every photo of the demo's walk shares points with a neighbour
+(``tests/core/test_demo_photos.py``); at 640 x 480 some share none, and their cameras then rest
+on their outlines alone."""
 FOCAL_35MM = 30
 """The lens, 35 mm equivalent (a phone's main lens is about 26), written to each photo's EXIF."""
 ELEVATIONS = (15.0, 35.0)

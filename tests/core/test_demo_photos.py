@@ -30,3 +30,26 @@ def test_the_demo_photos_carry_their_lens_a_large_textured_object_and_its_mask(
         grey = photo.rgb.astype(np.float32).mean(axis=-1)
         assert grey[mask].std() > 0.05 * grey[mask].mean()  # grain to match, not flat paint
         assert grey[~mask].std() > 0.05 * grey[~mask].mean()  # a floor, not a blank backdrop
+
+
+def test_every_photo_of_the_demo_walk_shares_points_with_a_neighbour(tmp_path: Path) -> None:
+    """The first run shows no camera resting on its outline alone: at the demo's ten photos
+    each has a neighbour (or next-but-one) whose matches give a rotation."""
+    from cadnerf_cli.demo_cmd import VIEWS
+    from cadnerf_core.cameras.learned import close_pairs
+    from cadnerf_core.cameras.matches import match_photos
+    from cadnerf_core.config import MatchesConfig
+
+    photos, masks = render_demo_photos(tmp_path, views=VIEWS)
+    images = [load_photo(path, k, None).rgb for k, path in enumerate(photos)]
+    silhouettes = []
+    for path in masks:
+        with Image.open(path) as image:
+            silhouettes.append(np.asarray(image) > 127)
+    focal = demo_focal_px()
+    K = np.array([[focal, 0.0, WIDTH / 2.0], [0.0, focal, HEIGHT / 2.0], [0.0, 0.0, 1.0]])
+    pairs = match_photos(images, silhouettes, [K] * VIEWS, MatchesConfig())
+    close = close_pairs(VIEWS)
+    placed = {k for p in pairs if p.rotation is not None and (p.i, p.j) in close
+              for k in (p.i, p.j)}
+    assert placed == set(range(VIEWS))
