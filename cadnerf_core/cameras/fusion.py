@@ -6,16 +6,17 @@ silhouettes can tell (a body of revolution's azimuth, a symmetric object's side)
 essential matrix of two photos' verified matches gives their relative rotation to a degree or
 two wherever the object has texture. Together: rotation averaging over the matched pairs fixes
 every photo's rotation relative to the others, and one rotation, fitted robustly to all the
-retrieved cameras at once, anchors that rigid set in the CAD model's frame. Each photo's error
+retrieved cameras at once, anchors that rigid set in the CAD model's frame (each connected set
+of at least ``MIN_PHOTOS`` photos on its own). Each photo's error
 in retrieval then counts once among all of them instead of being its camera.
 
 Steps: pairs whose rotation lies far from the retrieved cameras' (``PRIOR_DEG``: matched on
 repeated print or on highlights that travel with the camera) or disagrees with a triangle of
-other pairs (``CYCLE_DEG``) are dropped; the largest set of photos the remaining pairs connect is solved by iteratively
-reweighted chordal averaging (``average_rotations``); the anchor is the robust chordal mean of
-``W_i^retrieved A_i^T`` (``anchor``). Each fused camera keeps its retrieved distance to the
-object's centre and looks at it, as library cameras do. Photos outside that set keep their
-retrieved cameras.
+other pairs (``CYCLE_DEG``) are dropped; each set of photos the remaining pairs connect, the
+largest first, is solved by iteratively reweighted chordal averaging (``average_rotations``);
+its anchor is the robust chordal mean of ``W_i^retrieved A_i^T`` (``anchor``). Each fused
+camera keeps its retrieved distance to the object's centre and looks at it, as library cameras
+do. Photos outside every set keep their retrieved cameras.
 """
 
 from __future__ import annotations
@@ -48,7 +49,10 @@ ITERATIONS = 50
 OUTLIER_DEG = 10.0
 """A pair whose rotation the averaged cameras miss by more than this is left out."""
 MIN_PHOTOS = 3
-"""Fewest photos a connected set of pairs must hold to be fused."""
+"""Fewest photos a connected set of pairs must hold to be fused. Photos 40 degrees and more
+apart often fall into several such sets, which the pairs hold together though nothing joins
+them: each is fused and anchored by its own retrieved cameras (two photos alone are not: one
+pair, which no triangle checks, would move both)."""
 FOCAL_FACTORS = tuple(float(f) for f in np.geomspace(0.5, 2.0, 13))
 """Factors on the retrieved focal length tried where no photo's own is known."""
 FOCAL_MARGIN_DEG = 1.0
@@ -84,11 +88,14 @@ class Fusion:
     implausible: int = 0
     """Pairs left out before the solve, their rotation far from the retrieved cameras'
     (``PRIOR_DEG``)."""
+    sets: int = 1
+    """Connected sets of photos fused, each anchored by its own retrieved cameras."""
 
     def to_json(self) -> dict[str, object]:
         """JSON-ready summary."""
         return {"photos": self.photos, "pairs": self.pairs, "dropped": self.dropped,
-                "implausible": self.implausible, "moved_deg": round(self.moved_deg, 2),
+                "implausible": self.implausible, "sets": self.sets,
+                "moved_deg": round(self.moved_deg, 2),
                 "residual_deg": round(self.residual_deg, 2),
                 "focal_factor": round(self.focal_factor, 4), "mapped": list(self.mapped)}
 
@@ -250,8 +257,8 @@ class _Solved:
 
 def _solve(kept: dict[int, PhotoMatch], edges: dict[tuple[int, int], np.ndarray],
            weights: dict[tuple[int, int], float]) -> _Solved | None:
-    """Averaging and anchor over the pairs triangles do not contradict; None when they connect
-    fewer than ``MIN_PHOTOS`` photos."""
+    """Averaging and anchor of the largest set of photos the pairs triangles do not contradict
+    connect; None when it holds fewer than ``MIN_PHOTOS`` photos."""
     good = consistent_edges(edges)
     for _ in range(ITERATIONS):
         photos = _component(sorted(kept), sorted(good))
@@ -276,6 +283,24 @@ def _solve(kept: dict[int, PhotoMatch], edges: dict[tuple[int, int], np.ndarray]
     fused = relative @ anchor(relative, retrieved)
     moved = rotation_angle_deg(np.swapaxes(fused, 1, 2) @ retrieved)
     return _Solved(photos, fused, used, moved, len(edges) - len(pairs))
+
+
+def _every_set(kept: dict[int, PhotoMatch], edges: dict[tuple[int, int], np.ndarray],
+               weights: dict[tuple[int, int], float]) -> list[_Solved]:
+    """``_solve`` on the largest connected set, then on each further set of the photos left,
+    largest first, while one holds ``MIN_PHOTOS``."""
+    solutions: list[_Solved] = []
+    taken: set[int] = set()
+    while True:
+        rest = {p: m for p, m in kept.items() if p not in taken}
+        among = {e: R for e, R in edges.items() if e[0] in rest and e[1] in rest}
+        if not among:
+            return solutions
+        solved = _solve(rest, among, weights)
+        if solved is None:
+            return solutions
+        solutions.append(solved)
+        taken |= set(solved.photos)
 
 
 def _fundamentals(pairs: Sequence[PairMatch]) -> dict[tuple[int, int], np.ndarray]:
@@ -385,29 +410,32 @@ def fuse(retrieval: RetrievalResult, pairs: Sequence[PairMatch],
     rigid = {} if mapped is None else mapped_edges(mapped, list(kept))
     edges.update(rigid)
     weights.update({edge: MAPPED_WEIGHT for edge in rigid})
-    solved = _solve(kept, edges, weights)
-    if solved is None:
+    solutions = _every_set(kept, edges, weights)
+    if not solutions:
         return dataclasses.replace(retrieval, fusion={
             "photos": [], "pairs": len(edges),
             "implausible": len(candidates) - len(usable)}), None
-    fused = solved.rotations
-    residual = [_angle(R @ fused[i] @ fused[j].T) for (i, j), R in solved.used.items()]
-    cameras = {}
-    for photo, rotation in zip(solved.photos, fused, strict=True):
-        c2w = np.eye(4)
-        c2w[:3, :3] = rotation.T
-        # At its retrieved distance, looking at the centre.
-        c2w[:3, 3] = -np.linalg.norm(kept[photo].c2w[:3, 3]) * c2w[:3, 2]
-        cameras[photo] = c2w
+    cameras, moved, residual, used = {}, [], [], 0
+    for solved in solutions:
+        fused = solved.rotations
+        residual += [_angle(R @ fused[i] @ fused[j].T) for (i, j), R in solved.used.items()]
+        moved += solved.moved.tolist()
+        used += len(solved.used)
+        for photo, rotation in zip(solved.photos, fused, strict=True):
+            c2w = np.eye(4)
+            c2w[:3, :3] = rotation.T
+            # At its retrieved distance, looking at the centre.
+            c2w[:3, 3] = -np.linalg.norm(kept[photo].c2w[:3, 3]) * c2w[:3, 2]
+            cameras[photo] = c2w
     matches = moved_to(scaled_focal(retrieval.matches, factor), cameras)
-    summary = Fusion(solved.photos, len(solved.used), solved.dropped,
-                     float(np.median(solved.moved)),
+    summary = Fusion(sorted(cameras), used, len(edges) - used, float(np.median(moved)),
                      float(np.median(residual)) if residual else 0.0, factor,
-                     tuple(sorted({p for edge in rigid for p in edge} & set(solved.photos))),
-                     len(candidates) - len(usable))
-    log.info("fused %d cameras with %d pairs' rotations (%d far from the retrieved cameras' "
-             "and %d by triangles dropped): moved %.1f deg (median), pairs within %.1f deg; "
-             "focal length x%.2f", len(solved.photos), summary.pairs, summary.implausible,
+                     tuple(sorted({p for edge in rigid for p in edge} & set(cameras))),
+                     len(candidates) - len(usable), len(solutions))
+    log.info("fused %d cameras in %d set(s) with %d pairs' rotations (%d far from the retrieved "
+             "cameras' and %d by triangles dropped): moved %.1f deg (median), pairs within "
+             "%.1f deg; focal length x%.2f", len(summary.photos), summary.sets, summary.pairs,
+             summary.implausible,
              summary.dropped, summary.moved_deg, summary.residual_deg, factor)
     return dataclasses.replace(retrieval, matches=matches, fusion=summary.to_json()), summary
 

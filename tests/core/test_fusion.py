@@ -270,3 +270,29 @@ def test_pairs_the_averaged_cameras_cannot_explain_are_left_out() -> None:
     for i, j in zip(kept[:-1], kept[1:], strict=True):
         assert rotation_angle_deg((_relative(poses, i, j).T @ _relative(truth, i, j))[None])[
             0] < 1.0
+
+
+def test_each_connected_set_of_photos_is_fused_on_its_own() -> None:
+    """Photos 0-3 and 5-7 are held together by their pairs, nothing joins the two sets: each
+    is fused, anchored by its own retrieved cameras; photo 4 keeps its retrieved camera."""
+    truth = _truth()
+    retrieved = _noisy(truth, 15.0, seed=3)
+    pairs = [_pair(truth, i, j) for i, j in ((0, 1), (1, 2), (0, 2), (2, 3), (1, 3),
+                                             (5, 6), (6, 7), (5, 7))]
+    fused, summary = fuse(_retrieval(retrieved, []), pairs, 20)
+    assert summary is not None and summary.sets == 2
+    assert summary.photos == [0, 1, 2, 3, 5, 6, 7] and summary.pairs == len(pairs)
+    poses = np.stack([m.c2w for m in fused.matches])
+    assert np.array_equal(poses[4], retrieved[4])
+    for i, j in ((0, 3), (5, 7)):  # within a set, the pairs' relative rotation
+        assert rotation_angle_deg((_relative(poses, i, j).T @ _relative(truth, i, j))[None])[
+            0] < 0.5
+
+
+def test_two_photos_joined_by_one_pair_alone_are_not_fused() -> None:
+    truth = _truth()
+    retrieved = _noisy(truth, 15.0, seed=3)
+    pairs = [_pair(truth, i, j) for i, j in ((0, 1), (1, 2), (0, 2), (5, 6))]
+    fused, summary = fuse(_retrieval(retrieved, []), pairs, 20)
+    assert summary is not None and summary.sets == 1 and summary.photos == [0, 1, 2]
+    assert np.array_equal(fused.matches[5].c2w, retrieved[5])
