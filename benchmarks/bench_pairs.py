@@ -71,8 +71,8 @@ def count_pairs(capture: Capture, config: Any = None) -> dict[str, Any]:
 
     images, masks, intrinsics = _photos(capture)
     config = config or MatchesConfig()
-    features = [learned.detect(image, mask, config.size, config.context) for image, mask in zip(images, masks,
-                                                                                strict=True)]
+    features = [learned.detect(image, mask, config.size, config.context)
+                for image, mask in zip(images, masks, strict=True)]
     close = learned.close_pairs(len(images))
     indices = learned.match_indices(features, close)
     centres = [object_centre(mask) for mask in masks]

@@ -45,8 +45,8 @@ def _registered(row: dict[str, Any]) -> str:
 def table(rows: list[dict[str, Any]]) -> list[str]:
     """The per-job table and the summary lines (``summary``)."""
     lines = ["| capture | variant | model | photos | spacing (deg) | EXIF | registered | "
-             "pairs right / wrong (used) | start | retrieved (deg) | started (deg) | refined (deg) | "
-             "mirrored | focal error | PSNR (dB) | seconds |",
+             "pairs right / wrong (used) | start | retrieved (deg) | started (deg) | "
+             "refined (deg) | mirrored | focal error | PSNR (dB) | seconds |",
              "|---|---|---|---:|---:|---|---:|---:|---|---:|---:|---:|---|---:|---:|---:|"]
     for r in rows:
         focal = "-" if r.get("focal") is None else f"{100 * r['focal']:+.0f} %"
