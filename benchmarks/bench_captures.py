@@ -62,8 +62,8 @@ log = logging.getLogger("benchmarks.captures")
 
 RECORDED = {"users": ("captures_users_rotation", "cameras on real captures at the users' "
                       "spacing ({n} textured captures, 30-60 degrees apart)"),
-            "dense": ("captures_real_rotation", "cameras on real captures ({n} textured sets "
-                      "with reference cameras)"),
+            "dense": ("captures_real_rotation", "cameras on the dense real captures ({n} "
+                      "textured sets)"),
             "textured": ("captures_textured_rotation", "cameras on textured synthetic walks "
                          "({n} meshes, 768 x 576)")}
 """Per set: the README figure's key and quantity (median refined error of the matches)."""
