@@ -17,8 +17,8 @@ import trimesh
 from PIL import Image
 
 WIDTH, HEIGHT = 1024, 768
-"""Photo size in pixels, as a phone's photo shrunk for upload: the chair spans some 500 pixels,
-and every photo of the demo's walk shares points with a neighbour
+"""Photo size in pixels, as a phone's photo shrunk for upload: the chair stands 420 to 510
+pixels tall, and every photo of the demo's walk shares points with a neighbour
 (``tests/core/test_demo_photos.py``); at 640 x 480 some share none, and their cameras then rest
 on their outlines alone."""
 FOCAL_35MM = 30
