@@ -77,7 +77,7 @@ INTRO = {
              "ones. Pairs: verified pairs with a rotation, right when within 10 degrees of "
              "the reference's relative rotation; used: of them, those within 60 degrees of "
              "the retrieved cameras', which the mapper and the fusion take "
-             "(`fusion.PRIOR_DEG`). Rotation errors: median over the kept photos "
+             "(`prior.PRIOR_DEG`). Rotation errors: median over the kept photos "
              "after similarity alignment of the camera centres; retrieved: the library views; "
              "started: the cameras training starts from; refined: after training. Focal "
              "error: the job's focal length against the reference (EXIF: the imported "

@@ -80,9 +80,9 @@ def score_row(capture: Capture, kept: list[int], retrieved: np.ndarray, started:
     """The row's scores: per stage the median rotation error (degrees) of the kept photos,
     whether the walk went the other way (``textured_walks.mirrored``), the focal length's
     error (share; None where the reference has none), pairs right and wrong, and of them those
-    the cameras stage uses (``fusion.plausible``: near the retrieved cameras)."""
+    the cameras stage uses (``prior.plausible``: near the retrieved cameras)."""
     from benchmarks.textured_walks import mirrored
-    from cadnerf_core.cameras.fusion import plausible_at
+    from cadnerf_core.cameras.prior import plausible_at
 
     truth = capture.c2w[kept]
     focal = None

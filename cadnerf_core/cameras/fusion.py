@@ -10,13 +10,13 @@ retrieved cameras at once, anchors that rigid set in the CAD model's frame (each
 of at least ``MIN_PHOTOS`` photos on its own). Each photo's error
 in retrieval then counts once among all of them instead of being its camera.
 
-Steps: pairs whose rotation lies far from the retrieved cameras' (``PRIOR_DEG``: matched on
-repeated print or on highlights that travel with the camera) or disagrees with a triangle of
-other pairs (``CYCLE_DEG``) are dropped; each set of photos the remaining pairs connect, the
-largest first, is solved by iteratively reweighted chordal averaging (``average_rotations``);
-its anchor is the robust chordal mean of ``W_i^retrieved A_i^T`` (``anchor``). Each fused
-camera keeps its retrieved distance to the object's centre and looks at it, as library cameras
-do. Photos outside every set keep their retrieved cameras.
+Steps: pairs whose rotation lies far from the retrieved cameras' (``prior.PRIOR_DEG``: matched
+on repeated print or on highlights that travel with the camera) or disagrees with a triangle of
+other pairs (``viewgraph.CYCLE_DEG``) are dropped; each set of photos the remaining pairs
+connect, the largest first, is solved by iteratively reweighted chordal averaging
+(``average_rotations``); its anchor is the robust chordal mean of ``W_i^retrieved A_i^T``
+(``anchor``). Each fused camera keeps its retrieved distance to the object's centre and looks at
+it, as library cameras do. Photos outside every set keep their retrieved cameras.
 """
 
 from __future__ import annotations
@@ -32,13 +32,12 @@ import numpy as np
 from cadnerf_core.cameras.conventions import rotation_angle_deg, scale_focal
 from cadnerf_core.cameras.mapper import Mapped
 from cadnerf_core.cameras.matches import PairMatch
+from cadnerf_core.cameras.prior import plausible
+from cadnerf_core.cameras.viewgraph import component, consistent_edges
 from cadnerf_core.retrieval.result import PhotoMatch, RetrievalResult
 
 log = logging.getLogger(__name__)
 
-CYCLE_DEG = 6.0
-"""Most a pair's rotation may differ from the product of two others closing a triangle for
-the three to agree."""
 ROBUST_DEG = 5.0
 """Scale of the averaging's Cauchy weights: a pair this far off its solution counts half."""
 ANCHOR_OUTLIER_DEG = 45.0
@@ -57,13 +56,6 @@ FOCAL_FACTORS = tuple(float(f) for f in np.geomspace(0.5, 2.0, 13))
 """Factors on the retrieved focal length tried where no photo's own is known."""
 FOCAL_MARGIN_DEG = 1.0
 """How much nearer the retrieved cameras another focal length must fuse them to be taken."""
-PRIOR_DEG = 60.0
-"""Most a pair's rotation may differ from the relative rotation of its two photos' retrieved
-cameras. Retrieval's cameras err by 10 to 40 degrees each at the users' spacing, so a right pair
-lies within; a wrong one mostly does not: the turn of a few degrees that features travelling
-with the camera give two photos 40 degrees apart (highlights, the outline), or the half turn of
-a print repeated on the object's other side (``docs/benchmarks.md``, the cameras at the users'
-spacing: pairs right and wrong before and after)."""
 MAPPED_WEIGHT = 4.0
 """Weight of a relative rotation between two photos the mapper registered (a pair's own is at
 most 1): bundle adjusted over every match those photos share, it is the surest edge."""
@@ -87,7 +79,7 @@ class Fusion:
     """Photos whose cameras the mapper registered, joined as one rigid set."""
     implausible: int = 0
     """Pairs left out before the solve, their rotation far from the retrieved cameras'
-    (``PRIOR_DEG``)."""
+    (``prior.PRIOR_DEG``)."""
     sets: int = 1
     """Connected sets of photos fused, each anchored by its own retrieved cameras."""
 
@@ -100,26 +92,6 @@ class Fusion:
                 "focal_factor": round(self.focal_factor, 4), "mapped": list(self.mapped)}
 
 
-def plausible(retrieval: RetrievalResult, pairs: Sequence[PairMatch]) -> list[PairMatch]:
-    """The pairs whose rotation lies within ``PRIOR_DEG`` of the relative rotation of the two
-    photos' retrieved cameras (``c2w_retrieved`` where the cameras were moved since), and the
-    pairs without a rotation or of photos retrieval has no camera for, as given."""
-    return plausible_at({m.index: (m.c2w if m.c2w_retrieved is None else m.c2w_retrieved)
-                         for m in retrieval.matches}, pairs)
-
-
-def plausible_at(cameras: dict[int, np.ndarray], pairs: Sequence[PairMatch]) -> list[PairMatch]:
-    """``plausible`` against the given cameras (c2w [4, 4] by photo index)."""
-    kept = []
-    for p in pairs:
-        if p.rotation is not None and p.i in cameras and p.j in cameras:
-            prior = cameras[p.j][:3, :3].T @ cameras[p.i][:3, :3]
-            if _angle(np.asarray(p.rotation) @ prior.T) > PRIOR_DEG:
-                continue
-        kept.append(p)
-    return kept
-
-
 def project_rotation(M: np.ndarray) -> np.ndarray:
     """The rotation nearest ``M`` [3, 3] in the Frobenius norm."""
     U, _, Vt = np.linalg.svd(M)
@@ -129,64 +101,6 @@ def project_rotation(M: np.ndarray) -> np.ndarray:
 
 def _angle(R: np.ndarray) -> float:
     return float(rotation_angle_deg(np.asarray(R)[None])[0])
-
-
-def consistent_edges(edges: dict[tuple[int, int], np.ndarray]) -> set[tuple[int, int]]:
-    """The edges (i < j, ``R_ij``: camera i's axes to camera j's) no triangle contradicts.
-
-    An edge is confirmed by a triangle of edges whose rotations compose within ``CYCLE_DEG``;
-    it is contradicted by a triangle that does not close while its two other edges are
-    confirmed. Edges neither confirmed nor contradicted are kept: the averaging's robust
-    weights judge them.
-    """
-    def rel(i: int, j: int) -> np.ndarray | None:
-        if (i, j) in edges:
-            return edges[(i, j)]
-        return edges[(j, i)].T if (j, i) in edges else None
-
-    nodes = sorted({n for e in edges for n in e})
-    closing: dict[tuple[int, int], list[tuple[int, int, int]]] = {e: [] for e in edges}
-    failing: dict[tuple[int, int], list[tuple[int, int, int]]] = {e: [] for e in edges}
-    for a in nodes:
-        for b in nodes:
-            for c in nodes:
-                if not a < b < c:
-                    continue
-                R_ab, R_bc, R_ac = rel(a, b), rel(b, c), rel(a, c)
-                if R_ab is None or R_bc is None or R_ac is None:
-                    continue
-                closes = _angle(R_ac.T @ (R_bc @ R_ab)) <= CYCLE_DEG
-                for e in ((a, b), (b, c), (a, c)):
-                    key = e if e in edges else (e[1], e[0])
-                    (closing if closes else failing)[key].append((a, b, c))
-    confirmed = {e for e, found in closing.items() if found}
-
-    def others_confirmed(e: tuple[int, int], tri: tuple[int, int, int]) -> bool:
-        rest = [n for n in tri if n not in e]
-        return all(tuple(sorted((n, rest[0]))) in confirmed or (rest[0], n) in confirmed
-                   for n in e)
-
-    return {e for e in edges if e in confirmed
-            or not any(others_confirmed(e, tri) for tri in failing[e])}
-
-
-def _component(nodes: Sequence[int], edges: Sequence[tuple[int, int]]) -> list[int]:
-    """The largest set of ``nodes`` the edges connect (sorted)."""
-    parent = {n: n for n in nodes}
-
-    def root(n: int) -> int:
-        while parent[n] != n:
-            parent[n] = parent[parent[n]]
-            n = parent[n]
-        return n
-
-    for i, j in edges:
-        parent[root(i)] = root(j)
-    groups: dict[int, list[int]] = {}
-    for n in nodes:
-        groups.setdefault(root(n), []).append(n)
-    largest: list[int] = max(groups.values(), key=len)
-    return sorted(largest)
 
 
 def average_rotations(n: int, edges: dict[tuple[int, int], np.ndarray],
@@ -261,7 +175,7 @@ def _solve(kept: dict[int, PhotoMatch], edges: dict[tuple[int, int], np.ndarray]
     connect; None when it holds fewer than ``MIN_PHOTOS`` photos."""
     good = consistent_edges(edges)
     for _ in range(ITERATIONS):
-        photos = _component(sorted(kept), sorted(good))
+        photos = component(sorted(kept), sorted(good))
         if len(photos) < MIN_PHOTOS:
             return None
         slot = {photo: k for k, photo in enumerate(photos)}

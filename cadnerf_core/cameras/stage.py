@@ -26,7 +26,7 @@ log = logging.getLogger(__name__)
 def place_cameras(retrieval: RetrievalResult, pairs: list[Any], photos: list[Any],
                   config: PipelineConfig, focal_known: bool) -> RetrievalResult:
     """The retrieved cameras (and their hypotheses) started from what the photos' matches
-    tell, the pairs far from the retrieved cameras left out (``fusion.plausible``): the
+    tell, the pairs far from the retrieved cameras left out (``prior.plausible``): the
     mapper's cameras where it registers every photo (``mapper.complete``), else the
     retrieved cameras fused with the pairs' rotations and, as one rigid set, the cameras of the
     photos the mapper did register (``fusion.fuse``); unchanged when neither is asked for.
@@ -40,9 +40,10 @@ def place_cameras(retrieval: RetrievalResult, pairs: list[Any], photos: list[Any
     Returns:
         The retrieval with its cameras placed.
     """
-    from cadnerf_core.cameras.fusion import fuse_hypotheses, pairs_at_focal, plausible
+    from cadnerf_core.cameras.fusion import fuse_hypotheses, pairs_at_focal
     from cadnerf_core.cameras.mapper import accept, complete, map_photos
     from cadnerf_core.cameras.placement import place_hypotheses
+    from cadnerf_core.cameras.prior import plausible
 
     matches = config.retrieval.matches
     partial = None
@@ -51,7 +52,7 @@ def place_cameras(retrieval: RetrievalResult, pairs: list[Any], photos: list[Any
         start = photos[0].focal_pixels if focal_known else None
         focal = float(start or retrieval.matches[0].K_photo[0, 0])
         clock = time.perf_counter()
-        # Pairs far from the retrieved cameras fold a reconstruction (``fusion.PRIOR_DEG``).
+        # Pairs far from the retrieved cameras fold a reconstruction (``prior.PRIOR_DEG``).
         mapped = map_photos(plausible(retrieval, pairs), sizes, focal, focal_known,
                             matches.min_inliers)
         trusted = accept(mapped, max(sizes[0]))

@@ -15,14 +15,14 @@ from cadnerf_core.cameras.fusion import (
     SET_ASIDE,
     anchor,
     average_rotations,
-    consistent_edges,
     focal_factor,
     fuse,
     fuse_hypotheses,
     pairs_at_focal,
-    plausible,
 )
 from cadnerf_core.cameras.matches import PairMatch
+from cadnerf_core.cameras.prior import plausible
+from cadnerf_core.cameras.viewgraph import consistent_edges
 from cadnerf_core.intake.crop import CropBox
 from cadnerf_core.retrieval.result import PhotoMatch, RetrievalResult
 

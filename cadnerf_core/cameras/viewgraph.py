@@ -1,0 +1,76 @@
+"""The view graph of the verified pairs: which pairs' rotations the triangles they close confirm
+(``consistent_edges``), and the largest set of photos the pairs connect (``component``)."""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import numpy as np
+
+from cadnerf_core.cameras.conventions import rotation_angle_deg
+
+CYCLE_DEG = 6.0
+"""Most a pair's rotation may differ from the product of two others closing a triangle for
+the three to agree."""
+
+
+def _angle(R: np.ndarray) -> float:
+    return float(rotation_angle_deg(np.asarray(R)[None])[0])
+
+
+def consistent_edges(edges: dict[tuple[int, int], np.ndarray]) -> set[tuple[int, int]]:
+    """The edges (i < j, ``R_ij``: camera i's axes to camera j's) no triangle contradicts.
+
+    An edge is confirmed by a triangle of edges whose rotations compose within ``CYCLE_DEG``;
+    it is contradicted by a triangle that does not close while its two other edges are
+    confirmed. Edges neither confirmed nor contradicted are kept: the averaging's robust
+    weights judge them.
+    """
+    def rel(i: int, j: int) -> np.ndarray | None:
+        if (i, j) in edges:
+            return edges[(i, j)]
+        return edges[(j, i)].T if (j, i) in edges else None
+
+    nodes = sorted({n for e in edges for n in e})
+    closing: dict[tuple[int, int], list[tuple[int, int, int]]] = {e: [] for e in edges}
+    failing: dict[tuple[int, int], list[tuple[int, int, int]]] = {e: [] for e in edges}
+    for a in nodes:
+        for b in nodes:
+            for c in nodes:
+                if not a < b < c:
+                    continue
+                R_ab, R_bc, R_ac = rel(a, b), rel(b, c), rel(a, c)
+                if R_ab is None or R_bc is None or R_ac is None:
+                    continue
+                closes = _angle(R_ac.T @ (R_bc @ R_ab)) <= CYCLE_DEG
+                for e in ((a, b), (b, c), (a, c)):
+                    key = e if e in edges else (e[1], e[0])
+                    (closing if closes else failing)[key].append((a, b, c))
+    confirmed = {e for e, found in closing.items() if found}
+
+    def others_confirmed(e: tuple[int, int], tri: tuple[int, int, int]) -> bool:
+        rest = [n for n in tri if n not in e]
+        return all(tuple(sorted((n, rest[0]))) in confirmed or (rest[0], n) in confirmed
+                   for n in e)
+
+    return {e for e in edges if e in confirmed
+            or not any(others_confirmed(e, tri) for tri in failing[e])}
+
+
+def component(nodes: Sequence[int], edges: Sequence[tuple[int, int]]) -> list[int]:
+    """The largest set of ``nodes`` the edges connect (sorted)."""
+    parent = {n: n for n in nodes}
+
+    def root(n: int) -> int:
+        while parent[n] != n:
+            parent[n] = parent[parent[n]]
+            n = parent[n]
+        return n
+
+    for i, j in edges:
+        parent[root(i)] = root(j)
+    groups: dict[int, list[int]] = {}
+    for n in nodes:
+        groups.setdefault(root(n), []).append(n)
+    largest: list[int] = max(groups.values(), key=len)
+    return sorted(largest)
