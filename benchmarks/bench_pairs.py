@@ -125,19 +125,11 @@ def run(quick: bool, names: list[str] | None = None, users: bool = False,
 
 
 def matches_config(settings: Sequence[str]) -> Any:
-    """The ``MatchesConfig`` with ``key=value`` settings (values read as JSON, else text)."""
-    import json
-
+    """The ``MatchesConfig`` with ``key=value`` settings (``cadnerf eval --set``'s parser)."""
+    from cadnerf_cli.eval_cmd import parse_overrides
     from cadnerf_core.config import MatchesConfig
 
-    fields: dict[str, Any] = {}
-    for setting in settings:
-        key, _, value = setting.partition("=")
-        try:
-            fields[key] = json.loads(value)
-        except json.JSONDecodeError:
-            fields[key] = value
-    return MatchesConfig(**fields)
+    return MatchesConfig(**parse_overrides(list(settings)))
 
 
 def _lines(quick: bool, names: list[str] | None, users: bool = False,

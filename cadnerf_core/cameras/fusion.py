@@ -64,8 +64,9 @@ most 1): bundle adjusted over every match those photos share, it is the surest e
 @dataclass(frozen=True)
 class Fusion:
     """What fusing did: ``photos`` moved (kept photos' indices as given), ``pairs`` used,
-    ``dropped`` pairs disagreeing with triangles, the median angle in degrees each fused camera
-    moved from its retrieved one (``moved_deg``) and the median angle the matches' rotations
+    ``dropped`` pairs not used (contradicted by triangles or the solve, or in a set too small),
+    the median angle in degrees each fused camera moved from its retrieved one (``moved_deg``)
+    and the median angle the matches' rotations
     disagree with the fused ones (``residual_deg``); ``focal_factor``: what the retrieved focal
     length was multiplied by (``focal_factor``; 1 where the photos' own is known)."""
 
@@ -347,7 +348,7 @@ def fuse(retrieval: RetrievalResult, pairs: Sequence[PairMatch],
                      tuple(sorted({p for edge in rigid for p in edge} & set(cameras))),
                      len(candidates) - len(usable), len(solutions))
     log.info("fused %d cameras in %d set(s) with %d pairs' rotations (%d far from the retrieved "
-             "cameras' and %d by triangles dropped): moved %.1f deg (median), pairs within "
+             "cameras' and %d else unused): moved %.1f deg (median), pairs within "
              "%.1f deg; focal length x%.2f", len(summary.photos), summary.sets, summary.pairs,
              summary.implausible,
              summary.dropped, summary.moved_deg, summary.residual_deg, factor)
