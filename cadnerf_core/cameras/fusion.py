@@ -14,7 +14,8 @@ Steps: pairs whose rotation lies far from the retrieved cameras' (``prior.PRIOR_
 on repeated print or on highlights that travel with the camera) or disagrees with a triangle of
 other pairs (``viewgraph.CYCLE_DEG``) are dropped; each set of photos the remaining pairs
 connect, the largest first, is solved by iteratively reweighted chordal averaging
-(``average_rotations``); its anchor is the robust chordal mean of ``W_i^retrieved A_i^T``
+(``average_rotations``) from the rotations its surest pairs chain (``spanning_tree_start``); its
+anchor is the robust chordal mean of ``W_i^retrieved A_i^T``
 (``anchor``). Each fused camera keeps its retrieved distance to the object's centre and looks at
 it, as library cameras do. Photos outside every set keep their retrieved cameras.
 """
@@ -33,7 +34,7 @@ from cadnerf_core.cameras.conventions import rotation_angle_deg, scale_focal
 from cadnerf_core.cameras.mapper import Mapped
 from cadnerf_core.cameras.matches import PairMatch
 from cadnerf_core.cameras.prior import plausible
-from cadnerf_core.cameras.viewgraph import component, consistent_edges
+from cadnerf_core.cameras.viewgraph import component, consistent_edges, spanning_tree_start
 from cadnerf_core.retrieval.result import PhotoMatch, RetrievalResult
 
 log = logging.getLogger(__name__)
@@ -184,7 +185,8 @@ def _solve(kept: dict[int, PhotoMatch], edges: dict[tuple[int, int], np.ndarray]
         used = {(slot[i], slot[j]): edges[(i, j)] for i, j in pairs}
         used_w = {(slot[i], slot[j]): weights[(i, j)] for i, j in pairs}
         retrieved = np.stack([kept[p].c2w[:3, :3].T for p in photos])  # world-to-camera
-        relative = average_rotations(len(photos), used, used_w, retrieved)
+        tree = spanning_tree_start(len(photos), used, used_w, retrieved)
+        relative = average_rotations(len(photos), used, used_w, tree)
         # Pairs the solution cannot explain are wrong (a symmetric object's other side, a
         # repeated print): left out, and the rest solved again.
         wrong = {(i, j) for i, j in pairs

@@ -1,5 +1,6 @@
 """The view graph of the verified pairs: which pairs' rotations the triangles they close confirm
-(``consistent_edges``), and the largest set of photos the pairs connect (``component``)."""
+(``consistent_edges``), the largest set of photos the pairs connect (``component``), and the
+rotations a spanning tree of the surest pairs chains from one photo (``spanning_tree_start``)."""
 
 from __future__ import annotations
 
@@ -74,3 +75,44 @@ def component(nodes: Sequence[int], edges: Sequence[tuple[int, int]]) -> list[in
         groups.setdefault(root(n), []).append(n)
     largest: list[int] = max(groups.values(), key=len)
     return sorted(largest)
+
+
+def spanning_tree_start(n: int, edges: dict[tuple[int, int], np.ndarray],
+                        weights: dict[tuple[int, int], float],
+                        start: np.ndarray) -> np.ndarray:
+    """World-to-camera rotations [n, 3, 3] chained along the maximum-weight spanning tree of
+    ``edges`` (slots ``i < j``, ``W_j = R_ij W_i``) from the photo with the most weight, which
+    keeps its rotation in ``start`` [n, 3, 3]; photos no edge reaches keep theirs too.
+
+    The start of robust rotation averaging (as Theia's and GLOMAP's solvers take one): from
+    cameras that disagree with the pairs by tens of degrees, robust weights judge a right pair
+    as an outlier and the solve settles with it unexplained; from a tree every tree edge holds
+    exactly and only the loops' residuals are left to judge.
+    """
+    W = np.array(start, dtype=np.float64, copy=True)
+    degree = np.zeros(n)
+    for (i, j), w in weights.items():
+        if (i, j) in edges:
+            degree[i] += w
+            degree[j] += w
+    if not edges:
+        return W
+    root = int(np.argmax(degree))
+    reached = {root}
+    while True:  # Prim: the heaviest edge leaving the reached photos, until none is left
+        best = None
+        for (i, j) in edges:
+            if (i in reached) != (j in reached):
+                w = weights.get((i, j), 0.0)
+                if best is None or w > best[0]:
+                    best = (w, i, j)
+        if best is None:
+            return W
+        _, i, j = best
+        R = np.asarray(edges[(i, j)])
+        if i in reached:
+            W[j] = R @ W[i]
+            reached.add(j)
+        else:
+            W[i] = R.T @ W[j]
+            reached.add(i)
