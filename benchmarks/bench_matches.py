@@ -1,4 +1,4 @@
-"""Matches between the photos (``retrieval.matches``: XFeat and LighterGlue), on and off.
+"""Matches between the photos (``retrieval.matches``: ALIKED and LightGlue), on and off.
 
 - Synthetic walks: the retrieval benchmark's walks (same seeds: 6 and 9 views, elevations
   0-60, both directions) of the textured meshes and of the mug and the lamp, rendered at
@@ -213,19 +213,22 @@ def speed_line(headline: bool = True) -> str:
     """Matching ten 12-megapixel photos (decoding excluded), and where the time goes
     (``headline``: recorded as the README's figure, ``benchmarks.results``)."""
     from cadnerf_core.cameras import learned
-    from cadnerf_core.cameras.matches import verify_matches
+    from cadnerf_core.cameras.matches import learned_method, verify_matches
     from cadnerf_core.config import MatchesConfig, RetrievalConfig
     from cadnerf_core.retrieval.search import photo_pairs
 
     images, masks = ten_photos()
     config = MatchesConfig()
+    method = learned_method(config)
+    features_name, glue_name = ("ALIKED", "LightGlue") if method == "aliked" \
+        else ("XFeat", "LighterGlue")
     photo_pairs(images[:2], masks[:2], [None] * 2, RetrievalConfig())  # networks loaded once
     start = time.perf_counter()
     pairs = photo_pairs(images, masks, [None] * 10, RetrievalConfig())
     seconds = time.perf_counter() - start
     clock = time.perf_counter()
-    features = [learned.detect(image, mask, config.size) for image, mask in zip(images, masks,
-                                                                                strict=True)]
+    features = [learned.detect(image, mask, config.size, method=method)
+                for image, mask in zip(images, masks, strict=True)]
     detect_s, clock = time.perf_counter() - clock, time.perf_counter()
     close = learned.close_pairs(10)
     glued = {e: learned.match_glue(features[e[0]], features[e[1]]) for e in sorted(close)}
@@ -241,11 +244,12 @@ def speed_line(headline: bool = True) -> str:
         record(Result("matching_ten_photos", "matching ten 12 MP photos", seconds, "s", 1,
                       cpu_cores(), ".venv/bin/python -c 'from benchmarks.bench_matches import "
                       "speed_line; print(speed_line())'", today()))
-    return (f"- Matching ten 4000 x 3000 photos (45 pairs: LighterGlue on the {len(close)} "
+    return (f"- Matching ten 4000 x 3000 photos (45 pairs: {glue_name} on the {len(close)} "
             f"neighbouring and next-but-one pairs, mutual nearest descriptors on the others; "
             f"crops at {config.size} px), decoding excluded: **{seconds:.1f} s** on 2 CPU "
-            f"cores ({sum(p.inliers for p in pairs)} inliers in all). Where it goes: XFeat on "
-            f"the ten crops (and cropping, resizing) {detect_s:.1f} s, LighterGlue "
+            f"cores ({sum(p.inliers for p in pairs)} inliers in all). Where it goes: "
+            f"{features_name} on the ten crops (and cropping, resizing) {detect_s:.1f} s, "
+            f"{glue_name} "
             f"{glue_s:.1f} s, mutual nearest {mutual_s:.2f} s, verification (USAC essential "
             f"matrix, pose) {verify_s:.2f} s.")
 

