@@ -213,13 +213,13 @@ def speed_line(headline: bool = True) -> str:
     """Matching ten 12-megapixel photos (decoding excluded), and where the time goes
     (``headline``: recorded as the README's figure, ``benchmarks.results``)."""
     from cadnerf_core.cameras import learned
-    from cadnerf_core.cameras.matches import learned_method, verify_matches
+    from cadnerf_core.cameras.matches import verify_matches
     from cadnerf_core.config import MatchesConfig, RetrievalConfig
     from cadnerf_core.retrieval.search import photo_pairs
 
     images, masks = ten_photos()
     config = MatchesConfig()
-    method = learned_method(config)
+    method = learned.learned_method(config)
     features_name, glue_name = ("ALIKED", "LightGlue") if method == "aliked" \
         else ("XFeat", "LighterGlue")
     photo_pairs(images[:2], masks[:2], [None] * 2, RetrievalConfig())  # networks loaded once

