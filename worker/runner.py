@@ -171,6 +171,8 @@ def _execute_claimed(job_id: str, settings: Settings, store: JobStore,
         if outcome is None:
             return _hand_back(store, job_id, worker)
         state, error, detail = outcome
+        # the files are in the store: the scratch copy goes before anyone is told the job ended
+        store.storage.release(store.storage.work_folder(job_id))
         return _finish(store, settings, record, state, error, detail=detail)
     finally:
         store.storage.release(store.storage.work_folder(job_id))
@@ -392,7 +394,7 @@ def _finish(store: JobStore, settings: Settings, record: JobRecord, state: JobSt
     """Write the final state (``app.state.finish_job``), then call the job's webhook."""
     final, in_redis = finish_job(store, record, state, error, detail, redis_wait_s)
     log.info("job %s %s%s", record.id, state.value, f": {error}" if error else "")
-    if record.webhook_url and (in_redis or store.storage.work_folder(record.id).is_dir()):
+    if record.webhook_url and (in_redis or store.read_state_file(record.id) is not None):
         payload = {"id": record.id, "state": state.value, "error": error,
                    "error_detail": (None if detail is None
                                     else detail.model_dump(mode="json", exclude_none=True)),
