@@ -227,7 +227,8 @@ def speed_line(headline: bool = True) -> str:
     pairs = photo_pairs(images, masks, [None] * 10, RetrievalConfig())
     seconds = time.perf_counter() - start
     clock = time.perf_counter()
-    features = [learned.detect(image, mask, config.size, method=method)
+    features = [learned.detect(image, mask, config.size, method=method,
+                                keypoints=config.keypoints)
                 for image, mask in zip(images, masks, strict=True)]
     detect_s, clock = time.perf_counter() - clock, time.perf_counter()
     close = learned.close_pairs(10)

@@ -72,7 +72,8 @@ def count_pairs(capture: Capture, config: Any = None) -> dict[str, Any]:
     images, masks, intrinsics = _photos(capture)
     config = config or MatchesConfig()
     method = learned.learned_method(config)
-    features = [learned.detect(image, mask, config.size, config.context, method)
+    features = [learned.detect(image, mask, config.size, config.context, method,
+                                config.keypoints)
                 for image, mask in zip(images, masks, strict=True)]
     close = learned.close_pairs(len(images))
     indices = learned.match_indices(features, close)

@@ -39,6 +39,9 @@ class MatchesConfig(Frozen):
     size: int = Field(default=1024, ge=64, le=MAX_MATCH_SIZE)
     """Long side in pixels of the object's bounding-box crop features are found in (photos are
     only shrunk, never enlarged)."""
+    keypoints: int = Field(default=1536, ge=64, le=8192)
+    """Most keypoints found in each photo's crop (the strongest): LightGlue's cost a pair
+    grows with their square."""
     context: float = Field(default=0.0, ge=0.0, le=2.0)
     """Share of the object's box (its width and height) added on each side in which features
     are looked for too, with their own share (the object keeps all of its own): what stands

@@ -146,6 +146,51 @@ class Block(nn.Module):
         return F.selu(out)
 
 
+class FeatureMap:
+    """The network's dense feature map, [C, H, W] unit length per pixel, computed only where
+    it is read: the finest level's channels at the pixel, each coarser level's bilinearly
+    upsampled to it (as ``F.interpolate`` with ``align_corners``), joined and normalised. The
+    descriptor head reads a few thousand keypoints' patches and samples, not the megapixels
+    of the whole map (built whole, its joining and normalising were most of a photo's time)."""
+
+    def __init__(self, fine: torch.Tensor, coarse: list[torch.Tensor], box: tuple[int, int],
+                 size: tuple[int, int]) -> None:
+        """``fine`` [C1, Hp, Wp] and ``coarse`` [[Ck, hk, wk]] on the padded image; ``box``
+        (top, left) of the image inside it and ``size`` (height, width) of the image."""
+        self.fine, self.coarse = fine, coarse
+        self.top, self.left = box
+        self.height, self.width = size
+
+    @property
+    def channels(self) -> int:
+        return int(self.fine.shape[0]) + sum(int(level.shape[0]) for level in self.coarse)
+
+    def at(self, x: torch.Tensor, y: torch.Tensor) -> torch.Tensor:
+        """Features [C, M] at integer pixels ``x``, ``y`` [M] of the image."""
+        px, py = x + self.left, y + self.top
+        padded_h, padded_w = self.fine.shape[-2:]
+        grid = torch.stack((2.0 * px / (padded_w - 1) - 1.0, 2.0 * py / (padded_h - 1) - 1.0),
+                           dim=-1).to(self.fine.dtype).view(1, -1, 1, 2)
+        parts = [self.fine[:, py, px]]
+        parts += [F.grid_sample(level[None], grid, mode="bilinear", align_corners=True)[0, :, :, 0]
+                  for level in self.coarse]
+        return F.normalize(torch.cat(parts, dim=0), dim=0)
+
+    def sample(self, points: torch.Tensor) -> torch.Tensor:
+        """Features [C, M] read bilinearly at ``points`` [M, 2] (x, y pixels of the image),
+        zero past its border (as ``F.grid_sample`` with ``align_corners``)."""
+        x0, y0 = points[:, 0].floor(), points[:, 1].floor()
+        fx, fy = points[:, 0] - x0, points[:, 1] - y0
+        out = torch.zeros(self.channels, len(points), dtype=points.dtype)
+        for dx, dy, weight in ((0, 0, (1 - fx) * (1 - fy)), (1, 0, fx * (1 - fy)),
+                               (0, 1, (1 - fx) * fy), (1, 1, fx * fy)):
+            x, y = (x0 + dx).long(), (y0 + dy).long()
+            inside = (x >= 0) & (x < self.width) & (y >= 0) & (y < self.height)
+            if inside.any():
+                out[:, inside] += self.at(x[inside], y[inside]) * weight[inside]
+        return out
+
+
 class DescriptorHead(nn.Module):
     """Each keypoint's descriptor: ``SAMPLES`` features read at offsets a small network
     predicts from the 3 x 3 patch round it, each projected, then summed through its own
@@ -158,24 +203,22 @@ class DescriptorHead(nn.Module):
         self.sf_conv = nn.Conv2d(dim, dim, 1, bias=False)
         self.agg_weights = nn.Parameter(torch.zeros(SAMPLES, dim, dim))
 
-    def forward(self, features: torch.Tensor, points: torch.Tensor) -> torch.Tensor:
-        """Descriptors [N, C] of ``points`` [N, 2] (x, y in pixels) on ``features`` [C, H, W]."""
-        channels, height, width = features.shape
-        size = torch.tensor([width - 1, height - 1], dtype=points.dtype)
+    def forward(self, features: FeatureMap, points: torch.Tensor) -> torch.Tensor:
+        """Descriptors [N, C] of ``points`` [N, 2] (x, y in pixels) on ``features``."""
+        height, width, count = features.height, features.width, len(points)
         corner = points.long() - 1  # the 3 x 3 patch round the keypoint's pixel
         cx = corner[:, 0].clamp(0, width - 4)
         cy = corner[:, 1].clamp(0, height - 4)
         steps = torch.arange(3)
-        rows = (cy[:, None] + steps)[:, :, None]
-        cols = (cx[:, None] + steps)[:, None, :]
-        patches = features[:, rows, cols].permute(1, 0, 2, 3)  # [N, C, 3, 3]
+        rows = (cy[:, None] + steps)[:, :, None].expand(count, 3, 3)
+        cols = (cx[:, None] + steps)[:, None, :].expand(count, 3, 3)
+        patches = features.at(cols.reshape(-1), rows.reshape(-1))
+        patches = patches.view(-1, count, 3, 3).permute(1, 0, 2, 3)  # [N, C, 3, 3]
         limit = max(height, width) / 4.0
         offsets = self.offset_conv(patches).clamp(-limit, limit)[:, :, 0, 0]
         offsets = offsets.view(-1, 2, SAMPLES).permute(0, 2, 1)  # [N, samples, (x, y)]
-        where = 2.0 * (points[:, None] + offsets) / size - 1.0
-        sampled = F.grid_sample(features[None], where.reshape(1, -1, 1, 2), mode="bilinear",
-                                align_corners=True)  # [1, C, N * samples, 1]
-        sampled = sampled.view(channels, -1, SAMPLES, 1).permute(1, 0, 2, 3)
+        sampled = features.sample((points[:, None] + offsets).reshape(-1, 2))
+        sampled = sampled.view(-1, count, SAMPLES, 1).permute(1, 0, 2, 3)
         projected = F.selu(self.sf_conv(sampled))[..., 0]  # [N, C, samples]
         return F.normalize(torch.einsum("ncp,pcd->nd", projected, self.agg_weights), dim=1)
 
@@ -199,9 +242,13 @@ def _keypoints(scores: torch.Tensor, top_k: int) -> torch.Tensor:
     kept = torch.where(maxima, scores, zeros)
     kept[:r], kept[-r:], kept[:, :r], kept[:, -r:] = 0, 0, 0, 0
     index = torch.topk(kept.flatten(), min(top_k, kept.numel())).indices
-    windows = F.unfold(scores[None, None], kernel, padding=r)[0].t()[index]  # [K, kernel^2]
-    grid = torch.arange(kernel, dtype=scores.dtype) - r
-    offsets = torch.stack((grid.repeat(kernel), grid.repeat_interleave(kernel)), dim=1)
+    steps = torch.arange(kernel) - r  # the window round each peak, zero past the border
+    dx, dy = steps.repeat(kernel), steps.repeat_interleave(kernel)
+    wx, wy = index[:, None] % width + dx, index[:, None] // width + dy  # [K, kernel^2]
+    inside = (wx >= 0) & (wx < width) & (wy >= 0) & (wy < height)
+    windows = torch.where(inside, scores[wy.clamp(0, height - 1), wx.clamp(0, width - 1)],
+                          zeros[0, 0])
+    offsets = torch.stack((dx, dy), dim=1).to(scores.dtype)
     weights = ((windows - windows.max(dim=1, keepdim=True).values) / SOFT_TEMPERATURE).exp()
     residual = weights @ offsets / weights.sum(dim=1, keepdim=True)
     whole = torch.stack((index % width, index // width), dim=1).to(scores.dtype)
@@ -230,9 +277,9 @@ class Aliked(nn.Module):
             nn.Conv2d(4, 1, 3, padding=1, bias=False))
         self.desc_head = DescriptorHead(c4)
 
-    def dense(self, image: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-        """Feature map [C, H, W] (unit length per pixel) and score map [H, W] of ``image``
-        [3, H, W] in [0, 1], padded to a multiple of 32 (by its edge) and cut back."""
+    def dense(self, image: torch.Tensor) -> tuple[FeatureMap, torch.Tensor]:
+        """Feature map (``FeatureMap``) and score map [H, W] of ``image`` [3, H, W] in
+        [0, 1], padded to a multiple of 32 (by its edge) and cut back."""
         height, width = image.shape[-2:]
         pad_h, pad_w = -height % 32, -width % 32
         box = (pad_w // 2, pad_w - pad_w // 2, pad_h // 2, pad_h - pad_h // 2)
@@ -242,16 +289,21 @@ class Aliked(nn.Module):
         x3 = self.block3(F.avg_pool2d(x2, 4))
         x4 = self.block4(F.avg_pool2d(x3, 4))
         size = x1.shape[-2:]
-        levels = [F.selu(self.conv1(x1))]
-        for conv, level in ((self.conv2, x2), (self.conv3, x3), (self.conv4, x4)):
-            levels.append(F.interpolate(F.selu(conv(level)), size=size, mode="bilinear",
-                                        align_corners=True))
-        joined = torch.cat(levels, dim=1)
-        scores = torch.sigmoid(self.score_head(joined))[0, 0]
-        features = F.normalize(joined, dim=1)[0]
+        levels = [F.selu(conv(level)) for conv, level in
+                  ((self.conv1, x1), (self.conv2, x2), (self.conv3, x3), (self.conv4, x4))]
+        # the score head's first 1 x 1 convolution of the joined levels, as the sum of its
+        # parts on each level before upsampling (both are linear): 8 channels upsampled, not 96
+        first_conv: nn.Conv2d = self.score_head[0]  # type: ignore[assignment]
+        parts = first_conv.weight.split([int(v.shape[1]) for v in levels], dim=1)
+        first = F.conv2d(levels[0], parts[0])
+        for level, part in zip(levels[1:], parts[1:], strict=True):
+            first = first + F.interpolate(F.conv2d(level, part), size=size, mode="bilinear",
+                                          align_corners=True)
+        scores = torch.sigmoid(self.score_head[1:](first))[0, 0]
         top, left = box[2], box[0]
-        return (features[:, top:top + height, left:left + width],
-                scores[top:top + height, left:left + width])
+        features = FeatureMap(levels[0][0], [v[0] for v in levels[1:]], (top, left),
+                              (height, width))
+        return features, scores[top:top + height, left:left + width]
 
     @torch.no_grad()
     def detect(self, image: torch.Tensor, top_k: int) -> tuple[torch.Tensor, torch.Tensor]:

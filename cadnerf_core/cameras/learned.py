@@ -35,7 +35,7 @@ from cadnerf_core.config import MatchesConfig
 from cadnerf_core.intake.crop import mask_bbox
 
 TOP_K = 1536
-"""Most keypoints kept per photo (the strongest): bounds LighterGlue's cost a pair."""
+"""Most keypoints kept per photo by default (``MatchesConfig.keypoints``)."""
 MIN_COSINE = 0.82
 """Least cosine similarity of two descriptors matched as mutual nearest neighbours (XFeat's own
 threshold)."""
@@ -101,21 +101,23 @@ def _net(name: str) -> Any:
         return _NETS[name]
 
 
-def _keypoints(crop: np.ndarray, method: Method) -> tuple[np.ndarray, np.ndarray]:
-    """Keypoints [N, 2] (crop pixels) and descriptors [N, D] float32 of a uint8 crop."""
+def _keypoints(crop: np.ndarray, method: Method,
+               top_k: int) -> tuple[np.ndarray, np.ndarray]:
+    """Keypoints [N, 2] (crop pixels, the ``top_k`` strongest) and descriptors [N, D] float32
+    of a uint8 crop."""
     import torch
 
     tensor = torch.from_numpy(crop).permute(2, 0, 1)[None].float() / 255.0
     if method == "aliked":
-        points, descriptors = _net("aliked").detect(tensor[0], TOP_K)
+        points, descriptors = _net("aliked").detect(tensor[0], top_k)
         return points.numpy().astype(np.float64), descriptors.numpy().astype(np.float32)
-    found = _net("xfeat").detectAndCompute(tensor, top_k=TOP_K)[0]
+    found = _net("xfeat").detectAndCompute(tensor, top_k=top_k)[0]
     return (found["keypoints"].numpy().astype(np.float64),
             found["descriptors"].numpy().astype(np.float32))
 
 
 def detect(image: np.ndarray, mask: np.ndarray, size: int, context: float = 0.0,
-           method: Method = "xfeat") -> CropFeatures:
+           method: Method = "xfeat", keypoints: int = TOP_K) -> CropFeatures:
     """Learned features of one photo inside its (grown) mask; with ``context``, also round
     it.
 
@@ -128,6 +130,7 @@ def detect(image: np.ndarray, mask: np.ndarray, size: int, context: float = 0.0,
             object (clear of its outline, which moves with the view) are kept too
             (``MatchesConfig.context``).
         method: "aliked" or "xfeat".
+        keypoints: most keypoints found in the crop (the strongest).
     Returns:
         The features; ``scale`` is crop pixels per photo pixel.
     """
@@ -151,7 +154,7 @@ def detect(image: np.ndarray, mask: np.ndarray, size: int, context: float = 0.0,
     if context > 0:  # off the object and clear of its outline, or on it
         clear = cv2.dilate(on, np.ones((4 * grown + 1, 4 * grown + 1), np.uint8)) == 0
         inside = inside | clear
-    points, descriptors = _keypoints(crop, method)
+    points, descriptors = _keypoints(crop, method, keypoints)
     cols = np.clip(points[:, 0].astype(int), 0, shape[0] - 1)
     rows = np.clip(points[:, 1].astype(int), 0, shape[1] - 1)
     keep = inside[rows, cols]

@@ -369,7 +369,8 @@ def match_photos(images: Sequence[np.ndarray], masks: Sequence[np.ndarray],
     features = []
     for image, mask, use in zip(images, masks, usable, strict=True):
         check()
-        features.append(learned.detect(image, mask, config.size, config.context, method) if use
+        features.append(learned.detect(image, mask, config.size, config.context, method,
+                                       config.keypoints) if use
                         else learned.CropFeatures(NO_FEATURES.points,
                                                   np.zeros((0, 64), np.float32),
                                                   method=method))

@@ -63,3 +63,46 @@ def test_keypoints_follow_the_photo_and_keep_their_descriptors() -> None:
     assert found.float().mean() > 0.6
     similarity = (descriptors[inside][found] * descriptors_m[nearest.indices[found]]).sum(dim=1)
     assert similarity.median() > 0.9
+
+
+def _dense_reference(net: aliked.Aliked, image: torch.Tensor) -> tuple[torch.Tensor,
+                                                                      torch.Tensor]:
+    """The network's feature and score maps built whole: every level upsampled to the
+    finest, joined, normalised per pixel, the score head on the joined map."""
+    height, width = image.shape[-2:]
+    pad_h, pad_w = -height % 32, -width % 32
+    box = (pad_w // 2, pad_w - pad_w // 2, pad_h // 2, pad_h - pad_h // 2)
+    x1 = net.block1(F.pad(image[None], box, mode="replicate"))
+    x2 = net.block2(F.avg_pool2d(x1, 2))
+    x3 = net.block3(F.avg_pool2d(x2, 4))
+    x4 = net.block4(F.avg_pool2d(x3, 4))
+    levels = [F.selu(net.conv1(x1))]
+    for conv, level in ((net.conv2, x2), (net.conv3, x3), (net.conv4, x4)):
+        levels.append(F.interpolate(F.selu(conv(level)), size=x1.shape[-2:], mode="bilinear",
+                                    align_corners=True))
+    joined = torch.cat(levels, dim=1)
+    scores = torch.sigmoid(net.score_head(joined))[0, 0]
+    top, left = box[2], box[0]
+    return (F.normalize(joined, dim=1)[0, :, top:top + height, left:left + width],
+            scores[top:top + height, left:left + width])
+
+
+@torch.no_grad()
+def test_the_feature_map_read_where_needed_equals_the_map_built_whole() -> None:
+    """Any weights (a fresh network): the features at every pixel, read between pixels
+    (zero past the border) and the score map equal those of the whole map."""
+    torch.manual_seed(2)
+    net = aliked.Aliked().eval()
+    image = torch.rand(3, 70, 90)
+    dense, dense_scores = _dense_reference(net, image)
+    features, scores = net.dense(image)
+    assert torch.allclose(scores, dense_scores, atol=1e-5)
+    ys, xs = torch.meshgrid(torch.arange(70), torch.arange(90), indexing="ij")
+    every = features.at(xs.flatten(), ys.flatten()).view(-1, 70, 90)
+    assert torch.allclose(every, dense, atol=1e-5)
+    points = torch.rand(500, 2) * torch.tensor([95.0, 75.0]) - 2.5  # some past the border
+    where = 2.0 * points / torch.tensor([89.0, 69.0]) - 1.0
+    expected = F.grid_sample(dense[None], where.view(1, -1, 1, 2), mode="bilinear",
+                             align_corners=True)[0, :, :, 0]
+    assert torch.allclose(features.sample(points), expected, atol=1e-5)
+
