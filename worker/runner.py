@@ -168,14 +168,12 @@ def _execute_claimed(job_id: str, settings: Settings, store: JobStore,
         return {"id": job_id, "state": "skipped", "error": None}
     try:
         outcome = _run(record, settings, store, started, celery_update)
-        if outcome is None:
-            return _hand_back(store, job_id, worker)
-        state, error, detail = outcome
-        # the files are in the store: the scratch copy goes before anyone is told the job ended
+    finally:  # the files are in the store: the copy goes before anyone is told the job ended
         store.storage.release(store.storage.work_folder(job_id))
-        return _finish(store, settings, record, state, error, detail=detail)
-    finally:
-        store.storage.release(store.storage.work_folder(job_id))
+    if outcome is None:
+        return _hand_back(store, job_id, worker)
+    state, error, detail = outcome
+    return _finish(store, settings, record, state, error, detail=detail)
 
 
 def _hand_back(store: JobStore, job_id: str, worker: str) -> dict[str, Any]:

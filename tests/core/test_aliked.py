@@ -106,3 +106,16 @@ def test_the_feature_map_read_where_needed_equals_the_map_built_whole() -> None:
                              align_corners=True)[0, :, :, 0]
     assert torch.allclose(features.sample(points), expected, atol=1e-5)
 
+
+@needs_weights
+def test_a_photo_gives_at_most_the_keypoints_asked_for() -> None:
+    from cadnerf_core.cameras import learned
+
+    rng = np.random.default_rng(4)
+    noise = torch.from_numpy(rng.random((1, 3, 48, 48), dtype=np.float32))
+    image = F.interpolate(noise, size=(320, 320), mode="bicubic", align_corners=False)[0]
+    photo = image.clamp(0, 1).permute(1, 2, 0).numpy()
+    mask = np.ones((320, 320), bool)
+    few = learned.detect(photo, mask, 320, method="aliked", keypoints=40)
+    many = learned.detect(photo, mask, 320, method="aliked", keypoints=400)
+    assert 0 < len(few.points) <= 40 < len(many.points) <= 400
