@@ -21,13 +21,15 @@ held-out camera from where the camera centres put it.
 
 QUICK: ``QUICK_CAPTURES``; full: every capture.
 
-Usage: ``python -m benchmarks.bench_fidelity [--quick] [--captures NAME ...] [--rows FILE]``
-(``--rows`` keeps each finished capture's row in a JSON file and skips those already there).
+Usage: ``python -m benchmarks.bench_fidelity [--quick] [--captures NAME ...] [--rows FILE]
+[--set KEY=VALUE ...]`` (``--set``: a setting on the preset, to compare a lever; ``--rows``
+keeps each finished capture's row in a JSON file and skips those already there).
 """
 
 from __future__ import annotations
 
 import argparse
+import hashlib
 import json
 import logging
 import os
@@ -90,18 +92,24 @@ def _scores(items: list[Any]) -> dict[str, float | None]:
             "lpips": float(np.mean(lp)) if lp and None not in lp else None}
 
 
-def run_capture(name: str, library: Any, lpips_net: Any) -> dict[str, Any]:
-    """One capture's job and its held-out views' scores. Returns its row."""
+def run_capture(name: str, library: Any, lpips_net: Any,
+                settings: dict[str, Any] | None = None) -> dict[str, Any]:
+    """One capture's job (``settings``: dotted overrides on ``PRESET``) and its held-out
+    views' scores. Returns its row."""
     from cadnerf_core.evaluation.evaluate import evaluate_dataset
 
     folder = CAPTURES / name
     n = len(json.loads((folder / "cameras.json").read_text())["frames"])
     hold = held_out_frames(n)
-    job = WORK_DIR / name
+    # Runs with other settings may go on beside this one: each its own folder.
+    tag = hashlib.sha1(json.dumps(settings, sort_keys=True).encode()).hexdigest()[:8] \
+        if settings else ""
+    job = WORK_DIR / (f"{name}-{tag}" if tag else name)
     shutil.rmtree(job, ignore_errors=True)
     try:
         report = evaluate_dataset(folder, n - len(hold), library, preset=PRESET,
-                                  overrides=exclude_overrides(name), job_dir=job,
+                                  overrides={**exclude_overrides(name), **(settings or {})},
+                                  job_dir=job,
                                   lpips_net=lpips_net, device=DEVICE, eval_size=EVAL_SIZE,
                                   exif_focal=True, hold_out=hold, mesh=True)
     finally:
@@ -152,8 +160,8 @@ def table(rows: list[dict[str, Any]]) -> list[str]:
     return lines
 
 
-def _rows(names: list[str], library: Any, lpips_net: Any,
-          rows_file: Path | None) -> list[dict[str, Any]]:
+def _rows(names: list[str], library: Any, lpips_net: Any, rows_file: Path | None,
+          settings: dict[str, Any] | None = None) -> list[dict[str, Any]]:
     """Each capture's row (those already in ``rows_file`` kept), in ``names``' order."""
     rows: dict[str, dict[str, Any]] = {}
     if rows_file is not None and rows_file.is_file():
@@ -162,7 +170,7 @@ def _rows(names: list[str], library: Any, lpips_net: Any,
         if name in rows:
             continue
         log.info("fidelity: %s", name)
-        rows[name] = run_capture(name, library, lpips_net)
+        rows[name] = run_capture(name, library, lpips_net, settings)
         if rows_file is not None:
             rows_file.write_text(json.dumps(list(rows.values()), indent=1))
     return [rows[name] for name in names]
@@ -178,13 +186,15 @@ def lpips_line(loaded: bool) -> str:
 
 
 def run(quick: bool, library_dir: Path = LIBRARY_DIR, names: list[str] | None = None,
-        rows_file: Path | None = None) -> str:
-    """Run the benchmark. Returns its markdown section."""
+        rows_file: Path | None = None, settings: dict[str, Any] | None = None) -> str:
+    """Run the benchmark (``settings``: dotted overrides on ``PRESET``, as ``--set``).
+    Returns its markdown section."""
     head = section_head("Fidelity: held-out photos of real captures at 512 px",
                         "bench_fidelity", quick,
                         f": `{PRESET}` jobs on the CPU, 2 torch threads, each capture's "
                         "photos but two, their true focal length as EXIF; held-out views at "
-                        f"{EVAL_SIZE} px on the longer side, scored inside the object's mask.")
+                        f"{EVAL_SIZE} px on the longer side, scored inside the object's mask"
+                        + (f"; settings {json.dumps(settings)}." if settings else "."))
     found = capture_names()
     if not found:
         return "\n".join([*head, ABSENT, ""])
@@ -196,7 +206,7 @@ def run(quick: bool, library_dir: Path = LIBRARY_DIR, names: list[str] | None = 
     chosen = names or [n for n in (QUICK_CAPTURES if quick else found) if n in found]
     library = load_library(library_dir)
     with torch_threads(2):
-        rows = _rows(chosen, library, lpips_net, rows_file)
+        rows = _rows(chosen, library, lpips_net, rows_file, settings)
     notes = [lpips_line(lpips_net is not None),
              "Masks: `dataset` where the capture ships them, `found` where the job's own "
              "background removal made them (the held-out photo masked as the job masks its "
@@ -212,10 +222,14 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--library", type=Path, default=LIBRARY_DIR)
     parser.add_argument("--captures", nargs="*", default=None)
     parser.add_argument("--rows", type=Path, default=None)
+    parser.add_argument("--set", dest="settings", action="append", default=[],
+                        help="a setting key=value on the preset (dotted key, JSON value)")
     args = parser.parse_args(argv)
+    from cadnerf_cli.eval_cmd import parse_overrides
     logging.basicConfig(level=logging.INFO,
                         format="%(asctime)s %(levelname)s %(name)s: %(message)s")
-    sys.stdout.write(run(args.quick, args.library, args.captures, args.rows))
+    sys.stdout.write(run(args.quick, args.library, args.captures, args.rows,
+                         parse_overrides(args.settings)))
     return 0
 
 

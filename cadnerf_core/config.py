@@ -58,6 +58,13 @@ class FieldConfig(_Frozen):
     """Width of the colour network."""
     color_layers: int = Field(default=4, ge=1, le=12)
     """Layers of the colour network (the paper: 4)."""
+    color_planes: int = Field(default=0, ge=0, le=8)
+    """Levels of multiresolution feature planes the colour network also reads at each point
+    (``nerf.fields.ColorPlanes``; 0: none, the paper's colour from D's feature alone)."""
+    color_plane_size: int = Field(default=512, ge=16, le=2048)
+    """Side in texels of the finest colour plane over [-bound, bound] (levels from 32 up)."""
+    color_plane_channels: int = Field(default=4, ge=1, le=32)
+    """Feature channels of each colour plane level."""
 
 
 class RenderConfig(_Frozen):
@@ -179,9 +186,19 @@ class Phase3Config(_Frozen):
     ``Phase2Config.lambda_matches``; 0: off)."""
     scene_steps: int = Field(default=0, ge=0, le=MAX_STEPS)
     """Scene mode only: steps after the object's, training object and background together."""
+    image_size: int = Field(default=0, ge=0, le=1024)
+    """Side of the photo crops phase three learns colour from (0: the job's ``image_size``):
+    larger shows the colour field the photos' detail at the cost of building the crops."""
+    plane_lr: float = Field(default=1e-2, gt=0.0, le=MAX_LR)
+    """Adam learning rate of the colour planes (``field.color_planes``): texels, as grid
+    fields train them, learn at a larger rate than the networks."""
+    lambda_planes: float = Field(default=1e-2, ge=0.0, le=MAX_WEIGHT)
+    """Weight of the colour planes' total variation (``ColorPlanes.smoothness``)."""
 
     @model_validator(mode="after")
     def _check_windows(self) -> Phase3Config:
+        if self.image_size and self.image_size < 16:
+            raise ValueError("phase3.image_size must be 0 (the job's) or at least 16")
         _check_window("pose_window", self.pose_window)
         return self
 

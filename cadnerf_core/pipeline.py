@@ -13,6 +13,7 @@ import dataclasses
 import logging
 import resource
 import time
+from collections.abc import Callable
 from dataclasses import dataclass
 from functools import partial
 from pathlib import Path
@@ -114,10 +115,12 @@ def run_intake(job_dir: Path, library: Library, config: PipelineConfig,
 
 
 def training_data(intake: Intake, config: PipelineConfig, margin: float,
-                  device: torch.device) -> TrainData:
+                  device: torch.device, size: int | None = None) -> TrainData:
     """Canonical crops (on white), masks, crop intrinsics and loss weights of the kept photos
     (``intake.photos.doubt_weights``: pixels where a learned mask is in doubt weigh
-    ``masks.doubt_weight``)."""
+    ``masks.doubt_weight``), ``size`` pixels a side (None: the job's ``image_size``, the crops
+    retrieval's ``K_canon`` refer to)."""
+    from cadnerf_core.intake.crop import crop_intrinsics, uncrop_intrinsics
     from cadnerf_core.intake.photos import canonical_views, doubt_weights
     from cadnerf_core.nerf import TrainData
     from cadnerf_core.nerf.epipolar import match_terms
@@ -125,15 +128,16 @@ def training_data(intake: Intake, config: PipelineConfig, margin: float,
     kept = intake.retrieval.kept
     photos = [intake.photos[m.index] for m in kept]
     masks = [intake.masks[m.index] for m in kept]
-    rgb, crops, boxes = canonical_views(photos, masks, config.image_size, margin)
+    rgb, crops, boxes = canonical_views(photos, masks, size or config.image_size, margin)
     doubts = [None if intake.doubts is None else intake.doubts[m.index] for m in kept]
     weights = doubt_weights(doubts, [mask.shape for mask in masks], boxes,
                             config.masks.doubt_weight)
     scene = None
     if config.scene_mode:
-        scene = np.stack([np.clip(apply_crop(p.rgb.astype(np.float32), m.box, fill=1.0), 0, 1)
-                          for p, m in zip(photos, kept, strict=True)])
-    K = np.stack([m.K_canon for m in kept])
+        scene = np.stack([np.clip(apply_crop(p.rgb.astype(np.float32), box, fill=1.0), 0, 1)
+                          for p, box in zip(photos, boxes, strict=True)])
+    K = np.stack([m.K_canon if box == m.box else crop_intrinsics(
+        uncrop_intrinsics(m.K_canon, m.box), box) for m, box in zip(kept, boxes, strict=True)])
     terms = match_terms(intake.retrieval.pairs, [m.index for m in kept], boxes,
                         config.retrieval.matches.min_inliers, device,
                         np.stack([m.c2w for m in kept]))
@@ -181,6 +185,16 @@ def _resume(job_dir: Path, c2w_init: np.ndarray, config: PipelineConfig,
     return found[0], restore_state(payload, device, config), dict(payload.get("extra", {}))
 
 
+def phase3_data(intake: Intake, config: PipelineConfig, margin: float, device: torch.device,
+                data: TrainData) -> TrainData:
+    """What phase three learns colour from: ``data`` itself, or the same photos' crops at
+    ``phase3.image_size`` where that is set and differs from the job's ``image_size``."""
+    size = config.phase3.image_size
+    if not size or size == config.image_size:
+        return data
+    return training_data(intake, config, margin, device, size)
+
+
 def _run_phase(phase: int, state: TrainState, library: Library, model_id: str,
                data: TrainData, progress: Progress) -> None:
     from cadnerf_core.library import sample_occupancy
@@ -201,9 +215,12 @@ def _run_phase(phase: int, state: TrainState, library: Library, model_id: str,
 
 def train(job_dir: Path, library: Library, retrieval: RetrievalResult, data: TrainData,
           config: PipelineConfig, device: torch.device, progress: Progress,
-          learn_focal: bool = False) -> tuple[TrainState, dict[str, Any]]:
+          learn_focal: bool = False,
+          colour_data: Callable[[], TrainData] | None = None) -> tuple[TrainState, dict[str, Any]]:
     """The three phases, resuming after the last checkpointed one; a checkpoint after each.
     ``learn_focal``: the photos' focal length is unknown, refined with the poses.
+    ``colour_data``: builds what phase three learns from (``phase3_data``; None: ``data``),
+    called only when phase three runs.
 
     Returns:
         The trained state, and metadata (names, timings and peak memory per phase).
@@ -225,7 +242,8 @@ def train(job_dir: Path, library: Library, retrieval: RetrievalResult, data: Tra
         if device.type == "cuda":
             torch.cuda.reset_peak_memory_stats(device)
         start = time.perf_counter()
-        _run_phase(phase, state, library, retrieval.model_id, data, progress)
+        _run_phase(phase, state, library, retrieval.model_id,
+                   colour_data() if phase == 3 and colour_data is not None else data, progress)
         extra["timings"][f"phase{phase}_s"] = time.perf_counter() - start
         extra["memory"][f"phase{phase}"] = _peak_memory_mb(device)
         extra["focal_scale"] = state.focal_scale()
@@ -274,7 +292,8 @@ def run_job(job_dir: Path, library: Library, progress: Progress | None = None,
             learn_focal = False
         data = training_data(intake, config, library.spec.margin, dev)
         state, extra = train(job_dir, library, intake.retrieval, data, config, dev, progress,
-                             learn_focal)
+                             learn_focal, partial(phase3_data, intake, config,
+                                                  library.spec.margin, dev, data))
         extra["timings"].update(intake_s=intake_s, start_s=start_s)
         model = TrainedModel(state, extra)
         retrieval, data = with_focal_scale(intake.retrieval, data, state.focal_scale())

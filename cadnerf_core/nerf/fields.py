@@ -17,6 +17,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import torch
+import torch.nn.functional as F
 from torch import nn
 
 from cadnerf_core.config import FieldConfig
@@ -91,18 +92,76 @@ class DeformationField(nn.Module):
         return out[..., :3], out[..., 3]
 
 
-class ColorField(nn.Module):
-    """Colour from D's feature and the view direction: ``color_layers`` linear layers."""
+def plane_sides(cfg: FieldConfig) -> list[int]:
+    """Sides of the colour planes' levels, coarse to fine: ``color_planes`` sides in a
+    geometric series from 32 (or the finest, if smaller) to ``color_plane_size``."""
+    levels, finest = cfg.color_planes, cfg.color_plane_size
+    coarsest = min(32, finest)
+    if levels <= 1:
+        return [finest] * levels
+    ratio = (finest / coarsest) ** (1.0 / (levels - 1))
+    return [round(coarsest * ratio ** k) for k in range(levels)]
 
-    def __init__(self, cfg: FieldConfig) -> None:
+
+class ColorPlanes(nn.Module):
+    """Multiresolution feature planes for colour (the tri-planes of K-Planes and EG3D): at
+    each level three learned [C, S, S] images on the xy, xz and yz planes of the cube
+    [-bound, bound]^3, read bilinearly at a point's projections and summed; the levels'
+    features concatenated. A point's colour detail then lives in texels, not in an MLP's
+    few weights, so a CPU learns a photo's grain in the steps of phase three. Initialised
+    small (as Instant-NGP's tables), so that a fresh colour network first sees D's feature."""
+
+    def __init__(self, cfg: FieldConfig, bound: float) -> None:
+        super().__init__()
+        self.bound = bound
+        self.planes = nn.ParameterList(
+            nn.Parameter(torch.empty(3, cfg.color_plane_channels, side, side).uniform_(-1e-2, 1e-2))
+            for side in plane_sides(cfg))
+
+    @property
+    def out_dim(self) -> int:
+        """Feature width: levels x channels."""
+        return sum(int(p.shape[1]) for p in self.planes)
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        """Args: x [N, 3] points. Returns: features [N, out_dim]."""
+        u = (x / self.bound).clamp(-1.0, 1.0).to(self.planes[0].dtype)
+        # [3, 1, N, 2]: the point's (x, y), (x, z), (y, z) as each plane's (column, row).
+        coords = torch.stack([u[:, [0, 1]], u[:, [0, 2]], u[:, [1, 2]]])[:, None]
+        feats = [F.grid_sample(plane, coords, mode="bilinear", padding_mode="border",
+                               align_corners=True).sum(0)[:, 0].T for plane in self.planes]
+        return torch.cat(feats, -1)
+
+    def smoothness(self) -> torch.Tensor:
+        """Total variation of the planes (mean squared difference of neighbouring texels,
+        each level weighed alike): texels no photo sees take their neighbours' colour."""
+        terms = [((p[..., 1:, :] - p[..., :-1, :]) ** 2).mean()
+                 + ((p[..., :, 1:] - p[..., :, :-1]) ** 2).mean() for p in self.planes]
+        return torch.stack(terms).sum()
+
+
+class ColorField(nn.Module):
+    """Colour from D's feature, the colour planes' feature at the point (``ColorPlanes``,
+    where ``color_planes`` > 0) and the view direction: ``color_layers`` linear layers."""
+
+    def __init__(self, cfg: FieldConfig, bound: float = 1.1) -> None:
         super().__init__()
         self.encoding = PositionalEncoding(cfg.dir_freqs)
-        self.mlp = _mlp(cfg.hidden + self.encoding.out_dim, cfg.color_hidden,
+        self.planes = ColorPlanes(cfg, bound) if cfg.color_planes else None
+        planes_dim = 0 if self.planes is None else self.planes.out_dim
+        self.mlp = _mlp(cfg.hidden + planes_dim + self.encoding.out_dim, cfg.color_hidden,
                         cfg.color_layers - 1, 3)
 
-    def forward(self, feature: torch.Tensor, dirs: torch.Tensor) -> torch.Tensor:
-        """Args: feature [N, hidden], dirs [N, 3] unit. Returns: rgb [N, 3] in [0, 1]."""
-        return torch.sigmoid(self.mlp(torch.cat([feature, self.encoding(dirs)], -1)))
+    def forward(self, feature: torch.Tensor, dirs: torch.Tensor,
+                x: torch.Tensor | None = None) -> torch.Tensor:
+        """Args: feature [N, hidden], dirs [N, 3] unit, x [N, 3] the (deformed) points the
+        planes are read at (needed with planes). Returns: rgb [N, 3] in [0, 1]."""
+        parts = [feature, self.encoding(dirs)]
+        if self.planes is not None:
+            if x is None:
+                raise ValueError("colour planes need the points")
+            parts.insert(1, self.planes(x).to(feature.dtype))
+        return torch.sigmoid(self.mlp(torch.cat(parts, -1)))
 
 
 class BackgroundField(nn.Module):
@@ -131,11 +190,12 @@ class FieldOutputs:
 class CadNerfFields(nn.Module):
     """D, optional G, optional colour and background: what one job trains."""
 
-    def __init__(self, cfg: FieldConfig, use_deformation: bool, scene_mode: bool = False) -> None:
+    def __init__(self, cfg: FieldConfig, use_deformation: bool, scene_mode: bool = False,
+                 bound: float = 1.1) -> None:
         super().__init__()
         self.density = DensityField(cfg)
         self.deformation = DeformationField(cfg) if use_deformation else None
-        self.color = ColorField(cfg)
+        self.color = ColorField(cfg, bound)
         self.background = BackgroundField(cfg) if scene_mode else None
 
     def set_anneal(self, fraction: float) -> None:
@@ -154,12 +214,14 @@ class CadNerfFields(nn.Module):
             FieldOutputs with occupancy in [0, 1]: sigmoid(logit_D(x + o) + c).
         """
         offset = correction = None
+        moved = x
         if self.deformation is not None:
             offset, correction = self.deformation(x)
-            logit, feature = self.density(x + offset)
+            moved = x + offset
+            logit, feature = self.density(moved)
             occ = torch.sigmoid(logit + correction)
         else:
             logit, feature = self.density(x)
             occ = torch.sigmoid(logit)
-        rgb = None if dirs is None else self.color(feature, dirs)
+        rgb = None if dirs is None else self.color(feature, dirs, moved)
         return FieldOutputs(occ, rgb, offset, correction)

@@ -108,6 +108,19 @@ def phase2_step(state: TrainState, data: TrainData, optimizer: torch.optim.Optim
     return apply_step(losses(), optimizer, pose_optimizer)
 
 
+def _phase3_groups(state: TrainState, cfg: Phase3Config) -> list[dict[str, object]]:
+    """Phase three's parameter groups: the networks at ``lr``, the colour planes (where the
+    field has them) at ``plane_lr``; the background waits for the scene steps."""
+    planes = state.fields.color.planes
+    plane_ids = set() if planes is None else {id(p) for p in planes.parameters()}
+    nets = [p for name, p in state.fields.named_parameters()
+            if not name.startswith("background.") and id(p) not in plane_ids]
+    groups: list[dict[str, object]] = [{"params": nets, "lr": cfg.lr}]
+    if planes is not None:
+        groups.append({"params": list(planes.parameters()), "lr": cfg.plane_lr})
+    return groups
+
+
 def _phase2_params(state: TrainState) -> list[torch.nn.Parameter]:
     """What phase two fits besides the poses: G, and D unless ``phase2.train_density`` is off
     (then G deforms a frozen D; without G, nothing: the shape stays the CAD model's and only
@@ -170,6 +183,9 @@ def phase3_step(state: TrainState, data: TrainData, optimizer: torch.optim.Optim
                                                              weight)
             yield _pass_loss(loss, out, cfg, share)
         yield from _matches_pass(state, data, cfg.lambda_matches, pose_optimizer is not None)
+        planes = state.fields.color.planes
+        if planes is not None and cfg.lambda_planes > 0:
+            yield cfg.lambda_planes * planes.smoothness()
 
     return apply_step(losses(), optimizer, pose_optimizer)
 
@@ -180,9 +196,7 @@ def run_phase3(state: TrainState, data: TrainData, progress: Progress | None = N
     torch.manual_seed(state.config.seed + 3)
     state.fields.set_anneal(1.0)
     background = state.fields.background
-    params = [p for name, p in state.fields.named_parameters()
-              if not name.startswith("background.")]
-    optimizer = adam(params, cfg.lr, state.device)
+    optimizer = adam(_phase3_groups(state, cfg), cfg.lr, state.device)
     scene_steps = cfg.scene_steps if background is not None and data.scene_images is not None \
         else 0
     total = cfg.steps + scene_steps
