@@ -194,6 +194,9 @@ class Phase3Config(_Frozen):
     fields train them, learn at a larger rate than the networks."""
     lambda_planes: float = Field(default=1e-2, ge=0.0, le=MAX_WEIGHT)
     """Weight of the colour planes' total variation (``ColorPlanes.smoothness``)."""
+    object_rays: float = Field(default=0.0, ge=0.0, le=1.0)
+    """Share of each step's rays drawn on the photos' objects (their masks and a 2-pixel
+    edge; the rest anywhere, for the white around them): where the detail is (0: uniform)."""
 
     @model_validator(mode="after")
     def _check_windows(self) -> Phase3Config:

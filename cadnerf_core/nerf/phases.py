@@ -18,7 +18,7 @@ import torch
 import torch.nn.functional as F
 
 from cadnerf_core.config import Phase2Config, Phase3Config
-from cadnerf_core.nerf.batch import render_batch, sample_pixels
+from cadnerf_core.nerf.batch import object_pixels, render_batch, sample_pixels
 from cadnerf_core.nerf.blur import blur_images, target_blur
 from cadnerf_core.nerf.device import adam, autocast, upload
 from cadnerf_core.nerf.grid_update import refresh_fine_grid, update_grids
@@ -159,12 +159,14 @@ def run_phase2(state: TrainState, data: TrainData, progress: Progress | None = N
 
 def phase3_step(state: TrainState, data: TrainData, optimizer: torch.optim.Optimizer,
                 pose_optimizer: torch.optim.Optimizer | None = None, scene: bool = False,
-                targets: torch.Tensor | None = None) -> float:
+                targets: torch.Tensor | None = None,
+                on_object: torch.Tensor | None = None) -> float:
     """One colour step (D, G and colour; the background too in scene mode; the poses inside
-    phase three's window, with the photos' matches, ``phase3.lambda_matches``). Returns the
-    loss."""
+    phase three's window, with the photos' matches, ``phase3.lambda_matches``; a share
+    ``phase3.object_rays`` of the rays among ``on_object``, ``batch.object_pixels``).
+    Returns the loss."""
     cfg = state.config.phase3
-    img, x, y = sample_pixels(data, cfg.rays)
+    img, x, y = sample_pixels(data, cfg.rays, 0.0 if scene else cfg.object_rays, on_object)
     target = data.scene_images if scene and data.scene_images is not None else data.images
     if targets is not None:
         target = targets
@@ -203,6 +205,7 @@ def run_phase3(state: TrainState, data: TrainData, progress: Progress | None = N
     pose_optimizer = adam(state.poses.optimizer_groups(cfg.pose_lr, state.config.phase2.focal_lr),
                           cfg.pose_lr, state.device)
     blurred: dict[float, torch.Tensor] = {}
+    on_object = object_pixels(data) if cfg.object_rays > 0 else None
     refresh_fine_grid(state)
     for step in range(cfg.steps):
         active = state.config.optimise_poses and in_window(step, cfg.steps, cfg.pose_window)
@@ -212,7 +215,7 @@ def run_phase3(state: TrainState, data: TrainData, progress: Progress | None = N
         targets = blurred[sigma] if active and sigma > 0 else None
         state.log("phase3/loss", phase3_step(state, data, optimizer,
                                              pose_optimizer if active else None,
-                                             targets=targets))
+                                             targets=targets, on_object=on_object))
         update_grids(state, step)
         _report(progress, "phase3", step, total)
     if scene_steps and background is not None:

@@ -1,7 +1,7 @@
-"""The colour planes (``nerf.fields.ColorPlanes``) and phase three's detail levers: planes read
+"""Phase three's detail levers: the colour planes (``nerf.fields.ColorPlanes``) read
 bilinearly at a point's three projections, learn at their own rate, let phase three fit a
 texture finer than the colour network alone fits, and phase three's larger crops keep the
-cameras they were cut for."""
+cameras they were cut for; a share of the rays falls on the objects."""
 
 from __future__ import annotations
 
@@ -89,7 +89,8 @@ def _fit(mesh: trimesh.Trimesh, planes: int) -> tuple[TrainState, float]:
     cfg = tiny_config(**{"field.color_planes": planes, "field.color_plane_size": 128,
                          "field.hidden": 32, "field.color_hidden": 32,
                          "render.samples_per_ray": 32,
-                         "optimise_poses": False, "phase1.steps": 100, "phase3.steps": 150, "phase3.rays": 512,
+                         "optimise_poses": False, "phase1.steps": 100, "phase3.steps": 150,
+                         "phase3.rays": 512,
                          "phase3.lr": 3e-3, "phase3.mask_weight": 0.0})
     state = TrainState.create(cfg, c2w, DEVICE,
                               grid_from_occupancy(mesh.contains, 8, cfg.render.bound, 1))
@@ -157,3 +158,24 @@ def test_phase_three_crops_at_a_larger_size_keep_the_cameras(tmp_path: Path,
     # And the crops show the same photo: the large one shrunk is the small one.
     shrunk = torch.nn.functional.avg_pool2d(large.images.permute(0, 3, 1, 2), 3)
     assert float((shrunk.permute(0, 2, 3, 1) - small.images).abs().mean()) < 0.03
+
+
+def test_a_share_of_the_rays_falls_on_the_objects_and_their_edge() -> None:
+    from cadnerf_core.nerf.batch import object_pixels, sample_pixels
+
+    masks = np.zeros((2, 20, 20), bool)
+    masks[1, 8:10, 8:10] = True  # one photo's object: 2 x 2 pixels
+    data = TrainData.from_numpy(np.ones((2, 20, 20, 3), np.float32), masks,
+                                np.broadcast_to(np.eye(3), (2, 3, 3)), DEVICE)
+    on_object = object_pixels(data)
+    assert len(on_object) == 36  # the 2 x 2 pixels and their 2-pixel edge
+    torch.manual_seed(0)
+    img, x, y = sample_pixels(data, 1000, 0.75, on_object)
+    near = (img == 1) & (x >= 6) & (x < 12) & (y >= 6) & (y < 12)
+    assert bool(near[:750].all())
+    # The rest anywhere: about as often on the object as its 36 of 800 pixels.
+    assert float(near[750:].float().mean()) < 0.15
+    torch.manual_seed(0)
+    img, x, y = sample_pixels(data, 1000)  # uniform
+    uniform = (img == 1) & (x >= 6) & (x < 12) & (y >= 6) & (y < 12)
+    assert float(uniform.float().mean()) < 0.1
