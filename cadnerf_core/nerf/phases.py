@@ -33,6 +33,7 @@ from cadnerf_core.progress import Progress
 OccupancySampler = Callable[[int], tuple[np.ndarray, np.ndarray]]
 
 POOL_MAX = 1 << 18  # CAD occupancy samples drawn once for phase one
+PLANE_TV_WINDOW = 64  # texels a side of each colour plane's square in a step's smoothness
 
 
 def _report(progress: Progress | None, stage: str, step: int, total: int) -> None:
@@ -187,7 +188,7 @@ def phase3_step(state: TrainState, data: TrainData, optimizer: torch.optim.Optim
         yield from _matches_pass(state, data, cfg.lambda_matches, pose_optimizer is not None)
         planes = state.fields.color.planes
         if planes is not None and cfg.lambda_planes > 0:
-            yield cfg.lambda_planes * planes.smoothness()
+            yield cfg.lambda_planes * planes.smoothness(PLANE_TV_WINDOW)
 
     return apply_step(losses(), optimizer, pose_optimizer)
 

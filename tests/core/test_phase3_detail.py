@@ -179,3 +179,21 @@ def test_a_share_of_the_rays_falls_on_the_objects_and_their_edge() -> None:
     img, x, y = sample_pixels(data, 1000)  # uniform
     uniform = (img == 1) & (x >= 6) & (x < 12) & (y >= 6) & (y < 12)
     assert float(uniform.float().mean()) < 0.1
+
+
+def test_smoothness_in_a_window_reads_only_that_window() -> None:
+    planes = ColorPlanes(FieldConfig(color_planes=1, color_plane_size=64), bound=1.0)
+    with torch.no_grad():
+        planes.planes[0].zero_()
+        planes.planes[0][:, :, 40, 40] = 1.0  # one bright texel
+    whole = float(planes.smoothness().detach())
+    assert whole > 0
+    seen = set()
+    for seed in range(20):
+        torch.manual_seed(seed)
+        part = float(planes.smoothness(window=32).detach())
+        seen.add(part > 0)
+        assert part == pytest.approx(0.0) or part > whole  # a window's mean, larger if hit
+    assert seen == {False, True}  # some windows hold the texel, some do not
+    torch.manual_seed(0)
+    assert float(planes.smoothness(window=64).detach()) == pytest.approx(whole)
