@@ -160,6 +160,22 @@ def table(rows: list[dict[str, Any]]) -> list[str]:
     return lines
 
 
+def record_means(rows: list[dict[str, Any]]) -> None:
+    """The mean held-out PSNR over every capture, from the field and from the textured mesh,
+    as headline figures (``benchmarks.results``; full runs of the default settings only)."""
+    from benchmarks.results import Result, cpu_cores, record, today
+
+    if not rows:
+        return
+    command = ".venv/bin/python -m benchmarks.bench_fidelity --rows ROWS"
+    for key, part, what in (("fidelity_field_psnr", "field", "the field"),
+                            ("fidelity_mesh_psnr", "mesh", "the textured mesh")):
+        value = statistics.fmean(r[part]["psnr"] for r in rows)
+        record(Result(key, f"held-out photos of {len(rows)} real captures at {EVAL_SIZE} px "
+                           f"inside the mask, rendered from {what}", value, "dB", 2,
+                      f"`{PRESET}`, cameras refined per view, {cpu_cores()}", command, today()))
+
+
 def _rows(names: list[str], library: Any, lpips_net: Any, rows_file: Path | None,
           settings: dict[str, Any] | None = None) -> list[dict[str, Any]]:
     """Each capture's row (those already in ``rows_file`` kept), in ``names``' order."""
@@ -207,6 +223,8 @@ def run(quick: bool, library_dir: Path = LIBRARY_DIR, names: list[str] | None = 
     library = load_library(library_dir)
     with torch_threads(2):
         rows = _rows(chosen, library, lpips_net, rows_file, settings)
+    if not quick and names is None and not settings:
+        record_means(rows)
     notes = [lpips_line(lpips_net is not None),
              "Masks: `dataset` where the capture ships them, `found` where the job's own "
              "background removal made them (the held-out photo masked as the job masks its "

@@ -33,7 +33,8 @@ DOCUMENTS = (README, *sorted(DOCS.glob("*.md")))
 """The documents whose quoted figures ``update_documents`` keeps current."""
 # The table's rows in this order; a key not listed follows them, by name.
 ORDER = ("unseen_psnr", "unseen_rotation", "captures_users_rotation", "captures_real_rotation",
-         "captures_textured_rotation", "mesh_f_score", "masks_iou_espresso", "masks_iou_robot",
+         "captures_textured_rotation", "fidelity_field_psnr", "fidelity_mesh_psnr",
+         "mesh_f_score", "masks_iou_espresso", "masks_iou_robot",
          "preview_job_cpu", "preview_job_gpu", "matching_ten_photos")
 
 

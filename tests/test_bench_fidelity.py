@@ -50,3 +50,18 @@ def test_without_the_captures_the_section_says_so(monkeypatch: pytest.MonkeyPatc
     section = bench_fidelity.run(quick=True)
     assert section.startswith("## Fidelity") and "`../shared/eval` is absent" in section
     assert "python -m benchmarks.bench_fidelity --quick" in section
+
+
+def test_a_full_run_records_the_mean_of_the_field_and_of_the_mesh(
+        monkeypatch: pytest.MonkeyPatch, tmp_path: Path) -> None:
+    from benchmarks import results
+
+    monkeypatch.setattr(results, "RESULTS", tmp_path / "results.json")
+    rows = [{"field": {"psnr": 20.0}, "mesh": {"psnr": 17.0}},
+            {"field": {"psnr": 23.0}, "mesh": {"psnr": 18.0}}]
+    bench_fidelity.record_means(rows)
+    found = results.read_results()
+    assert found["fidelity_field_psnr"].value == pytest.approx(21.5)
+    assert found["fidelity_mesh_psnr"].value == pytest.approx(17.5)
+    assert "2 real captures at 512 px" in found["fidelity_field_psnr"].quantity
+    assert found["fidelity_mesh_psnr"].command.endswith("bench_fidelity --rows ROWS")
