@@ -17,7 +17,8 @@ capture's own; found by the job's background removal where the capture has none)
 rendered from the field, and from the exported textured ``mesh.glb`` (unlit: its texture is
 baked). Beside them, the camera's error: the kept cameras' rotation error against the
 references (mean, after similarity alignment), and how far the photometric fit moved the
-held-out camera from where the camera centres put it.
+held-out camera from where the camera centres put it. The held-out views as rendered stay in
+``WORK_DIR/renders/<capture>``.
 
 QUICK: ``QUICK_CAPTURES``; full: every capture.
 
@@ -97,6 +98,7 @@ def run_capture(name: str, library: Any, lpips_net: Any,
     """One capture's job (``settings``: dotted overrides on ``PRESET``) and its held-out
     views' scores. Returns its row."""
     from cadnerf_core.evaluation.evaluate import evaluate_dataset
+    from cadnerf_core.jobfolder import JobFolder
 
     folder = CAPTURES / name
     n = len(json.loads((folder / "cameras.json").read_text())["frames"])
@@ -112,6 +114,10 @@ def run_capture(name: str, library: Any, lpips_net: Any,
                                   job_dir=job,
                                   lpips_net=lpips_net, device=DEVICE, eval_size=EVAL_SIZE,
                                   exif_focal=True, hold_out=hold, mesh=True)
+        # The held-out views as rendered, kept to look at (the job itself is large).
+        kept = WORK_DIR / "renders" / job.name
+        shutil.rmtree(kept, ignore_errors=True)
+        shutil.copytree(JobFolder(job).eval_dir, kept)
     finally:
         shutil.rmtree(job, ignore_errors=True)
     moves = [camera_move(np.asarray(a), np.asarray(b)) for a, b in

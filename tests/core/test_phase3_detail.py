@@ -197,3 +197,20 @@ def test_smoothness_in_a_window_reads_only_that_window() -> None:
     assert seen == {False, True}  # some windows hold the texel, some do not
     torch.manual_seed(0)
     assert float(planes.smoothness(window=64).detach()) == pytest.approx(whole)
+
+
+def test_a_job_with_the_detail_levers_runs_and_reloads_its_planes(tmp_path: Path,
+                                                                  tiny_library: Any) -> None:
+    from cadnerf_core.pipeline import run_job
+    from tests.core.test_pipeline import write_job
+
+    write_job(tmp_path, tiny_library, overrides={
+        "field.color_planes": 2, "field.color_plane_size": 64, "phase3.image_size": 48,
+        "phase3.object_rays": 0.5})
+    result = run_job(tmp_path, tiny_library, device="cpu")
+    assert "views/000.png" in result.artifacts and "mesh.glb" in result.artifacts
+    model = TrainedModel.load(tmp_path, "cpu")
+    planes = model.state.fields.color.planes
+    assert planes is not None and [int(p.shape[-1]) for p in planes.planes] == [32, 64]
+    # What phase three learned is in the planes: no longer their small random start.
+    assert float(planes.planes[1].detach().abs().max()) > 0.011
