@@ -179,7 +179,8 @@ def record_means(rows: list[dict[str, Any]]) -> None:
         value = statistics.fmean(r[part]["psnr"] for r in rows)
         record(Result(key, f"held-out photos of {len(rows)} real captures at {EVAL_SIZE} px "
                            f"inside the mask, rendered from {what}", value, "dB", 2,
-                      f"`{PRESET}`, cameras refined per view, {cpu_cores()}", command, today()))
+                      f"`{PRESET}`, held-out cameras by a photometric frame fit, "
+                      f"{cpu_cores()}", command, today()))
 
 
 def _rows(names: list[str], library: Any, lpips_net: Any, rows_file: Path | None,

@@ -146,6 +146,9 @@ def test_phase_three_crops_at_a_larger_size_keep_the_cameras(tmp_path: Path,
     small = training_data(intake, config, margin, DEVICE)
     large = phase3_data(intake, config, margin, DEVICE, small)
     assert (small.width, large.width) == (32, 96)
+    # At the job's own size the crops are retrieval's: their intrinsics are its K_canon.
+    np.testing.assert_array_equal(small.K.numpy(), np.stack(
+        [m.K_canon for m in intake.retrieval.kept]).astype(np.float32))
     same = phase3_data(intake, tiny_config(), margin, DEVICE, small)
     assert same is small
     # A point on the object lands at the same place in both crops, in units of their side.
