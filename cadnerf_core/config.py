@@ -188,7 +188,8 @@ class Phase3Config(_Frozen):
     """Scene mode only: steps after the object's, training object and background together."""
     image_size: int = Field(default=0, ge=0, le=1024)
     """Side of the photo crops phase three learns colour from (0: the job's ``image_size``):
-    larger shows the colour field the photos' detail at the cost of building the crops."""
+    larger shows the colour field the photos' detail at the cost of building the crops (the
+    matches' epipolar term then reads that crop's pixels too)."""
     plane_lr: float = Field(default=1e-2, gt=0.0, le=MAX_LR)
     """Adam learning rate of the colour planes (``field.color_planes``): texels, as grid
     fields train them, learn at a larger rate than the networks."""

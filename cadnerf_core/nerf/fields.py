@@ -152,7 +152,7 @@ class ColorField(nn.Module):
     """Colour from D's feature, the colour planes' feature at the point (``ColorPlanes``,
     where ``color_planes`` > 0) and the view direction: ``color_layers`` linear layers."""
 
-    def __init__(self, cfg: FieldConfig, bound: float = 1.1) -> None:
+    def __init__(self, cfg: FieldConfig, bound: float) -> None:
         super().__init__()
         self.encoding = PositionalEncoding(cfg.dir_freqs)
         self.planes = ColorPlanes(cfg, bound) if cfg.color_planes else None
@@ -161,13 +161,11 @@ class ColorField(nn.Module):
                         cfg.color_layers - 1, 3)
 
     def forward(self, feature: torch.Tensor, dirs: torch.Tensor,
-                x: torch.Tensor | None = None) -> torch.Tensor:
+                x: torch.Tensor) -> torch.Tensor:
         """Args: feature [N, hidden], dirs [N, 3] unit, x [N, 3] the (deformed) points the
-        planes are read at (needed with planes). Returns: rgb [N, 3] in [0, 1]."""
+        planes are read at. Returns: rgb [N, 3] in [0, 1]."""
         parts = [feature, self.encoding(dirs)]
         if self.planes is not None:
-            if x is None:
-                raise ValueError("colour planes need the points")
             parts.insert(1, self.planes(x).to(feature.dtype))
         return torch.sigmoid(self.mlp(torch.cat(parts, -1)))
 
@@ -198,8 +196,8 @@ class FieldOutputs:
 class CadNerfFields(nn.Module):
     """D, optional G, optional colour and background: what one job trains."""
 
-    def __init__(self, cfg: FieldConfig, use_deformation: bool, scene_mode: bool = False,
-                 bound: float = 1.1) -> None:
+    def __init__(self, cfg: FieldConfig, use_deformation: bool, bound: float,
+                 scene_mode: bool = False) -> None:
         super().__init__()
         self.density = DensityField(cfg)
         self.deformation = DeformationField(cfg) if use_deformation else None

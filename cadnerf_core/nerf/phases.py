@@ -113,9 +113,8 @@ def _phase3_groups(state: TrainState, cfg: Phase3Config) -> list[dict[str, objec
     """Phase three's parameter groups: the networks at ``lr``, the colour planes (where the
     field has them) at ``plane_lr``; the background waits for the scene steps."""
     planes = state.fields.color.planes
-    plane_ids = set() if planes is None else {id(p) for p in planes.parameters()}
     nets = [p for name, p in state.fields.named_parameters()
-            if not name.startswith("background.") and id(p) not in plane_ids]
+            if not name.startswith(("background.", "color.planes."))]
     groups: list[dict[str, object]] = [{"params": nets, "lr": cfg.lr}]
     if planes is not None:
         groups.append({"params": list(planes.parameters()), "lr": cfg.plane_lr})

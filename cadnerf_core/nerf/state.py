@@ -80,8 +80,8 @@ class TrainState:
         ``learn_focal``: the photos' focal length is unknown and refined with the poses
         (within ``config.phase2.focal_bound``)."""
         torch.manual_seed(config.seed)
-        fields = CadNerfFields(config.field, config.use_deformation, config.scene_mode,
-                               config.render.bound).to(device)
+        fields = CadNerfFields(config.field, config.use_deformation, config.render.bound,
+                               config.scene_mode).to(device)
         poses = PoseCorrection(torch.from_numpy(np.asarray(c2w_init, dtype=np.float32))
                                .to(device), config.phase2.focal_bound,
                                learn_focal and config.optimise_poses)

@@ -143,7 +143,7 @@ def test_deformation_reads_the_points_bands_and_starts_as_the_identity() -> None
     from cadnerf_core.config import FieldConfig
     from cadnerf_core.nerf.fields import CadNerfFields
 
-    fields = CadNerfFields(FieldConfig(pos_freqs=5), use_deformation=True)
+    fields = CadNerfFields(FieldConfig(pos_freqs=5), use_deformation=True, bound=1.1)
     assert fields.deformation is not None
     assert fields.deformation.encoding.n_freqs == 5
     assert fields.density.encoding.n_freqs == 5
