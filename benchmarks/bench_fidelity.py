@@ -7,18 +7,21 @@ photos (``held_out_frames``: a third and two thirds of the way round, so that ke
 on both sides); a ``preview`` job runs on the others, as ``cadnerf eval CAPTURE --hold-out
 ... --exif-focal --mesh --eval-size 512`` runs it (``evaluation.evaluate.evaluate_dataset``),
 each photo's true focal length given as EXIF, so that the figure is about rendering rather than
-the focal length. Each held-out reference camera is brought into the job's frame by the
-similarity of the kept photos' reference cameras onto the job's (rotation and scale about the
-object's centre, where the optical axes meet), refined photometrically on the kept photos
-(``evaluation.frame.fit_frame``: one 7-number correction for every camera; the held-out photos
-play no part), rendered at 512 px on the longer side and scored inside the photo's mask (the
-capture's own; found by the job's background removal where the capture has none): PSNR, SSIM
-(scikit-image's map averaged in the mask), LPIPS where its weights are on disk. Scored twice:
-rendered from the field, and from the exported textured ``mesh.glb`` (unlit: its texture is
-baked). Beside them, the camera's error: the kept cameras' rotation error against the
-references (mean, after similarity alignment), and how far the photometric fit moved the
-held-out camera from where the camera centres put it. The held-out views as rendered stay in
-``WORK_DIR/renders/<capture>``.
+the focal length. Each held-out reference camera is brought into the job's frame by a
+similarity of the kept photos' reference cameras onto the job's, refined photometrically on the
+kept photos (``evaluation.frame.fit_frame``: one 7-number correction for every camera, fitted
+from two starts, rotation and scale about the object's centre where the optical axes meet, and
+the free similarity of the camera centres; the one that reproduces the kept photos better is
+kept; the held-out photos play no part), then refined on its own photo with the field frozen,
+as BARF and SPARF evaluate (``evaluation.frame.refine_view``: 6 numbers per view). Rendered at
+512 px on the longer side and scored inside the photo's mask (the capture's own; found by the
+job's background removal where the capture has none): PSNR, SSIM (scikit-image's map averaged
+in the mask), LPIPS where its weights are on disk. Scored twice: rendered from the field, and
+from the exported textured ``mesh.glb`` (unlit: its texture is baked). Beside them, the
+camera's error: the kept cameras' rotation error against the references (mean, after
+similarity alignment), how far the frame fit moved the held-out camera from where the camera
+centres put it, and how far its own refinement then moved it. The held-out views as rendered
+stay in ``WORK_DIR/renders/<capture>``.
 
 QUICK: ``QUICK_CAPTURES``; full: every capture.
 
@@ -113,15 +116,19 @@ def run_capture(name: str, library: Any, lpips_net: Any,
                                   overrides={**exclude_overrides(name), **(settings or {})},
                                   job_dir=job,
                                   lpips_net=lpips_net, device=DEVICE, eval_size=EVAL_SIZE,
-                                  exif_focal=True, hold_out=hold, mesh=True)
+                                  exif_focal=True, hold_out=hold, mesh=True,
+                                  align="per-view")
         # The held-out views as rendered, kept to look at (the job itself is large).
         kept = WORK_DIR / "renders" / job.name
         shutil.rmtree(kept, ignore_errors=True)
         shutil.copytree(JobFolder(job).eval_dir, kept)
     finally:
         shutil.rmtree(job, ignore_errors=True)
+    held = report.held_out
     moves = [camera_move(np.asarray(a), np.asarray(b)) for a, b in
-             zip(report.held_out["c2w_centred"], report.held_out["c2w"], strict=True)]
+             zip(held["c2w_centred"], held["c2w_frame"], strict=True)]
+    own = [camera_move(np.asarray(a), np.asarray(b)) for a, b in
+           zip(held["c2w_frame"], held["c2w"], strict=True)]
     row: dict[str, Any] = {"capture": name, "model": report.model_id, "photos": n,
            "kept": len(report.kept), "held_out": report.test_names,
            "masks": report.test_masks, "field": _scores(report.per_view_masked),
@@ -129,6 +136,8 @@ def run_capture(name: str, library: Any, lpips_net: Any,
            "rotation_deg": report.pose_refined.rotation_deg,
            "fit_turn_deg": float(np.mean([m[0] for m in moves])),
            "fit_shift": float(np.mean([m[1] for m in moves])),
+           "view_turn_deg": float(np.mean([m[0] for m in own])),
+           "view_shift": float(np.mean([m[1] for m in own])),
            "focal_error": report.focal_error, "seconds": report.seconds}
     log.info("%s: field %.2f dB / %.3f, mesh %.2f dB / %.3f, cameras %.1f deg", name,
              row["field"]["psnr"], row["field"]["ssim"], row["mesh"]["psnr"],
@@ -145,8 +154,9 @@ def table(rows: list[dict[str, Any]]) -> list[str]:
     lines = ["| capture | model | kept / photos | held out | masks | field PSNR (dB) | "
              "field SSIM | mesh PSNR (dB) | mesh SSIM | LPIPS field / mesh | whole-frame PSNR, "
              "field (dB) | kept cameras' rotation error (deg) | frame fit moved the held-out "
-             "camera (deg, % of distance) | focal error | seconds |",
-             "|---|---|---:|---|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|"]
+             "camera (deg, % of distance) | its own refinement moved it (deg, %) | "
+             "focal error | seconds |",
+             "|---|---|---:|---|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|"]
     for r in rows:
         f, m = r["field"], r["mesh"]
         lines.append(
@@ -155,6 +165,7 @@ def table(rows: list[dict[str, Any]]) -> list[str]:
             f"{f['ssim']:.3f} | **{m['psnr']:.2f}** | {m['ssim']:.3f} | "
             f"{_num(f['lpips'], 3)} / {_num(m['lpips'], 3)} | {r['whole_psnr']:.2f} | "
             f"{r['rotation_deg']:.1f} | {r['fit_turn_deg']:.2f}, {100 * r['fit_shift']:.1f} | "
+            f"{r['view_turn_deg']:.2f}, {100 * r['view_shift']:.1f} | "
             f"{100 * r['focal_error']:+.0f} % | {r['seconds']:.0f} |")
     if rows:
         def mean(part: str, key: str) -> float:
@@ -179,7 +190,8 @@ def record_means(rows: list[dict[str, Any]]) -> None:
         value = statistics.fmean(r[part]["psnr"] for r in rows)
         record(Result(key, f"held-out photos of {len(rows)} real captures at {EVAL_SIZE} px "
                            f"inside the mask, rendered from {what}", value, "dB", 2,
-                      f"`{PRESET}`, held-out cameras by a photometric frame fit, "
+                      f"`{PRESET}`, held-out cameras by a photometric frame fit, then "
+                      f"refined per view, "
                       f"{cpu_cores()}", command, today()))
 
 

@@ -18,6 +18,7 @@ class Align(StrEnum):
     """How held-out ground-truth cameras are mapped into the NeRF's frame."""
 
     photometric = "photometric"
+    per_view = "per-view"
     centred = "centred"
     umeyama = "umeyama"
 
@@ -111,7 +112,9 @@ def eval_command(
     device: str = typer.Option("auto", "--device", help="auto, cpu or cuda."),
     align: Align = typer.Option(Align.photometric, "--align", help="Mapping of held-out cameras "
                               "into the NeRF: photometric (centred, then one correction for all "
-                              "cameras fitted on the training photos), centred (about the "
+                              "cameras fitted on the training photos), per-view (that from the "
+                              "better of two starts, then each held-out camera refined on its "
+                              "own photo, as BARF evaluates), centred (about the "
                               "object's centre, from the camera centres) or umeyama."),
     eval_size: int | None = typer.Option(None, "--eval-size", min=8, help="Score held-out "
                                          "views at this longer side in pixels (default: "

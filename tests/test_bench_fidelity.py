@@ -36,11 +36,13 @@ def test_table_rows_and_means() -> None:
     row = {"capture": "thing", "model": "mug", "photos": 8, "kept": 6, "held_out": ["002", "005"],
            "masks": "dataset", "field": {"psnr": 20.0, "ssim": 0.5, "lpips": None},
            "mesh": {"psnr": 18.0, "ssim": 0.4, "lpips": None}, "whole_psnr": 22.0,
-           "rotation_deg": 2.5, "fit_turn_deg": 0.4, "fit_shift": 0.01, "focal_error": 0.02,
+           "rotation_deg": 2.5, "fit_turn_deg": 0.4, "fit_shift": 0.01, "view_turn_deg": 1.5,
+           "view_shift": 0.03, "focal_error": 0.02,
            "seconds": 100.0}
     lines = table([row, {**row, "capture": "other", "field": {"psnr": 22.0, "ssim": 0.7,
                                                               "lpips": None}}])
     assert "| thing | mug | 6/6 | 002, 005 | dataset | **20.00** | 0.500 | **18.00** |" in lines[2]
+    assert "| 2.5 | 0.40, 1.0 | 1.50, 3.0 | +2 % | 100 |" in lines[2]
     assert "field **21.00 dB**, SSIM 0.600; mesh **18.00 dB**" in lines[-1]
 
 

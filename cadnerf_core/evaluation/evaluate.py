@@ -32,7 +32,7 @@ import numpy as np
 from cadnerf_core.cameras.conventions import align_poses
 from cadnerf_core.evaluation.capture import with_found_masks
 from cadnerf_core.evaluation.dataset import Dataset, load_dataset
-from cadnerf_core.evaluation.frame import frame_mapping
+from cadnerf_core.evaluation.frame import frame_mapping, refine_view
 from cadnerf_core.evaluation.jobio import (
     JobCameras,
     eval_intrinsics,
@@ -89,7 +89,7 @@ class EvalReport:
     job_dir: str
     eval_size: int  # side in pixels of the scored held-out views
     intrinsics: str  # "estimated" or "gt" focal length for the held-out renders
-    align: str  # "photometric", "centred" or "umeyama" mapping of GT cameras for rendering
+    align: str  # mapping of GT cameras for rendering (``frame.ALIGNS``)
     focal_used: float
     focal_gt: float
     focal_error: float  # focal_used / focal_gt - 1: the job's (refined) focal length's error
@@ -98,7 +98,8 @@ class EvalReport:
     renders: list[str]  # saved held-out renders, in test order
     cameras: dict[str, list[Any]] = field(default_factory=dict)  # poses in the GT frame
     # The held-out cameras in the NeRF's frame ("c2w"; "c2w_centred": by the centred mapping,
-    # before the photometric fit) and their intrinsics "K" in the dataset's pixels.
+    # before the photometric fit; "c2w_frame": by the frame mapping, before any refinement on
+    # the view itself) and their intrinsics "K" in the dataset's pixels.
     held_out: dict[str, list[Any]] = field(default_factory=dict)
     # The same views rendered from the exported textured mesh (``mesh=True``), in the mask.
     image_mesh: ImageMetrics | None = None
@@ -218,6 +219,17 @@ def _score_held_out(model: TrainedModel, job: Path, test: Dataset, c2w_nerf: np.
     return scores, on_mesh
 
 
+def _refined_views(model: TrainedModel, test: Dataset, c2w_nerf: np.ndarray, Ks: np.ndarray,
+                   size: int | None) -> np.ndarray:
+    """Each held-out camera [T, 4, 4] refined on its own photo at the size it is scored
+    (``frame.refine_view``)."""
+    out = []
+    for c2w, K, image, mask in zip(c2w_nerf, Ks, test.images, test.masks, strict=True):
+        small, K_small = resize_view(image, K, size)
+        out.append(refine_view(model, c2w, K_small, small, resize_mask(mask, K, size)))
+    return np.stack(out)
+
+
 def _cameras_in_gt_frame(train: Dataset, cams: JobCameras) -> dict[str, list[Any]]:
     """Ground-truth, retrieved and refined training cameras, all in the ground truth's frame."""
     gt_kept = train.c2w[cams.kept]
@@ -230,7 +242,8 @@ def evaluate_dataset(dataset_dir: Path, n_views: int, library: Library, preset: 
                      overrides: dict[str, Any] | None = None, job_dir: Path | None = None,
                      lpips_net: LpipsNet | None = None, device: str = "auto",
                      intrinsics: Literal["estimated", "gt"] = "estimated",
-                     align: Literal["photometric", "centred", "umeyama"] = "photometric",
+                     align: Literal["photometric", "per-view", "centred",
+                                    "umeyama"] = "photometric",
                      eval_size: int | None = None, progress: Progress | None = None,
                      exif_focal: bool = False, hold_out: Sequence[int] = (),
                      mesh: bool = False) -> EvalReport:
@@ -253,8 +266,10 @@ def evaluate_dataset(dataset_dir: Path, n_views: int, library: Library, preset: 
             ``fit_frame``: one 7-number correction for all cameras, no held-out image used),
             "centred" (rotation and scale about the object's centre, fitted on the training
             cameras' centres) or "umeyama" (free similarity of camera centres; its translation
-            absorbs pose errors and moves the object off-centre). Pose errors always use
-            Umeyama.
+            absorbs pose errors and moves the object off-centre), or "per-view" (the frame
+            fitted from the centred and the free start, the better kept; then each held-out
+            camera refined on its own photo at ``eval_size``, the fields frozen, as BARF and
+            SPARF evaluate: ``frame.refine_view``). Pose errors always use Umeyama.
         eval_size: longer side in pixels at which held-out views are rendered and scored
             (ground truth area-averaged to it); None = the dataset's own size.
         progress: forwarded to the pipeline.
@@ -292,7 +307,9 @@ def evaluate_dataset(dataset_dir: Path, n_views: int, library: Library, preset: 
     to_nerf = frame_mapping(model, data, cams, align, intrinsics)
     Ks = np.stack([eval_intrinsics(k, cams, intrinsics) for k in test.K])
     render_start = time.perf_counter()
-    c2w_nerf = to_nerf.apply_to_poses(test.c2w)
+    c2w_frame = to_nerf.apply_to_poses(test.c2w)
+    c2w_nerf = _refined_views(model, test, c2w_frame, Ks, eval_size) if align == "per-view" \
+        else c2w_frame
     scores, on_mesh = _score_held_out(model, job, test, c2w_nerf, Ks, lpips_net, eval_size,
                                       mesh)
     render_s = time.perf_counter() - render_start
@@ -318,7 +335,7 @@ def evaluate_dataset(dataset_dir: Path, n_views: int, library: Library, preset: 
         render_seconds=render_s, test_names=test.names, renders=scores.renders,
         cameras=_cameras_in_gt_frame(data, cams),
         held_out={"c2w": c2w_nerf.tolist(), "c2w_centred": centred.apply_to_poses(test.c2w)
-                  .tolist(), "K": Ks.tolist()},
+                  .tolist(), "c2w_frame": c2w_frame.tolist(), "K": Ks.tolist()},
         image_mesh=mean_image_metrics(on_mesh.masked) if on_mesh else None,
         per_view_mesh=on_mesh.masked if on_mesh else [],
         renders_mesh=on_mesh.renders if on_mesh else [])

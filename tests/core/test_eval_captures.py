@@ -187,7 +187,7 @@ def test_a_capture_without_masks_is_masked_as_a_job_masks_it(tmp_path: Path,
                                                               tiny_library: Any) -> None:
     """No masks: the job gets plain photos (it makes its own masks, not a whole-frame one), the
     held-out target is masked the same way and put on white, the frame fit sees the kept
-    photos on white by the job's masks."""
+    photos on white by the job's masks; the held-out camera is refined on that target."""
     from cadnerf_core.evaluation.dataset import load_dataset
     from cadnerf_core.evaluation.evaluate import evaluate_dataset
     from cadnerf_core.jobfolder import JobFolder
@@ -197,8 +197,14 @@ def test_a_capture_without_masks_is_masked_as_a_job_masks_it(tmp_path: Path,
     assert not load_dataset(capture, hold_out=[2]).masked
     report = evaluate_dataset(capture, 4, tiny_library, preset=TINY_PRESET,
                               overrides=tiny_request(seed=1)["overrides"],
-                              job_dir=tmp_path / "job", device="cpu", hold_out=[2])
+                              job_dir=tmp_path / "job", device="cpu", hold_out=[2],
+                              align="per-view")
     assert report.test_masks == "found"
+    # The held-out camera as the frame put it, then refined on its own photo: still a rigid
+    # pose, moved by a small correction at most.
+    frame, final = (np.asarray(report.held_out[k][0]) for k in ("c2w_frame", "c2w"))
+    np.testing.assert_allclose(final[:3, :3] @ final[:3, :3].T, np.eye(3), atol=1e-5)
+    assert np.linalg.norm(final[:3, 3] - frame[:3, 3]) < 0.5 * np.linalg.norm(frame[:3, 3])
     folder = JobFolder(report.job_dir)
     with Image.open(folder.photos()[0].path) as photo:
         assert photo.mode == "RGB"  # no alpha: the job found the object itself

@@ -75,14 +75,14 @@ class _Ball:
     """A stand-in trained model: an opaque ball off the origin whose colour changes across it
     (so its position and turn show in a picture), with the interface ``fit_frame`` uses."""
 
-    def __init__(self) -> None:
+    def __init__(self, centre: tuple[float, float, float] = (0.15, -0.1, 0.05)) -> None:
         from types import SimpleNamespace
 
         import torch
 
         from cadnerf_core.nerf.fields import FieldOutputs
 
-        centre = torch.tensor([0.15, -0.1, 0.05])
+        at = torch.tensor(centre)
 
         class Fields(torch.nn.Module):
             def __init__(self) -> None:
@@ -90,7 +90,7 @@ class _Ball:
                 self.dummy = torch.nn.Parameter(torch.zeros(1))  # fit_frame freezes parameters
 
             def query(self, p: torch.Tensor, d: torch.Tensor) -> FieldOutputs:
-                rel = p - centre
+                rel = p - at
                 occupancy = torch.sigmoid((0.5 - rel.norm(dim=-1)) * 30.0)
                 rgb = torch.stack([0.5 + 0.5 * torch.sin(6 * rel[:, 0]),
                                    0.5 + 0.5 * torch.sin(6 * rel[:, 1]),
@@ -102,6 +102,7 @@ class _Ball:
                                      config=SimpleNamespace(render=render))
 
     def render(self, c2w: np.ndarray, K: np.ndarray, size: int) -> np.ndarray:
+        """The ball seen from c2w [4, 4] with K [3, 3]: [size, size, 3] on white."""
         import torch
 
         from cadnerf_core.nerf.rays import image_rays
