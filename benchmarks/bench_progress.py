@@ -11,8 +11,14 @@ Figures: seconds per stage and per export part (``metrics.json``), the longest w
 between two changes of the fraction in each stage, and the ETA given when the fraction first
 reached a quarter against the seconds the job then took.
 
-Usage: ``python -m benchmarks.bench_progress [--mesh NAME] [--fov DEG] [--threads N]``; QUICK
-(``make bench QUICK=1``) runs the evaluation benchmark's cut-down schedule.
+A second job is a user's: ``--capture NAME`` takes the first ``CAPTURE_PHOTOS`` photos of a real
+capture of ``../shared/eval/captures`` as a phone would upload them (JPEGs enlarged to
+``PHOTO_SIDE`` px on the longer side, 12 MP, each with its true focal length as EXIF, the
+background left in for the job's own masks), with the capture's look-alikes left out.
+
+Usage: ``python -m benchmarks.bench_progress [--mesh NAME] [--fov DEG] [--capture NAME]
+[--threads N] [--set KEY=VALUE ...]``; QUICK (``make bench QUICK=1``) runs the evaluation
+benchmark's cut-down schedule.
 """
 
 from __future__ import annotations
@@ -25,14 +31,21 @@ import time
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+
 from benchmarks.bench_unseen import WORK_DIR, make_plan
-from benchmarks.harness import LIBRARY_DIR, MESHES, PRESET, fov_walk, run_job
+from benchmarks.harness import CAPTURES, LIBRARY_DIR, MESHES, PRESET, fov_walk, run_job
 from benchmarks.lookalikes import exclude_overrides
 from benchmarks.results import Result, cpu_cores, record, today
 
 MESH = "ycb_mug"
 FOV = 40.0
 TICK_S = 0.5
+CAPTURE = "temple_ring"
+"""The user's job: a real walk of 10 photos about 36 degrees apart."""
+CAPTURE_PHOTOS = 10
+PHOTO_SIDE = 4000
+"""Longer side of the uploaded photos (4000 x 3000: a phone's 12 MP)."""
 
 
 class Recorder:
@@ -72,9 +85,37 @@ class Recorder:
         self._stop.set()
 
 
-def measure(mesh: str, fov: float, quick: bool, threads: int,
-            library_dir: Path) -> dict[str, Any]:
-    """Run the job and return its timings, per-stage longest still bar and the quarter ETA."""
+def phone_photos(capture: str, count: int, side: int, out: Path) -> list[Path]:
+    """The first ``count`` photos of ``capture`` as a phone writes them: JPEGs of ``side`` px
+    on the longer side, the focal length (scaled with them) in EXIF. Returns their paths."""
+    import cv2
+    from PIL import Image
+
+    from cadnerf_core.evaluation.jobio import exif_with_focal
+
+    folder = CAPTURES / capture
+    frames = json.loads((folder / "cameras.json").read_text())["frames"][:count]
+    out.mkdir(parents=True, exist_ok=True)
+    paths = []
+    for i, frame in enumerate(frames):
+        with Image.open(folder / frame["image"]) as photo:
+            rgb = np.asarray(photo.convert("RGB"))
+        scale = side / max(rgb.shape[:2])
+        big = cv2.resize(rgb, (round(rgb.shape[1] * scale), round(rgb.shape[0] * scale)),
+                         interpolation=cv2.INTER_CUBIC)
+        K = np.asarray(frame["K"], dtype=np.float64) * [[scale], [scale], [1.0]]
+        path = out / f"{i:03d}.jpg"
+        Image.fromarray(big).save(path, quality=92,
+                                  exif=exif_with_focal(K, big.shape[1], big.shape[0]))
+        paths.append(path)
+    return paths
+
+
+def measure(mesh: str, fov: float, quick: bool, threads: int, library_dir: Path,
+            capture: str | None = None, settings: dict[str, Any] | None = None
+            ) -> dict[str, Any]:
+    """Run the job (the walk of ``mesh``, or ``capture``'s photos as a phone's) and return its
+    timings, per-stage longest still bar and the quarter ETA."""
     import shutil
 
     import torch
@@ -90,17 +131,26 @@ def measure(mesh: str, fov: float, quick: bool, threads: int,
     torch.set_num_threads(threads)
     library = load_library(library_dir)
     plan = make_plan(quick, [mesh], ["leave-out"], [fov])
-    overrides = {**plan.overrides, **exclude_overrides(mesh, "leave-out"), "seed": 0}
-    walk = fov_walk(mesh, fov, WORK_DIR)
+    name = capture or mesh
+    overrides = {**plan.overrides, **exclude_overrides(name, "leave-out"), "seed": 0,
+                 **(settings or {})}
     job_dir = WORK_DIR / "progress_job"
     shutil.rmtree(job_dir, ignore_errors=True)
-    write_job(job_dir, first_views(load_dataset(walk), plan.views), PRESET, overrides, False)
     config = internal_config(PRESET, overrides)
+    photos = None
+    if capture:
+        photos = phone_photos(capture, CAPTURE_PHOTOS, PHOTO_SIDE, WORK_DIR / "phone_photos")
+    else:
+        walk = fov_walk(mesh, fov, WORK_DIR)
+        write_job(job_dir, first_views(load_dataset(walk), plan.views), PRESET, overrides,
+                  False)
     expected = scaled(default_stage_seconds(PRESET, "cpu"), stage_work(config))
     with Recorder(expected) as recorder:
-        metrics = run_job(job_dir, library, progress=Progress(recorder.report)).metrics
+        metrics = run_job(job_dir, library, photos=photos, config=config if capture else None,
+                          progress=Progress(recorder.report)).metrics
         total = time.monotonic() - recorder.start
-    return {"mesh": mesh, "fov": fov, "threads": threads, "total_s": total,
+    return {"mesh": mesh, "fov": fov, "capture": capture, "photos": len(photos or []) or
+            plan.views, "settings": settings or {}, "threads": threads, "total_s": total,
             "timings": metrics["timings_s"], "still": longest_still(recorder.trace),
             "quarter": quarter_eta(recorder.trace, total),
             "ops": op_profile(job_dir, library)}
@@ -162,8 +212,24 @@ def quarter_eta(trace: list[tuple[float, str, float, float]], total: float) -> d
 
 def command(result: dict[str, Any], quick: bool) -> str:
     """The command that measures ``result``'s job."""
-    return (f"python -m benchmarks.bench_progress --mesh {result['mesh']} --fov "
-            f"{result['fov']:g} --threads {result['threads']}{' --quick' if quick else ''}")
+    what = f"--capture {result['capture']}" if result.get("capture") else \
+        f"--mesh {result['mesh']} --fov {result['fov']:g}"
+    sets = "".join(f" --set {k}={json.dumps(v)}" for k, v in result.get("settings", {}).items())
+    return (f"python -m benchmarks.bench_progress {what} --threads {result['threads']}"
+            f"{sets}{' --quick' if quick else ''}")
+
+
+def _job_words(result: dict[str, Any], quick: bool) -> str:
+    """What the job was, in words."""
+    schedule = "the cut-down QUICK schedule" if quick else "preset `preview`"
+    settings = "".join(f", {k} = {json.dumps(v)}" for k, v in
+                       result.get("settings", {}).items())
+    if result.get("capture"):
+        return (f"{schedule}{settings}, {result['photos']} photos of {result['capture']} as a "
+                f"phone uploads them ({PHOTO_SIDE} px JPEGs with EXIF, backgrounds in), "
+                "look-alikes left out")
+    return (f"{schedule}{settings}, a walk of {result['photos']} views of {result['mesh']} at "
+            f"{result['fov']:g} degrees, 128 px, look-alikes left out")
 
 
 def section(result: dict[str, Any], quick: bool) -> str:
@@ -179,9 +245,7 @@ def section(result: dict[str, Any], quick: bool) -> str:
     return "\n".join([
         "## A preview job: time per stage, progress and ETA", "",
         f"Command: `{command(result, quick)}` ({cpu_summary()}, the job alone on the machine; "
-        f"{'the cut-down QUICK schedule' if quick else 'preset `preview`'}, a walk of 6 views "
-        f"of {result['mesh']} at {result['fov']:g} degrees, 128 px, look-alikes left out). "
-        f"Whole job {result['total_s']:.0f} s.", "",
+        f"{_job_words(result, quick)}). Whole job {result['total_s']:.0f} s.", "",
         "| part | seconds |", "| --- | ---: |", *rows, "",
         "Longest wait between two moves of the progress bar, per stage (wall clock, the "
         "worker's ETA model ticked every half second): "
@@ -198,11 +262,17 @@ def section(result: dict[str, Any], quick: bool) -> str:
 
 
 def record_job(result: dict[str, Any], quick: bool) -> None:
-    """The whole job's seconds as the README's figure: the default job of a full run only."""
-    if quick or result["mesh"] != MESH or result["fov"] != FOV:
+    """The whole job's seconds as the README's figure: the default jobs of a full run only
+    (the walk of ``MESH``; the user's photos of ``CAPTURE``)."""
+    if quick or result.get("settings"):
         return
-    record(Result("preview_job_cpu", "a `preview` job, 6 photos", result["total_s"], "s", 0,
-                  cpu_cores(), f".venv/bin/{command(result, quick)}", today()))
+    if result.get("capture") == CAPTURE:
+        record(Result("preview_job_photos", f"a `preview` job, {result['photos']} phone "
+                      "photos of 12 MP", result["total_s"], "s", 0, cpu_cores(),
+                      f".venv/bin/{command(result, quick)}", today()))
+    elif not result.get("capture") and result["mesh"] == MESH and result["fov"] == FOV:
+        record(Result("preview_job_cpu", "a `preview` job, 6 photos", result["total_s"], "s", 0,
+                      cpu_cores(), f".venv/bin/{command(result, quick)}", today()))
 
 
 def run(quick: bool, library: Path | None = None) -> str:
@@ -221,12 +291,20 @@ def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--mesh", default=MESH)
     parser.add_argument("--fov", type=float, default=FOV)
+    parser.add_argument("--capture", default=None,
+                        help=f"a capture's photos as a phone's (default job: a walk; "
+                             f"the README's user job: {CAPTURE})")
     parser.add_argument("--threads", type=int, default=2)
     parser.add_argument("--quick", action="store_true")
     parser.add_argument("--library", type=Path, default=LIBRARY_DIR)
+    parser.add_argument("--set", dest="settings", action="append", default=[],
+                        help="a setting key=value on the preset (dotted key, JSON value)")
     args = parser.parse_args(argv)
+    from cadnerf_cli.eval_cmd import parse_overrides
+
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(name)s: %(message)s")
-    result = measure(args.mesh, args.fov, args.quick, args.threads, args.library)
+    result = measure(args.mesh, args.fov, args.quick, args.threads, args.library,
+                     args.capture, parse_overrides(args.settings))
     record_job(result, args.quick)
     print(json.dumps(result, indent=1), file=sys.stderr)
     sys.stdout.write(section(result, args.quick))
