@@ -199,6 +199,10 @@ def march_rays(fn: FieldFn, rays_o: torch.Tensor, rays_d: torch.Tensor, n_sample
     """Render rays for display: the same samples as ``render_rays`` (bin centres), marched in
     blocks of ``block`` samples with early termination once a ray is opaque.
 
+    Only the rays that meet an occupied cell of ``grid`` are marched (the others see the
+    background), and each block evaluates the fields at its kept samples alone: in a view the
+    object covers a fifth of, most rays never reach it.
+
     Args:
         fn: fields callable, as for ``render_rays``; must return colour.
         rays_o, rays_d: [R, 3], unit directions.
@@ -207,25 +211,42 @@ def march_rays(fn: FieldFn, rays_o: torch.Tensor, rays_d: torch.Tensor, n_sample
         rgb [R, 3], acc [R].
     """
     R = rays_o.shape[0]
-    near, far, active = ray_sphere(rays_o, rays_d, radius)
-    t = sample_distances(near, far, n_samples, False)
-    trans = torch.ones(R, device=rays_o.device)
-    color = torch.zeros(R, 3, device=rays_o.device)
+    near, far, hit = ray_sphere(rays_o, rays_d, radius)
+    live = hit.nonzero()[:, 0]
+    t = sample_distances(near[live], far[live], n_samples, False)  # [L, S]
+    origins, dirs = rays_o[live], rays_d[live]
+    occupied = None
+    if grid is not None:
+        points = origins[:, None] + dirs[:, None] * t[..., None]
+        occupied = grid.contains(points.reshape(-1, 3)).reshape(t.shape)
+        meets = occupied.any(1)
+        live, t, origins, dirs = live[meets], t[meets], origins[meets], dirs[meets]
+        occupied = occupied[meets]
+    L = live.shape[0]
+    trans = torch.ones(L, device=rays_o.device)
+    color = torch.zeros(L, 3, device=rays_o.device)
+    active = torch.ones(L, dtype=torch.bool, device=rays_o.device)
     for start in range(0, n_samples, block):
         ts = t[:, start:start + block]
         b = ts.shape[1]
-        points = rays_o[:, None] + rays_d[:, None] * ts[..., None]  # [R, b, 3]
-        keep = active[:, None].expand(R, b)
-        if grid is not None:
-            keep = keep & grid.contains(points.reshape(-1, 3)).reshape(R, b)
-        dirs = rays_d[:, None].expand(R, b, 3).reshape(-1, 3)
-        alpha, rgb, _, _ = _evaluate(fn, points.reshape(-1, 3), dirs, keep.reshape(-1), True)
-        assert rgb is not None
-        weights = composite(alpha.reshape(R, b)) * trans[:, None]
-        color += (weights[..., None] * rgb.reshape(R, b, 3)).sum(1)
-        trans = trans * torch.prod(1.0 - alpha.reshape(R, b), -1)
+        keep = active[:, None].expand(L, b)
+        if occupied is not None:
+            keep = keep & occupied[:, start:start + b]
+        ray, sample = keep.nonzero(as_tuple=True)
+        if ray.numel() == 0:
+            continue
+        out = fn(origins[ray] + dirs[ray] * ts[ray, sample][:, None], dirs[ray])
+        assert out.rgb is not None
+        alpha = torch.zeros(L, b, device=rays_o.device).index_put((ray, sample),
+                                                                  out.occupancy.float())
+        rgb = torch.zeros(L, b, 3, device=rays_o.device).index_put((ray, sample),
+                                                                   out.rgb.float())
+        weights = composite(alpha) * trans[:, None]
+        color += (weights[..., None] * rgb).sum(1)
+        trans = trans * torch.prod(1.0 - alpha, -1)
         active = active & (trans > min_transmittance)
         if not bool(active.any()):
             break
-    acc = 1.0 - trans
-    return color + trans[:, None] * background, acc
+    full_trans = torch.ones(R, device=rays_o.device).index_put((live,), trans)
+    full_color = torch.zeros(R, 3, device=rays_o.device).index_put((live,), color)
+    return full_color + full_trans[:, None] * background, 1.0 - full_trans

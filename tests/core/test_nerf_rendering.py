@@ -130,6 +130,37 @@ def test_marching_with_early_termination_matches_full_rendering() -> None:
         assert torch.allclose(rgb, full.rgb, atol=2e-3)  # type: ignore[arg-type]
 
 
+def test_marching_through_a_grid_evaluates_only_the_rays_that_meet_it() -> None:
+    """With a skip grid the display march matches the full render through the same grid,
+    rays that meet no occupied cell see the background exactly, and the fields see only
+    samples in occupied cells of rays still open."""
+    from cadnerf_core.nerf.volrend import march_rays
+
+    c2w = torch.from_numpy(orbit_pose(30.0, 20.0, 4.0)).float()
+    K = torch.tensor([[40.0, 0.0, 16.0], [0.0, 40.0, 16.0], [0.0, 0.0, 1.0]])
+    rays_o, rays_d = image_rays(c2w, K, 32, 32)
+    grid = SkipGrid.full(16, 1.0)
+    grid.update(lambda p: (p.norm(dim=-1) < 0.6).float(), 0.5, 0)
+    seen = []
+
+    def soft(points: torch.Tensor, dirs: torch.Tensor) -> FieldOutputs:
+        seen.append(points.shape[0])
+        occ = torch.sigmoid(20 * (0.5 - points.norm(dim=-1)))
+        return FieldOutputs(occ, (points + 1) / 2, None, None)
+
+    full = render_rays(soft, rays_o, rays_d, 48, 1.0, grid, True, False)
+    seen.clear()
+    background = torch.tensor([0.2, 0.4, 0.6])
+    rgb, acc = march_rays(soft, rays_o, rays_d, 48, 1.0, grid, background, block=4)
+    assert torch.allclose(acc, full.acc, atol=2e-3)
+    assert torch.allclose(rgb, full.rgb + (1 - full.acc)[:, None] * (background - 1),  # type: ignore[operator]
+                          atol=2e-3)
+    points = rays_o[:, None] + rays_d[:, None] * torch.linspace(0, 8, 400)[:, None]
+    misses = ~grid.contains(points.reshape(-1, 3)).reshape(points.shape[:2]).any(1)
+    assert misses.sum() > 100 and torch.equal(rgb[misses], background.expand(int(misses.sum()), 3))
+    assert sum(seen) < full.n_evaluated  # opaque rays stop
+
+
 def test_missed_rays_give_finite_pose_gradients() -> None:
     rays_o = torch.tensor([[0.0, 3.0, -4.0], [0.0, 0.0, -4.0]], requires_grad=True)
     rays_d = torch.tensor([[0.0, 0.0, 1.0], [0.0, 0.0, 1.0]])
