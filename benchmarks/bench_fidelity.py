@@ -64,6 +64,9 @@ QUICK_CAPTURES = ("ethiopian_head", "kermit")
 EVAL_SIZE = 512
 """Longer side in pixels of the scored held-out views."""
 WORK_DIR = WORK_ROOT / "bench_fidelity"
+ALIGN = "per-view"
+"""How the held-out cameras are placed (``evaluate_dataset``'s ``align``); a kept row made
+another way is measured again."""
 
 
 def capture_names() -> list[str]:
@@ -117,7 +120,7 @@ def run_capture(name: str, library: Any, lpips_net: Any,
                                   job_dir=job,
                                   lpips_net=lpips_net, device=DEVICE, eval_size=EVAL_SIZE,
                                   exif_focal=True, hold_out=hold, mesh=True,
-                                  align="per-view")
+                                  align=ALIGN)
         # The held-out views as rendered, kept to look at (the job itself is large).
         kept = WORK_DIR / "renders" / job.name
         shutil.rmtree(kept, ignore_errors=True)
@@ -129,7 +132,8 @@ def run_capture(name: str, library: Any, lpips_net: Any,
              zip(held["c2w_centred"], held["c2w_frame"], strict=True)]
     own = [camera_move(np.asarray(a), np.asarray(b)) for a, b in
            zip(held["c2w_frame"], held["c2w"], strict=True)]
-    row: dict[str, Any] = {"capture": name, "model": report.model_id, "photos": n,
+    row: dict[str, Any] = {"capture": name, "align": ALIGN, "model": report.model_id,
+           "photos": n,
            "kept": len(report.kept), "held_out": report.test_names,
            "masks": report.test_masks, "field": _scores(report.per_view_masked),
            "mesh": _scores(report.per_view_mesh), "whole_psnr": report.image.psnr,
@@ -200,7 +204,8 @@ def _rows(names: list[str], library: Any, lpips_net: Any, rows_file: Path | None
     """Each capture's row (those already in ``rows_file`` kept), in ``names``' order."""
     rows: dict[str, dict[str, Any]] = {}
     if rows_file is not None and rows_file.is_file():
-        rows = {r["capture"]: r for r in json.loads(rows_file.read_text())}
+        rows = {r["capture"]: r for r in json.loads(rows_file.read_text())
+                if r.get("align") == ALIGN}
     for name in names:
         if name in rows:
             continue

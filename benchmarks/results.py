@@ -35,7 +35,7 @@ DOCUMENTS = (README, *sorted(DOCS.glob("*.md")))
 ORDER = ("unseen_psnr", "unseen_rotation", "captures_users_rotation", "captures_real_rotation",
          "captures_textured_rotation", "fidelity_field_psnr", "fidelity_mesh_psnr",
          "mesh_f_score", "masks_iou_espresso", "masks_iou_robot",
-         "preview_job_cpu", "preview_job_gpu", "matching_ten_photos")
+         "preview_job_photos", "preview_job_cpu", "preview_job_gpu", "matching_ten_photos")
 
 
 @dataclass(frozen=True)

@@ -108,6 +108,9 @@ def refined_test_psnr(report: EvalReport, steps: int, align: str | None = None,
     from cadnerf_core.evaluation.metrics import image_metrics
     from cadnerf_core.nerf.model import TrainedModel
 
+    if (align or report.align) == "per-view":
+        raise ValueError("refined_test_psnr refines held-out cameras itself: give a report "
+                         "mapped without per-view refinement")
     job = Path(report.job_dir)
     model = TrainedModel.load(job, device)
     data = first_views(load_dataset(report.dataset), report.n_views)

