@@ -219,7 +219,8 @@ def march_rays(fn: FieldFn, rays_o: torch.Tensor, rays_d: torch.Tensor, n_sample
     if grid is not None:  # block by block: only [L, block] points at a time, as the march
         occupied = torch.cat([grid.contains(
             (origins[:, None] + dirs[:, None] * t[:, lo:lo + block, None]).reshape(-1, 3))
-            .reshape(t.shape[0], -1) for lo in range(0, n_samples, block)], 1)
+            .reshape(t.shape[0], t[:, lo:lo + block].shape[1])
+            for lo in range(0, n_samples, block)], 1)
         meets = occupied.any(1)
         live, t, origins, dirs = live[meets], t[meets], origins[meets], dirs[meets]
         occupied = occupied[meets]

@@ -162,6 +162,12 @@ def test_marching_through_a_grid_evaluates_only_the_rays_that_meet_it() -> None:
     misses = ~grid.contains(points.reshape(-1, 3)).reshape(points.shape[:2]).any(1)
     assert misses.sum() > 100 and torch.equal(rgb[misses], background.expand(int(misses.sum()), 3))
     assert sum(seen) < full.n_evaluated  # opaque rays stop
+    # A chunk of rays that all pass beside the sphere: the background, nothing evaluated.
+    seen.clear()
+    beside = rays_o + torch.tensor([5.0, 0.0, 0.0])
+    rgb, acc = march_rays(soft, beside, rays_d, 48, 1.0, grid, background, block=4)
+    assert not seen and torch.equal(acc, torch.zeros_like(acc))
+    assert torch.equal(rgb, background.expand_as(rgb))
 
 
 def test_missed_rays_give_finite_pose_gradients() -> None:
