@@ -201,10 +201,21 @@ def test_a_capture_without_masks_is_masked_as_a_job_masks_it(tmp_path: Path,
                               align="per-view")
     assert report.test_masks == "found"
     # The held-out camera as the frame put it, then refined on its own photo: still a rigid
-    # pose, moved by a small correction at most.
+    # pose, moved by a small correction at most, and the scored target fits it no worse.
+    from cadnerf_core.evaluation.capture import with_found_masks
+    from cadnerf_core.evaluation.frame import photo_loss
+    from cadnerf_core.nerf.model import TrainedModel
+
     frame, final = (np.asarray(report.held_out[k][0]) for k in ("c2w_frame", "c2w"))
     np.testing.assert_allclose(final[:3, :3] @ final[:3, :3].T, np.eye(3), atol=1e-5)
     assert np.linalg.norm(final[:3, 3] - frame[:3, 3]) < 0.5 * np.linalg.norm(frame[:3, 3])
+    test = load_dataset(capture, hold_out=[2]).test
+    assert test is not None
+    target = with_found_masks(test).images[:1]
+    K = np.asarray(report.held_out["K"])[:1]
+    model = TrainedModel.load(Path(report.job_dir), "cpu")
+    assert (photo_loss(model, final[None], K, target, seed=1)
+            <= photo_loss(model, frame[None], K, target, seed=1))
     folder = JobFolder(report.job_dir)
     with Image.open(folder.photos()[0].path) as photo:
         assert photo.mode == "RGB"  # no alpha: the job found the object itself
