@@ -31,7 +31,8 @@ log = logging.getLogger(__name__)
 
 SEED_STEP = 101  # between the seeds of a hypothesis's fits (each phase adds 1 to 3 to its own)
 UNFUSED_MARGIN = 0.1
-"""By how much the retrieval kept unfused must out-fit every fused hypothesis to be the start.
+"""By how much a hypothesis the pairs did not join (the retrieval kept unfused, or a walk whose
+cameras every pair contradicts) must out-fit every fused hypothesis to be the start.
 Fusing turns the cameras away from where a look-alike model's silhouettes put them, so even
 right pairs cost the fused cameras a little fit; pairs matched wrongly (that still agree with
 each other) cost them much more (``docs/presets.md``)."""
@@ -174,16 +175,18 @@ def choose_start(retrieval: RetrievalResult, photos: Sequence[Any], masks: Seque
         log.info("start hypothesis %d: %s, direction %+d, retrieval score %.3f, fit %.3f", i,
                  hypothesis.model_id, hypothesis.direction, hypothesis.score, scores[-1])
         progress.step("retrieval", i + 1, len(candidates))
-    # The fits are blind to a mirrored walk: its slight lead says nothing.
+    # The fits are blind to a mirrored walk: its slight lead says nothing, unless the pairs
+    # joined its cameras and none of the retrieved walk's.
     eligible = [i for i, h in enumerate(candidates)
                 if not (_mirrors(h, retrieval)
-                        and scores[i] - scores[0] < config.retrieval.mirror_margin)]
-    fused = [scores[i] for i, h in enumerate(candidates) if not _set_aside(h)]
-    eligible = [i for i in eligible if not _set_aside(candidates[i])
+                        and scores[i] - scores[0] < config.retrieval.mirror_margin
+                        and not (_fused(h) and not _fused(retrieval)))]
+    fused = [scores[i] for i, h in enumerate(candidates) if _fused(h)]
+    eligible = [i for i in eligible if not fused or _fused(candidates[i])
                 or scores[i] >= max(fused) + UNFUSED_MARGIN]
     best = max(eligible, key=lambda i: scores[i])
     record = [{"model_id": h.model_id, "direction": h.direction,
-               "perspective": h.perspective, "fused": bool((h.fusion or {}).get("photos")),
+               "perspective": h.perspective, "fused": _fused(h),
                "score": h.score,
                "fit": s, "seconds": t, "chosen": i == best}
               for i, (h, s, t) in enumerate(zip(candidates, scores, seconds, strict=True))]
@@ -198,6 +201,13 @@ def choose_start(retrieval: RetrievalResult, photos: Sequence[Any], masks: Seque
                                direction_ambiguous=retrieval.direction_ambiguous,
                                focal_known=retrieval.focal_known,
                                too_small=retrieval.too_small)
+
+
+def _fused(hypothesis: RetrievalResult) -> bool:
+    """Whether the pairs' rotations joined some of ``hypothesis``'s cameras (``fusion.fuse``):
+    its cameras agree with the photos' matches, where an unfused one's contradict all of them
+    (``prior.plausible``) or were set aside."""
+    return bool((hypothesis.fusion or {}).get("photos"))
 
 
 def _set_aside(hypothesis: RetrievalResult) -> bool:

@@ -1,6 +1,7 @@
-"""The view graph of the verified pairs: which pairs' rotations the triangles they close confirm
-(``consistent_edges``), the largest set of photos the pairs connect (``component``), and the
-rotations a spanning tree of the surest pairs chains from one photo (``spanning_tree_start``)."""
+"""The view graph of the verified pairs: the triangles they close (``triangles``), which pairs'
+rotations those triangles confirm (``consistent_edges``), the largest set of photos the pairs
+connect (``component``), and the rotations a spanning tree of the surest pairs chains from one
+photo (``spanning_tree_start``)."""
 
 from __future__ import annotations
 
@@ -27,26 +28,12 @@ def consistent_edges(edges: dict[tuple[int, int], np.ndarray]) -> set[tuple[int,
     confirmed. Edges neither confirmed nor contradicted are kept: the averaging's robust
     weights judge them.
     """
-    def rel(i: int, j: int) -> np.ndarray | None:
-        if (i, j) in edges:
-            return edges[(i, j)]
-        return edges[(j, i)].T if (j, i) in edges else None
-
-    nodes = sorted({n for e in edges for n in e})
     closing: dict[tuple[int, int], list[tuple[int, int, int]]] = {e: [] for e in edges}
     failing: dict[tuple[int, int], list[tuple[int, int, int]]] = {e: [] for e in edges}
-    for a in nodes:
-        for b in nodes:
-            for c in nodes:
-                if not a < b < c:
-                    continue
-                R_ab, R_bc, R_ac = rel(a, b), rel(b, c), rel(a, c)
-                if R_ab is None or R_bc is None or R_ac is None:
-                    continue
-                closes = _angle(R_ac.T @ (R_bc @ R_ab)) <= CYCLE_DEG
-                for e in ((a, b), (b, c), (a, c)):
-                    key = e if e in edges else (e[1], e[0])
-                    (closing if closes else failing)[key].append((a, b, c))
+    for (a, b, c), closes in triangles(edges):
+        for e in ((a, b), (b, c), (a, c)):
+            key = e if e in edges else (e[1], e[0])
+            (closing if closes else failing)[key].append((a, b, c))
     confirmed = {e for e, found in closing.items() if found}
 
     def others_confirmed(e: tuple[int, int], tri: tuple[int, int, int]) -> bool:
@@ -56,6 +43,27 @@ def consistent_edges(edges: dict[tuple[int, int], np.ndarray]) -> set[tuple[int,
 
     return {e for e in edges if e in confirmed
             or not any(others_confirmed(e, tri) for tri in failing[e])}
+
+
+def triangles(edges: dict[tuple[int, int], np.ndarray]
+              ) -> list[tuple[tuple[int, int, int], bool]]:
+    """Every triangle ``a < b < c`` the edges close (``R_ij``, either way round), and whether
+    its rotations compose within ``CYCLE_DEG``."""
+    def rel(i: int, j: int) -> np.ndarray | None:
+        if (i, j) in edges:
+            return edges[(i, j)]
+        return edges[(j, i)].T if (j, i) in edges else None
+
+    nodes = sorted({n for e in edges for n in e})
+    found = []
+    for k, a in enumerate(nodes):
+        for m, b in enumerate(nodes[k + 1:], k + 1):
+            for c in nodes[m + 1:]:
+                R_ab, R_bc, R_ac = rel(a, b), rel(b, c), rel(a, c)
+                if R_ab is None or R_bc is None or R_ac is None:
+                    continue
+                found.append(((a, b, c), _angle(R_ac.T @ (R_bc @ R_ab)) <= CYCLE_DEG))
+    return found
 
 
 def component(nodes: Sequence[int], edges: Sequence[tuple[int, int]]) -> list[int]:

@@ -21,7 +21,7 @@ from cadnerf_core.cameras.fusion import (
     pairs_at_focal,
 )
 from cadnerf_core.cameras.matches import PairMatch
-from cadnerf_core.cameras.prior import plausible
+from cadnerf_core.cameras.prior import MIN_TURN_DEG, PRIOR_DEG, plausible, plausible_at, vouched
 from cadnerf_core.cameras.viewgraph import consistent_edges
 from cadnerf_core.intake.crop import CropBox
 from cadnerf_core.retrieval.result import PhotoMatch, RetrievalResult
@@ -317,3 +317,60 @@ def test_a_chain_of_pairs_far_from_the_retrieved_cameras_is_fused_whole() -> Non
     poses = np.stack([m.c2w for m in fused.matches])
     for p in chain:
         assert rotation_angle_deg((_relative(poses, p.i, p.j) @ p.rotation.T)[None])[0] < 0.5
+
+
+def _turned(c2w: np.ndarray, photos: tuple[int, ...], degrees: float, seed: int) -> np.ndarray:
+    """The cameras with the given photos' turned by ``degrees`` about random axes (as
+    retrieval places a look-alike's photos on its other side)."""
+    rng = np.random.default_rng(seed)
+    out = c2w.copy()
+    for k in photos:
+        axis = rng.normal(size=3)
+        out[k, :3, :3] = cv2.Rodrigues(axis / np.linalg.norm(axis)
+                                       * np.radians(degrees))[0] @ out[k, :3, :3]
+    return out
+
+
+def test_a_triangle_of_pairs_that_all_contradict_the_retrieved_cameras_vouches_for_them() -> None:
+    """Photos 0 to 2 retrieved 100 degrees off, every pair exact: their pairs are far from the
+    retrieved cameras (``PRIOR_DEG``) but agree among themselves, so they are plausible and
+    the fusion brings the three cameras back to the others'."""
+    truth = _truth()
+    retrieved = _turned(truth, (0, 1, 2), 100.0, seed=4)
+    pairs = _walk_pairs(truth)
+    triangle = [p for p in pairs if p.j <= 2]
+    prior = {m.index: m.c2w for m in _retrieval(retrieved, []).matches}
+    assert all(rotation_angle_deg((_relative(retrieved, p.i, p.j)
+                                   @ np.asarray(p.rotation).T)[None])[0] > PRIOR_DEG
+               for p in triangle)
+    kept = {(p.i, p.j) for p in plausible_at(prior, pairs)}
+    # Photo 2's pair with photo 4 is far too, but closes no triangle of far pairs (2-3-4
+    # holds the right camera 3's pair with 4): it stays out.
+    assert {(p.i, p.j) for p in pairs} - kept == {(2, 4)}
+    fused, summary = fuse(_retrieval(retrieved, []), pairs, 20)
+    assert summary is not None and summary.implausible == 1
+    poses = np.stack([m.c2w for m in fused.matches])
+    # The rigid set, anchored on the five right cameras: every camera within a degree.
+    assert _errors(poses, truth).max() < 1.0
+    assert _errors(retrieved, truth)[:3].min() > 50.0
+
+
+@pytest.mark.parametrize("kind", ["still", "one wrong"])
+def test_a_triangle_does_not_vouch_for_turns_of_a_few_degrees_or_for_a_pair_that_breaks_it(
+        kind: str) -> None:
+    """Three pairs of features that travel with the camera compose into a closed triangle
+    whatever the photos' angles (``MIN_TURN_DEG``); a triangle with one pair matched wrongly
+    does not close. Neither makes a pair far from the retrieved cameras plausible."""
+    truth = _truth()
+    retrieved = _turned(truth, (0, 1, 2), 100.0, seed=4)
+    if kind == "still":
+        triangle = [_still(truth, 0, 1), _still(truth, 1, 2), _still(truth, 0, 2)]
+        turns = rotation_angle_deg(np.stack([np.asarray(p.rotation) for p in triangle]))
+        assert turns.max() < MIN_TURN_DEG
+    else:
+        flip = cv2.Rodrigues(np.array([0.0, np.pi, 0.0]))[0]
+        triangle = [_pair(truth, 0, 1), _pair(truth, 1, 2),
+                    _pair(truth, 0, 2, rotation=flip @ _relative(truth, 0, 2))]
+    prior = {k: pose for k, pose in enumerate(retrieved)}
+    assert vouched(triangle) == set()
+    assert plausible_at(prior, triangle) == []

@@ -118,6 +118,30 @@ def test_the_retrieval_left_unfused_needs_a_clear_lead_over_every_fused_hypothes
     assert 0.76 + start.UNFUSED_MARGIN > 0.84  # the second case lies inside the margin
 
 
+@pytest.mark.parametrize(("retrieved_fit", "chosen"), [
+    (0.834, 1),  # the silhouettes lead a little: the pairs' walk is the start
+    (0.93, 0),  # a lead beyond the margin: the retrieved walk stays
+])
+def test_a_mirrored_walk_the_pairs_join_outranks_a_retrieved_walk_they_all_contradict(
+        retrieved_fit: float, chosen: int, monkeypatch: pytest.MonkeyPatch) -> None:
+    """Retrieval walked the object the wrong way round: every pair contradicts its cameras
+    (none fused) while the mirrored walk's cameras take them all (fused). Silhouettes cannot
+    tell a walk from its mirror image, so neither the mirror's margin nor a small lead of the
+    unfused walk keeps it."""
+    retrieved = dataclasses.replace(_walk(-1, 0.0), fusion={"photos": [], "implausible": 3})
+    mirrored = dataclasses.replace(_walk(1, 0.0), fusion={"photos": [0, 1, 2]})
+    other = dataclasses.replace(_walk(-1, 0.0, "vase"), fusion={"photos": []})
+    retrieval = dataclasses.replace(retrieved, alternatives=[mirrored, other])
+    fits = {("bottle", -1): retrieved_fit, ("bottle", 1): 0.806, ("vase", -1): 0.85}
+    monkeypatch.setattr(start, "fit_hypothesis",
+                        lambda h, *args: fits[(h.model_id, h.direction)])
+    result = start.choose_start(retrieval, [], [], None, PipelineConfig(),  # type: ignore[arg-type]
+                                torch.device("cpu"), False, Progress())
+    assert [h["chosen"] for h in result.hypotheses] == [i == chosen for i in range(3)]
+    assert [h["fused"] for h in result.hypotheses] == [False, True, False]
+    assert result.direction == (-1, 1)[chosen]
+
+
 @pytest.mark.parametrize("ambiguous", [True, False])
 def test_a_switch_leaves_a_guessed_direction_a_guess(
         ambiguous: bool, monkeypatch: pytest.MonkeyPatch) -> None:
