@@ -57,12 +57,9 @@ def vouched(pairs: Sequence[PairMatch]) -> set[tuple[int, int]]:
     pair matched wrongly is off on its own, and two wrong pairs rarely compose into the third."""
     edges = {(p.i, p.j): np.asarray(p.rotation) for p in pairs
              if p.rotation is not None and _angle(np.asarray(p.rotation)) >= MIN_TURN_DEG}
-    found: set[tuple[int, int]] = set()
-    for (a, b, c), closes in triangles(edges):
-        if closes:
-            found |= {e for e in ((a, b), (b, c), (a, c)) if e in edges}
-            found |= {(j, i) for i, j in ((a, b), (b, c), (a, c)) if (j, i) in edges}
-    return found
+    return {e if e in edges else (e[1], e[0])
+            for (a, b, c), closes in triangles(edges) if closes
+            for e in ((a, b), (b, c), (a, c))}
 
 
 def _angle(R: np.ndarray) -> float:
